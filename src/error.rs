@@ -1,0 +1,96 @@
+//! Errors of every pipeline stage.
+//!
+//! Every variant carries the context a user needs to fix the input: the file and the
+//! line (or byte offset) for file errors, the key path for scene errors, the body and the
+//! epoch for geometry errors. The CLI prints the `Display` form as one line.
+
+use std::path::{Path, PathBuf};
+
+/// Result type of the library.
+pub type Result<T, E = Error> = std::result::Result<T, E>;
+
+/// All errors the library reports.
+#[derive(Debug, thiserror::Error)]
+pub enum Error {
+    /// A file could not be opened, read or written.
+    #[error("{}: {source}", path.display())]
+    Io {
+        path: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+    /// A file's content is malformed at a known place (`at` is e.g. "line 12" or "byte 84").
+    #[error("{}: {at}: {msg}", path.display())]
+    Parse {
+        path: PathBuf,
+        at: String,
+        msg: String,
+    },
+    /// A file is well formed but unusable as a whole (empty mesh, unknown format, ...).
+    #[error("{}: {msg}", path.display())]
+    File { path: PathBuf, msg: String },
+    /// A scene file is invalid; `key` is the dotted path of the offending key.
+    #[error("{}: {key}: {msg}", path.display())]
+    Scene {
+        path: PathBuf,
+        key: String,
+        msg: String,
+    },
+    /// The geometry of a run is invalid (e.g. a body whose Sun direction is not finite).
+    #[error("body '{body}', step {step}: {msg}")]
+    Geometry {
+        body: String,
+        step: usize,
+        msg: String,
+    },
+    /// Writing a result failed.
+    #[error("{}: {msg}", path.display())]
+    Output { path: PathBuf, msg: String },
+    /// A command-line argument is invalid.
+    #[error("{0}")]
+    Usage(String),
+}
+
+impl Error {
+    /// An I/O error on `path`.
+    pub fn io(path: &Path, source: std::io::Error) -> Self {
+        Error::Io {
+            path: path.to_path_buf(),
+            source,
+        }
+    }
+
+    /// A parse error at a line (1-based) of `path`.
+    pub fn at_line(path: &Path, line: usize, msg: impl Into<String>) -> Self {
+        Error::Parse {
+            path: path.to_path_buf(),
+            at: format!("line {line}"),
+            msg: msg.into(),
+        }
+    }
+
+    /// A parse error at a byte offset of a binary `path`.
+    pub fn at_byte(path: &Path, offset: u64, msg: impl Into<String>) -> Self {
+        Error::Parse {
+            path: path.to_path_buf(),
+            at: format!("byte {offset}"),
+            msg: msg.into(),
+        }
+    }
+
+    /// A whole-file error on `path`.
+    pub fn file(path: &Path, msg: impl Into<String>) -> Self {
+        Error::File {
+            path: path.to_path_buf(),
+            msg: msg.into(),
+        }
+    }
+
+    /// An output error on `path`.
+    pub fn output(path: &Path, msg: impl std::fmt::Display) -> Self {
+        Error::Output {
+            path: path.to_path_buf(),
+            msg: msg.to_string(),
+        }
+    }
+}

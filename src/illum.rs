@@ -1,0 +1,181 @@
+//! Illum: direct solar irradiance on every facet at one epoch (SLIM paper, section 6.1).
+//!
+//! In: the [`World`], one [`EpochState`] (Sun direction and flux per body, poses) and a
+//! tracer per body. Out: `E_i = S · max(0, n_i · s)` in W/m² for every facet (global ids),
+//! or 0 when the ray from the facet centroid toward the Sun is blocked by any facet of any
+//! body.
+//!
+//! Self-shadowing guard: the facet itself is excluded by id, and a blocking hit must lie
+//! higher above the facet's plane than `h_min = 1e-9·L + 256·ε·R` (L the facet's longest
+//! edge, R the body's size, ε machine epsilon): the first term is the geometry's scale,
+//! the second the rounding of coordinates of that size. A shadow missed because of it
+//! costs at most `S · h_min / t` W/m² for a blocker at distance t — nothing measurable.
+
+use crate::ephemeris::EpochState;
+use crate::error::{Error, Result};
+use crate::trace::{self, ShadowQuery, Tracer, TracerKind};
+use crate::world::{Body, FrameTransform, World};
+use glam::DVec3;
+use rayon::prelude::*;
+
+/// Counts of what one step did.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, serde::Serialize)]
+pub struct StepCounts {
+    /// Facets facing away from the Sun (no ray needed).
+    pub night: u64,
+    /// Shadow rays traced (facet-to-body queries).
+    pub rays: u64,
+    /// Facets facing the Sun but shadowed.
+    pub shadowed: u64,
+}
+
+impl std::ops::AddAssign for StepCounts {
+    fn add_assign(&mut self, o: StepCounts) {
+        self.night += o.night;
+        self.rays += o.rays;
+        self.shadowed += o.shadowed;
+    }
+}
+
+/// The direct-irradiance stage: one tracer per body, built once.
+pub struct Direct<'w> {
+    world: &'w World,
+    tracers: Vec<Box<dyn Tracer + 'w>>,
+    min_height_m: Vec<Vec<f64>>,
+    offsets: Vec<usize>,
+}
+
+/// Another body that may shadow a receiver at this step: its query and the transform
+/// taking receiver-frame points into its frame.
+struct ForeignCaster<'q> {
+    query: Box<dyn ShadowQuery + 'q>,
+    to_caster: FrameTransform,
+}
+
+impl<'w> Direct<'w> {
+    /// Builds the tracers of every body.
+    pub fn new(world: &'w World, kind: TracerKind) -> Direct<'w> {
+        Direct {
+            world,
+            tracers: world
+                .bodies
+                .iter()
+                .map(|b| trace::build(kind, &b.mesh))
+                .collect(),
+            min_height_m: world.bodies.iter().map(min_blocker_heights).collect(),
+            offsets: world.offsets(),
+        }
+    }
+
+    /// Irradiance (W/m²) of every facet at `state`, written to `out` (global facet ids).
+    pub fn compute(&self, state: &EpochState, out: &mut [f64]) -> Result<StepCounts> {
+        let mut counts = StepCounts::default();
+        for (b, body) in self.world.bodies.iter().enumerate() {
+            let sun = checked_sun(body, state, b)?;
+            let own = (!body.convex).then(|| self.tracers[b].toward(sun));
+            let foreign = self.foreign_casters(b, state, sun);
+            let range = self.offsets[b]..self.offsets[b] + body.mesh.len();
+            counts += self.illuminate_body(
+                b,
+                sun,
+                state.bodies[b].flux_w_m2,
+                own.as_deref(),
+                &foreign,
+                &mut out[range],
+            );
+        }
+        Ok(counts)
+    }
+
+    /// Bodies whose bounding spheres can reach into the receiver's shadow cylinder.
+    fn foreign_casters(&self, receiver: usize, state: &EpochState, sun: DVec3) -> Vec<ForeignCaster<'_>> {
+        let bodies = &self.world.bodies;
+        let rx = &state.bodies[receiver];
+        (0..bodies.len())
+            .filter(|&c| c != receiver)
+            .filter_map(|c| {
+                let to_caster = rx.pose.relative_to(&state.bodies[c].pose);
+                let centre = to_caster.rotation.transpose() * -to_caster.offset_m;
+                let along = centre.dot(sun);
+                let across = (centre - along * sun).length();
+                let reach = bodies[receiver].bounding_radius_m + bodies[c].bounding_radius_m;
+                (along > -reach && across <= reach).then(|| ForeignCaster {
+                    query: self.tracers[c].toward(to_caster.vector(sun)),
+                    to_caster,
+                })
+            })
+            .collect()
+    }
+
+    fn illuminate_body(
+        &self,
+        b: usize,
+        sun: DVec3,
+        flux: f64,
+        own: Option<&dyn ShadowQuery>,
+        foreign: &[ForeignCaster<'_>],
+        out: &mut [f64],
+    ) -> StepCounts {
+        let mesh = &self.world.bodies[b].mesh;
+        let min_height = &self.min_height_m[b];
+        const CHUNK: usize = 1024;
+        out.par_chunks_mut(CHUNK)
+            .enumerate()
+            .map(|(chunk, values)| {
+                let mut counts = StepCounts::default();
+                for (k, e) in values.iter_mut().enumerate() {
+                    let i = chunk * CHUNK + k;
+                    let cos = mesh.normals[i].dot(sun);
+                    if cos <= 0.0 {
+                        counts.night += 1;
+                        *e = 0.0;
+                        continue;
+                    }
+                    let c = mesh.centroids[i];
+                    let t_min = min_height[i] / cos;
+                    let blocked_by_self = own.is_some_and(|q| {
+                        counts.rays += 1;
+                        q.blocked(c, t_min, Some(i as u32))
+                    });
+                    let blocked = blocked_by_self
+                        || foreign.iter().any(|f| {
+                            counts.rays += 1;
+                            f.query.blocked(f.to_caster.point(c), t_min, None)
+                        });
+                    counts.shadowed += blocked as u64;
+                    *e = if blocked { 0.0 } else { flux * cos };
+                }
+                counts
+            })
+            .reduce(StepCounts::default, |mut a, b| {
+                a += b;
+                a
+            })
+    }
+}
+
+/// The body's Sun direction at this step, checked to be a finite unit vector.
+fn checked_sun(body: &Body, state: &EpochState, b: usize) -> Result<DVec3> {
+    let s = state.bodies[b].sun_dir;
+    let flux = state.bodies[b].flux_w_m2;
+    if !s.is_finite() || (s.length() - 1.0).abs() > 1e-9 || !flux.is_finite() || flux < 0.0 {
+        return Err(Error::Geometry {
+            body: body.name.clone(),
+            step: state.step,
+            msg: format!("invalid Sun direction {s} or flux {flux} W/m²"),
+        });
+    }
+    Ok(s)
+}
+
+/// Per facet, the least height above its plane at which a hit counts as a shadow.
+fn min_blocker_heights(body: &Body) -> Vec<f64> {
+    let rounding = 256.0 * f64::EPSILON * body.bounding_radius_m;
+    (0..body.mesh.len())
+        .map(|i| {
+            let [a, b, c] = body.mesh.corners(i);
+            let longest = (b - a).length().max((c - b).length()).max((a - c).length());
+            1e-9 * longest + rounding
+        })
+        .collect()
+}

@@ -1,0 +1,42 @@
+//! # slim — sunlight on airless bodies
+//!
+//! slim computes the direct solar irradiance on every facet of one or more triangle meshes
+//! (asteroids, moons, comet nuclei, terrain patches) over time, with cast shadows between
+//! facets and between bodies, and reduces each facet's irradiance history to statistics:
+//! minimum, maximum, mean, standard deviation, lit fraction and the cumulative distribution
+//! F_k(x) (the fraction of time facet k receives at most x W/m²).
+//!
+//! The modules follow the pipeline:
+//!
+//! ```text
+//! scene.toml ─► scene ─► mesh ─► world ─► ephemeris (per epoch: Sun in each body frame, poses)
+//!                                  │
+//!                                  ├─► trace (uniform grid reference, sun-parallel fast path)
+//!                                  ▼
+//!                    illum (direct irradiance per facet per epoch)
+//!                                  ▼
+//!                    stats (streaming, mergeable) ─► output (Parquet, CSV, PLY, run.json)
+//! ```
+//!
+//! [`run::run_scene`] drives the whole pipeline; [`plan`] decides what a scene needs.
+
+pub mod cli;
+pub mod ephemeris;
+pub mod error;
+pub mod illum;
+pub mod mesh;
+pub mod output;
+pub mod plan;
+pub mod run;
+pub mod scene;
+pub mod stats;
+pub mod trace;
+pub mod world;
+
+pub use error::{Error, Result};
+
+/// Solar irradiance at 1 AU in W/m² used unless a scene sets its own.
+pub const SOLAR_CONSTANT_W_M2: f64 = 1361.0;
+
+/// One astronomical unit in metres (IAU 2012).
+pub const AU_M: f64 = 149_597_870_700.0;

@@ -1,0 +1,166 @@
+//! Output: the files a run leaves behind.
+//!
+//! In: the world, the per-step geometry, the per-facet statistics. Out, in the output
+//! folder (every table as Parquet, and as CSV when asked):
+//! - `summary`: one row per facet — body, facet, area_m2, centroid and normal (body frame,
+//!   metres), min/max/mean/std irradiance (W/m²), lit_fraction;
+//! - `cdf`: one row per facet and threshold — F_k(x) = share of time with E ≤ x;
+//! - `geometry`: one row per step and body — epoch, Sun unit vector (body frame), Sun
+//!   distance (km), flux (W/m²);
+//! - `history` (when asked): one row per step and facet, streamed as the run goes;
+//! - `BODY.ply` per body with per-face statistics; `run.json` (see [`record`]).
+//!
+//! Every file is written under a `.partial` name and renamed when complete; `run.json` is
+//! written last, so a folder holds a complete run exactly when it holds `run.json`.
+
+pub mod ply;
+pub mod record;
+pub mod table;
+
+use crate::ephemeris::EpochState;
+use crate::error::Result;
+use crate::stats::FacetStats;
+use crate::world::World;
+use std::path::{Path, PathBuf};
+use table::{Table, TableWriter, Values};
+
+/// Rows per batch when writing the per-facet tables.
+const FACETS_PER_BATCH: usize = 1 << 14;
+
+/// Writes `summary` (one row per facet).
+pub fn write_summary(dir: &Path, csv: bool, world: &World, stats: &FacetStats) -> Result<Vec<PathBuf>> {
+    let mut writer = TableWriter::new(dir, "summary", csv);
+    for_facet_batches(world, |body, range, offset| {
+        let mesh = &world.bodies[body].mesh;
+        let global = || range.clone().map(|i| offset + i);
+        let vec_column = |f: &dyn Fn(usize) -> f64| Values::F64(range.clone().map(f).collect());
+        let batch = Table::default()
+            .with("body", Values::Str(vec![world.bodies[body].name.clone(); range.len()]))
+            .with("facet", Values::U32(range.clone().map(|i| i as u32).collect()))
+            .with("area_m2", vec_column(&|i| mesh.areas[i]))
+            .with("centroid_x_m", vec_column(&|i| mesh.centroids[i].x))
+            .with("centroid_y_m", vec_column(&|i| mesh.centroids[i].y))
+            .with("centroid_z_m", vec_column(&|i| mesh.centroids[i].z))
+            .with("normal_x", vec_column(&|i| mesh.normals[i].x))
+            .with("normal_y", vec_column(&|i| mesh.normals[i].y))
+            .with("normal_z", vec_column(&|i| mesh.normals[i].z))
+            .with("min_w_m2", Values::F64(global().map(|g| stats.min(g)).collect()))
+            .with("max_w_m2", Values::F64(global().map(|g| stats.max(g)).collect()))
+            .with("mean_w_m2", Values::F64(global().map(|g| stats.mean(g)).collect()))
+            .with("std_w_m2", Values::F64(global().map(|g| stats.std(g)).collect()))
+            .with("lit_fraction", Values::F64(global().map(|g| stats.lit_fraction(g)).collect()));
+        writer.write(&batch)
+    })?;
+    writer.finish()
+}
+
+/// Writes `cdf` (one row per facet and threshold).
+pub fn write_cdf(dir: &Path, csv: bool, world: &World, stats: &FacetStats) -> Result<Vec<PathBuf>> {
+    let mut writer = TableWriter::new(dir, "cdf", csv);
+    let bins = stats.bins();
+    for_facet_batches(world, |body, range, offset| {
+        let rows = range.len() * bins.count;
+        let mut facet = Vec::with_capacity(rows);
+        let mut threshold = Vec::with_capacity(rows);
+        let mut cdf = Vec::with_capacity(rows);
+        for i in range.clone() {
+            for (b, f) in stats.cdf(offset + i).into_iter().enumerate() {
+                facet.push(i as u32);
+                threshold.push(bins.threshold(b));
+                cdf.push(f);
+            }
+        }
+        let batch = Table::default()
+            .with("body", Values::Str(vec![world.bodies[body].name.clone(); rows]))
+            .with("facet", Values::U32(facet))
+            .with("irradiance_w_m2", Values::F64(threshold))
+            .with("cdf", Values::F64(cdf));
+        writer.write(&batch)
+    })?;
+    writer.finish()
+}
+
+/// Writes `geometry` (one row per step and body).
+pub fn write_geometry(dir: &Path, csv: bool, world: &World, states: &[EpochState]) -> Result<Vec<PathBuf>> {
+    let mut writer = TableWriter::new(dir, "geometry", csv);
+    let rows = || states.iter().flat_map(|s| s.bodies.iter().enumerate().map(move |(b, x)| (s, b, x)));
+    let column = |f: &dyn Fn(&crate::ephemeris::BodyState) -> f64| {
+        Values::F64(rows().map(|(_, _, x)| f(x)).collect())
+    };
+    let batch = Table::default()
+        .with("step", Values::U64(rows().map(|(s, _, _)| s.step as u64).collect()))
+        .with("et_tdb_s", Values::F64(rows().map(|(s, _, _)| et_tdb_s(s)).collect()))
+        .with("utc", Values::Str(rows().map(|(s, _, _)| utc_string(s)).collect()))
+        .with("body", Values::Str(rows().map(|(_, b, _)| world.bodies[b].name.clone()).collect()))
+        .with("sun_x", column(&|x| x.sun_dir.x))
+        .with("sun_y", column(&|x| x.sun_dir.y))
+        .with("sun_z", column(&|x| x.sun_dir.z))
+        .with("sun_distance_km", column(&|x| x.sun_distance_m / 1000.0))
+        .with("flux_w_m2", column(&|x| x.flux_w_m2));
+    writer.write(&batch)?;
+    writer.finish()
+}
+
+/// TDB seconds past J2000 of a step.
+pub fn et_tdb_s(state: &EpochState) -> f64 {
+    state.epoch.to_et_seconds()
+}
+
+/// ISO-8601 UTC of a step, millisecond precision.
+pub fn utc_string(state: &EpochState) -> String {
+    let (y, mo, d, h, mi, s, ns) = state.epoch.to_gregorian_utc();
+    format!("{y:04}-{mo:02}-{d:02}T{h:02}:{mi:02}:{s:02}.{:03}Z", ns / 1_000_000)
+}
+
+/// Calls `f(body, local facet range, body offset)` for batches of facets, body by body.
+fn for_facet_batches(
+    world: &World,
+    mut f: impl FnMut(usize, std::ops::Range<usize>, usize) -> Result<()>,
+) -> Result<()> {
+    for (b, offset) in world.offsets().into_iter().enumerate() {
+        let n = world.bodies[b].mesh.len();
+        for start in (0..n).step_by(FACETS_PER_BATCH) {
+            f(b, start..(start + FACETS_PER_BATCH).min(n), offset)?;
+        }
+    }
+    Ok(())
+}
+
+/// Streams the irradiance history: one batch per step.
+pub struct HistoryWriter {
+    writer: TableWriter,
+    bodies: Vec<(String, usize)>,
+}
+
+impl HistoryWriter {
+    /// A writer for `history.parquet` (and `.csv`).
+    pub fn new(dir: &Path, csv: bool, world: &World) -> HistoryWriter {
+        HistoryWriter {
+            writer: TableWriter::new(dir, "history", csv),
+            bodies: world.bodies.iter().map(|b| (b.name.clone(), b.mesh.len())).collect(),
+        }
+    }
+
+    /// Appends one step's irradiance (global facet order).
+    pub fn write_step(&mut self, state: &EpochState, irradiance: &[f64]) -> Result<()> {
+        let n = irradiance.len();
+        let body = self
+            .bodies
+            .iter()
+            .flat_map(|(name, len)| std::iter::repeat_n(name.clone(), *len))
+            .collect();
+        let facet = self.bodies.iter().flat_map(|(_, len)| 0..*len as u32).collect();
+        let batch = Table::default()
+            .with("step", Values::U64(vec![state.step as u64; n]))
+            .with("et_tdb_s", Values::F64(vec![et_tdb_s(state); n]))
+            .with("body", Values::Str(body))
+            .with("facet", Values::U32(facet))
+            .with("irradiance_w_m2", Values::F64(irradiance.to_vec()));
+        self.writer.write(&batch)
+    }
+
+    /// Finishes the files.
+    pub fn finish(self) -> Result<Vec<PathBuf>> {
+        self.writer.finish()
+    }
+}

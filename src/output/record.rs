@@ -1,0 +1,71 @@
+//! `run.json`: the record of a run — program version, scene hash, input checksums, counts,
+//! stage timings, the plan, mesh reports, warnings and the files written.
+
+use crate::error::{Error, Result};
+use crate::illum::StepCounts;
+use crate::mesh::inspect::MeshReport;
+use crate::plan::Plan;
+use serde::Serialize;
+use sha2::{Digest, Sha256};
+use std::path::{Path, PathBuf};
+
+/// An input file and its SHA-256.
+#[derive(Debug, Clone, Serialize)]
+pub struct InputFile {
+    pub path: PathBuf,
+    pub sha256: String,
+}
+
+/// One body's mesh as loaded.
+#[derive(Debug, Clone, Serialize)]
+pub struct BodyRecord {
+    pub name: String,
+    pub mesh: InputFile,
+    pub report: MeshReport,
+}
+
+/// Everything `run.json` holds.
+#[derive(Debug, Clone, Serialize)]
+pub struct RunRecord {
+    pub program: String,
+    pub version: String,
+    pub name: String,
+    pub scene: InputFile,
+    pub bodies: Vec<BodyRecord>,
+    pub plan: Plan,
+    pub counts: StepCounts,
+    pub bins_w_m2: crate::stats::Bins,
+    pub duration_s: f64,
+    pub threads: usize,
+    /// Wall time per stage, seconds.
+    pub timings_s: Vec<(String, f64)>,
+    pub warnings: Vec<String>,
+    pub outputs: Vec<PathBuf>,
+}
+
+/// SHA-256 of a byte string, hex.
+pub fn sha256_hex(bytes: &[u8]) -> String {
+    Sha256::digest(bytes)
+        .iter()
+        .map(|b| format!("{b:02x}"))
+        .collect()
+}
+
+/// The SHA-256 record of a file on disk.
+pub fn input_file(path: &Path) -> Result<InputFile> {
+    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+    Ok(InputFile {
+        path: path.to_path_buf(),
+        sha256: sha256_hex(&bytes),
+    })
+}
+
+impl RunRecord {
+    /// Writes `DIR/run.json` atomically.
+    pub fn write(&self, dir: &Path) -> Result<PathBuf> {
+        let path = dir.join("run.json");
+        let json = serde_json::to_vec_pretty(self).map_err(|e| Error::output(&path, e))?;
+        super::table::write_atomic(&path, &json)?;
+        Ok(path)
+    }
+}

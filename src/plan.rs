@@ -1,0 +1,115 @@
+//! Plan: what a scene needs, decided before any work starts.
+//!
+//! In: the world (bodies, convexity) and the scene's options. Out: a [`Plan`] — the stages
+//! that run, the ones left out and why — printed by the CLI and stored in `run.json`. A
+//! scene pays only for what it needs.
+
+use crate::scene::Scene;
+use crate::world::World;
+use serde::Serialize;
+
+/// One decision of the plan.
+#[derive(Debug, Clone, Serialize, PartialEq)]
+pub struct Decision {
+    /// The stage or piece of work.
+    pub stage: String,
+    /// Whether it runs.
+    pub runs: bool,
+    /// Why.
+    pub reason: String,
+}
+
+/// The plan of a run.
+#[derive(Debug, Clone, Serialize, PartialEq)]
+pub struct Plan {
+    pub bodies: usize,
+    pub facets: usize,
+    pub steps: usize,
+    pub tracer: String,
+    pub decisions: Vec<Decision>,
+}
+
+impl Plan {
+    /// The plan for `scene` over `world` with `steps` steps.
+    pub fn new(scene: &Scene, world: &World, steps: usize) -> Plan {
+        let mut decisions = vec![Decision {
+            stage: "direct irradiance".into(),
+            runs: true,
+            reason: "E = S·max(0, n·s) at every facet centroid; facets facing away from the Sun \
+                     get E = 0 and no shadow ray"
+                .into(),
+        }];
+        for body in &world.bodies {
+            decisions.push(if body.convex {
+                Decision {
+                    stage: format!("self-shadowing of '{}'", body.name),
+                    runs: false,
+                    reason: "the mesh is a closed convex surface: no facet facing the Sun can be \
+                             hidden by the same body"
+                        .into(),
+                }
+            } else {
+                Decision {
+                    stage: format!("self-shadowing of '{}'", body.name),
+                    runs: true,
+                    reason: "the mesh is not convex (or not closed): one shadow ray per facet \
+                             facing the Sun"
+                        .into(),
+                }
+            });
+        }
+        decisions.push(if world.bodies.len() > 1 {
+            Decision {
+                stage: "shadows between bodies".into(),
+                runs: true,
+                reason: "each step, only pairs whose bounding spheres can reach into each \
+                         other's shadow are traced"
+                    .into(),
+            }
+        } else {
+            Decision {
+                stage: "shadows between bodies".into(),
+                runs: false,
+                reason: "one body".into(),
+            }
+        });
+        decisions.push(Decision {
+            stage: "scattered light".into(),
+            runs: false,
+            reason: "not modelled in this version: direct sunlight only".into(),
+        });
+        decisions.push(Decision {
+            stage: "history output".into(),
+            runs: scene.output.history,
+            reason: if scene.output.history {
+                "asked for: one row per step and facet, streamed".into()
+            } else {
+                "not asked for ([output] history = true): statistics are streamed, no per-step \
+                 values are kept"
+                    .into()
+            },
+        });
+        Plan {
+            bodies: world.bodies.len(),
+            facets: world.facet_count(),
+            steps,
+            tracer: format!("{:?}", scene.run.tracer).to_lowercase(),
+            decisions,
+        }
+    }
+}
+
+impl std::fmt::Display for Plan {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        writeln!(
+            f,
+            "plan: {} bodies, {} facets, {} steps, tracer {}",
+            self.bodies, self.facets, self.steps, self.tracer
+        )?;
+        for d in &self.decisions {
+            let mark = if d.runs { "run " } else { "skip" };
+            writeln!(f, "  {mark} {}: {}", d.stage, d.reason)?;
+        }
+        Ok(())
+    }
+}

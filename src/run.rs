@@ -1,0 +1,293 @@
+//! Run: the whole pipeline for one scene, from the TOML file to the output folder.
+//!
+//! In: a validated [`Scene`] and an output folder. Out: the files described in
+//! [`crate::output`] and the [`RunRecord`] also saved as `run.json`. Progress is reported
+//! through [`Progress`] so the CLI can draw a bar and a service can track jobs.
+
+use crate::ephemeris::fixed::{normalized_direction, FixedGeometry, FixedSun};
+use crate::ephemeris::spin::{Spin, SpinModel};
+use crate::ephemeris::{flux_at, Ephemeris, EpochState};
+use crate::error::{Error, Result};
+use crate::illum::{Direct, StepCounts};
+use crate::mesh::inspect::inspect;
+use crate::mesh::{read_mesh, Mesh};
+use crate::output::record::{input_file, BodyRecord, InputFile, RunRecord};
+use crate::output::{self, HistoryWriter};
+use crate::plan::Plan;
+use crate::scene::{EphemerisSection, FixedSection, Orient, Scene, SpinSection};
+use crate::stats::{Bins, FacetStats};
+use crate::trace::TracerKind;
+use crate::world::{Body, Pose, World};
+use glam::{DMat3, DVec3};
+use rayon::prelude::*;
+use std::path::Path;
+use std::time::Instant;
+
+/// Receives progress of a run.
+pub trait Progress: Sync {
+    /// A line worth showing the user (the plan, warnings).
+    fn note(&self, line: &str);
+    /// The step loop starts with `steps` steps.
+    fn begin_steps(&self, steps: u64);
+    /// One more step is done.
+    fn step_done(&self);
+    /// The step loop is over.
+    fn end_steps(&self);
+}
+
+/// Progress that goes nowhere.
+pub struct Silent;
+
+impl Progress for Silent {
+    fn note(&self, _: &str) {}
+    fn begin_steps(&self, _: u64) {}
+    fn step_done(&self) {}
+    fn end_steps(&self) {}
+}
+
+/// Wall-clock timings of named stages.
+#[derive(Debug, Default, Clone)]
+pub struct Timings(pub Vec<(String, f64)>);
+
+impl Timings {
+    /// Runs `f`, adding its wall time to `stage`.
+    pub fn time<T>(&mut self, stage: &str, f: impl FnOnce() -> T) -> T {
+        let t0 = Instant::now();
+        let value = f();
+        let dt = t0.elapsed().as_secs_f64();
+        match self.0.iter_mut().find(|(s, _)| s == stage) {
+            Some((_, total)) => *total += dt,
+            None => self.0.push((stage.to_string(), dt)),
+        }
+        value
+    }
+}
+
+/// Loads every body's mesh, applies the orientation option and inspects it.
+pub fn build_world(scene: &Scene) -> Result<(World, Vec<BodyRecord>, Vec<String>)> {
+    let mut world = World::default();
+    let mut records = Vec::new();
+    let mut warnings = Vec::new();
+    for b in &scene.bodies {
+        let raw = read_mesh(&b.mesh, b.format)?;
+        let mut mesh = Mesh::from_raw(raw, b.units);
+        let mut report = inspect(&mesh);
+        let flip = match b.orient {
+            Orient::AsIs => false,
+            Orient::Flip => true,
+            Orient::Outward if !report.closed => {
+                warnings.push(format!(
+                    "body '{}': orient = \"outward\" needs a closed mesh; left as it is",
+                    b.name
+                ));
+                false
+            }
+            Orient::Outward => report.signed_volume_m3 < 0.0,
+        };
+        if flip {
+            mesh = flipped(mesh);
+            report = inspect(&mesh);
+            warnings.push(format!("body '{}': every facet was flipped (orient option)", b.name));
+        }
+        warnings.extend(report.problems().into_iter().map(|p| format!("body '{}': {p}", b.name)));
+        let convex = report.convex;
+        records.push(BodyRecord {
+            name: b.name.clone(),
+            mesh: input_file(&b.mesh)?,
+            report,
+        });
+        world.bodies.push(Body::new(b.name.clone(), mesh, convex));
+    }
+    Ok((world, records, warnings))
+}
+
+fn flipped(mesh: Mesh) -> Mesh {
+    let raw = crate::mesh::RawMesh {
+        vertices: mesh.vertices,
+        triangles: mesh.triangles.iter().map(|&[a, b, c]| [a, c, b]).collect(),
+    };
+    Mesh::from_raw(raw, crate::mesh::LengthUnit::M)
+}
+
+/// The scene's ephemeris.
+pub fn build_ephemeris(scene: &Scene) -> Box<dyn Ephemeris> {
+    match &scene.ephemeris {
+        EphemerisSection::Spin(s) => Box::new(spin_model(scene, s)),
+        EphemerisSection::Fixed(f) => Box::new(fixed_geometry(scene, f)),
+    }
+}
+
+fn spin_model(scene: &Scene, s: &SpinSection) -> SpinModel {
+    let latitude = match (s.subsolar_latitude_deg, s.obliquity_deg, s.solar_longitude_deg) {
+        (Some(lat), _, _) => lat.to_radians(),
+        (None, Some(obl), Some(ls)) => (obl.to_radians().sin() * ls.to_radians().sin()).asin(),
+        _ => 0.0,
+    };
+    let hour = 3600.0;
+    let period_s = scene.bodies[0].spin_period_h.unwrap_or(1.0) * hour;
+    let steps = ((s.steps_per_period as f64 * s.periods).round() as usize).max(1);
+    SpinModel {
+        start: scene.start,
+        duration_s: period_s * s.periods,
+        steps,
+        sun_dir_scene: SpinModel::sun_dir_for_subsolar_latitude(latitude),
+        sun_distance_m: s.distance_au * crate::AU_M,
+        solar_constant_w_m2: s.solar_constant_w_m2,
+        bodies: scene
+            .bodies
+            .iter()
+            .map(|b| Spin {
+                period_s: b.spin_period_h.map(|p| p * hour),
+                initial_angle_rad: b.initial_rotation_deg.to_radians(),
+                position_m: DVec3::from_array(b.position_km) * 1000.0,
+            })
+            .collect(),
+    }
+}
+
+fn fixed_geometry(scene: &Scene, f: &FixedSection) -> FixedGeometry {
+    FixedGeometry {
+        start: scene.start,
+        step_s: f.step_s,
+        suns: f
+            .sun
+            .iter()
+            .map(|s| {
+                let distance_m = s.distance_au.unwrap_or(1.0) * crate::AU_M;
+                FixedSun {
+                    dir_scene: normalized_direction(s.direction).unwrap_or(DVec3::X),
+                    distance_m,
+                    flux_w_m2: s
+                        .flux_w_m2
+                        .unwrap_or_else(|| flux_at(f.solar_constant_w_m2, distance_m)),
+                }
+            })
+            .collect(),
+        poses: scene
+            .bodies
+            .iter()
+            .map(|b| Pose {
+                body_to_scene: DMat3::IDENTITY,
+                position_m: DVec3::from_array(b.position_km) * 1000.0,
+            })
+            .collect(),
+    }
+}
+
+/// Every step's geometry, computed in parallel.
+pub fn epoch_states(ephemeris: &dyn Ephemeris) -> Result<Vec<EpochState>> {
+    (0..ephemeris.steps())
+        .into_par_iter()
+        .map(|k| ephemeris.state(k))
+        .collect()
+}
+
+/// The result of stepping through time: statistics and counters.
+pub struct Simulation {
+    pub stats: FacetStats,
+    pub counts: StepCounts,
+}
+
+/// Computes direct irradiance at every step and accumulates statistics. `on_step` sees
+/// each step's irradiance (global facet order), e.g. to stream the history.
+pub fn simulate(
+    world: &World,
+    states: &[EpochState],
+    tracer: TracerKind,
+    bins: Bins,
+    timings: &mut Timings,
+    progress: &dyn Progress,
+    mut on_step: impl FnMut(&EpochState, &[f64]) -> Result<()>,
+) -> Result<Simulation> {
+    let direct = timings.time("trace build", || Direct::new(world, tracer));
+    let mut stats = FacetStats::new(world.facet_count(), bins);
+    let mut irradiance = vec![0.0; world.facet_count()];
+    let mut counts = StepCounts::default();
+    progress.begin_steps(states.len() as u64);
+    for state in states {
+        counts += timings.time("direct irradiance", || direct.compute(state, &mut irradiance))?;
+        timings.time("statistics", || stats.add_step(&irradiance));
+        timings.time("history", || on_step(state, &irradiance))?;
+        progress.step_done();
+    }
+    progress.end_steps();
+    Ok(Simulation { stats, counts })
+}
+
+/// CDF bins covering the largest flux of the run.
+pub fn bins_for(scene: &Scene, states: &[EpochState]) -> Bins {
+    let max_flux = states
+        .iter()
+        .flat_map(|s| s.bodies.iter().map(|b| b.flux_w_m2))
+        .fold(0.0, f64::max);
+    Bins::covering(scene.run.bin_width_w_m2, max_flux)
+}
+
+/// Runs `scene`, writing results into `out_dir`.
+pub fn run_scene(scene: &Scene, out_dir: &Path, progress: &dyn Progress) -> Result<RunRecord> {
+    let mut timings = Timings::default();
+    prepare_output_dir(out_dir)?;
+    let (world, bodies, warnings) = timings.time("mesh input", || build_world(scene))?;
+    for w in &warnings {
+        progress.note(&format!("warning: {w}"));
+    }
+    let ephemeris = build_ephemeris(scene);
+    let states = timings.time("ephemeris", || epoch_states(ephemeris.as_ref()))?;
+    let plan = Plan::new(scene, &world, states.len());
+    progress.note(&plan.to_string());
+    let bins = bins_for(scene, &states);
+    let csv = scene.output.csv;
+    let mut history = scene.output.history.then(|| HistoryWriter::new(out_dir, csv, &world));
+    let sim = simulate(&world, &states, scene.run.tracer, bins, &mut timings, progress, |s, e| {
+        history.as_mut().map_or(Ok(()), |h| h.write_step(s, e))
+    })?;
+    let mut outputs = timings.time("output", || -> Result<Vec<_>> {
+        let mut files = output::write_summary(out_dir, csv, &world, &sim.stats)?;
+        files.extend(output::write_cdf(out_dir, csv, &world, &sim.stats)?);
+        files.extend(output::write_geometry(out_dir, csv, &world, &states)?);
+        if let Some(h) = history.take() {
+            files.extend(h.finish()?);
+        }
+        if scene.output.ply {
+            for (b, offset) in world.offsets().into_iter().enumerate() {
+                let path = out_dir.join(format!("{}.ply", world.bodies[b].name));
+                output::ply::write_ply(&path, &world.bodies[b].mesh, &sim.stats, offset)?;
+                files.push(path);
+            }
+        }
+        Ok(files)
+    })?;
+    outputs.push(out_dir.join("run.json"));
+    let record = RunRecord {
+        program: "slim".into(),
+        version: env!("CARGO_PKG_VERSION").into(),
+        name: scene.name.clone(),
+        scene: InputFile {
+            path: scene.path.clone(),
+            sha256: output::record::sha256_hex(&scene.source),
+        },
+        bodies,
+        plan,
+        counts: sim.counts,
+        bins_w_m2: bins,
+        duration_s: ephemeris.duration_s(),
+        threads: rayon::current_num_threads(),
+        timings_s: timings.0,
+        warnings,
+        outputs,
+    };
+    record.write(out_dir)?;
+    Ok(record)
+}
+
+/// Creates the output folder and removes a previous run's `run.json`, so the folder
+/// never vouches for files this run has not finished.
+fn prepare_output_dir(dir: &Path) -> Result<()> {
+    std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
+    let record = dir.join("run.json");
+    match std::fs::remove_file(&record) {
+        Ok(()) => Ok(()),
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(()),
+        Err(e) => Err(Error::io(&record, e)),
+    }
+}

@@ -1,0 +1,382 @@
+//! Scene: the TOML file that describes a run, parsed and validated.
+//!
+//! In: a scene file path. Out: a [`Scene`] with every path resolved relative to the scene
+//! file and every number checked. Unknown keys are rejected with their dotted path
+//! (`body[0].spin_period`), as are missing, out-of-range and inconsistent values. The
+//! README documents every key with a complete example.
+
+use crate::error::{Error, Result};
+use crate::mesh::{LengthUnit, MeshFormat};
+use crate::trace::TracerKind;
+use hifitime::Epoch;
+use serde::Deserialize;
+use std::path::{Path, PathBuf};
+use std::str::FromStr;
+
+/// A validated scene.
+#[derive(Debug, Clone)]
+pub struct Scene {
+    /// The scene file.
+    pub path: PathBuf,
+    /// The scene file's bytes (for the run record's hash).
+    pub source: Vec<u8>,
+    /// Run name (defaults to the scene file's stem).
+    pub name: String,
+    pub run: RunSection,
+    pub output: OutputSection,
+    pub ephemeris: EphemerisSection,
+    /// Bodies with mesh paths resolved.
+    pub bodies: Vec<BodySection>,
+    /// Epoch of the first step.
+    pub start: Epoch,
+}
+
+/// `[run]`: how to compute.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct RunSection {
+    /// Name of the run (outputs, run.json).
+    pub name: Option<String>,
+    /// Shadow tracer: "sunview" (fast, default) or "grid" (the paper's reference).
+    pub tracer: TracerKind,
+    /// Width of the CDF bins, W/m².
+    pub bin_width_w_m2: f64,
+}
+
+impl Default for RunSection {
+    fn default() -> Self {
+        RunSection {
+            name: None,
+            tracer: TracerKind::default(),
+            bin_width_w_m2: 10.0,
+        }
+    }
+}
+
+/// `[output]`: what to write besides the Parquet summary, CDF and geometry tables.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct OutputSection {
+    /// Also write every table as CSV.
+    pub csv: bool,
+    /// Write one PLY per body with per-facet statistics.
+    pub ply: bool,
+    /// Write the full irradiance history (step, epoch, body, facet, irradiance).
+    pub history: bool,
+}
+
+impl Default for OutputSection {
+    fn default() -> Self {
+        OutputSection {
+            csv: true,
+            ply: true,
+            history: false,
+        }
+    }
+}
+
+/// `[ephemeris]`: where the Sun is at each step.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(tag = "mode", rename_all = "lowercase")]
+pub enum EphemerisSection {
+    /// Synthetic uniform rotation under a fixed Sun.
+    Spin(SpinSection),
+    /// Sun directions and fluxes listed in the scene.
+    Fixed(FixedSection),
+}
+
+/// `[ephemeris] mode = "spin"`.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SpinSection {
+    /// Heliocentric distance, AU.
+    pub distance_au: f64,
+    /// Irradiance at 1 AU, W/m².
+    #[serde(default = "default_solar_constant")]
+    pub solar_constant_w_m2: f64,
+    /// Latitude of the sub-solar point, degrees (default 0; or give obliquity and season).
+    pub subsolar_latitude_deg: Option<f64>,
+    /// Obliquity of the spin axis to the orbit, degrees (with `solar_longitude_deg`).
+    pub obliquity_deg: Option<f64>,
+    /// Season: the Sun's longitude from the body's vernal equinox, degrees.
+    pub solar_longitude_deg: Option<f64>,
+    /// Steps per spin period of the first body.
+    #[serde(default = "default_steps")]
+    pub steps_per_period: usize,
+    /// Number of spin periods covered.
+    #[serde(default = "one")]
+    pub periods: f64,
+    /// Epoch of the first step ("2018-06-10T00:00:00 UTC"; default J2000 TDB).
+    pub start: Option<String>,
+}
+
+/// `[ephemeris] mode = "fixed"`.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct FixedSection {
+    /// Irradiance at 1 AU, W/m², for suns given by distance.
+    #[serde(default = "default_solar_constant")]
+    pub solar_constant_w_m2: f64,
+    /// Time each listed Sun stands for, seconds.
+    #[serde(default = "one")]
+    pub step_s: f64,
+    /// Epoch of the first step.
+    pub start: Option<String>,
+    /// The listed Suns, one per step.
+    pub sun: Vec<FixedSunSection>,
+}
+
+/// One `[[ephemeris.sun]]` entry.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct FixedSunSection {
+    /// Vector toward the Sun in the scene frame (normalised on load).
+    pub direction: [f64; 3],
+    /// Sun distance, AU (flux = solar constant / distance²).
+    pub distance_au: Option<f64>,
+    /// Irradiance, W/m² (instead of a distance).
+    pub flux_w_m2: Option<f64>,
+}
+
+/// How to treat a mesh's facet orientation.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, Default, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Orient {
+    /// Use the file's vertex order (warn if the mesh looks inside out).
+    #[default]
+    AsIs,
+    /// Flip every facet if the signed volume is negative (closed meshes).
+    Outward,
+    /// Flip every facet.
+    Flip,
+}
+
+/// One `[[body]]`.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct BodySection {
+    /// Unique name used in outputs.
+    pub name: String,
+    /// Mesh file, relative to the scene file.
+    pub mesh: PathBuf,
+    /// Length unit of the mesh file: "km" or "m".
+    pub units: LengthUnit,
+    /// Mesh format (default: from the extension).
+    pub format: Option<MeshFormat>,
+    /// Orientation handling.
+    #[serde(default)]
+    pub orient: Orient,
+    /// Body centre in the scene frame, km.
+    #[serde(default)]
+    pub position_km: [f64; 3],
+    /// Spin period, hours (spin mode; required for the first body; omit: not rotating).
+    pub spin_period_h: Option<f64>,
+    /// Rotation angle about the spin axis at the first step, degrees.
+    #[serde(default)]
+    pub initial_rotation_deg: f64,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct SceneFile {
+    #[serde(default)]
+    run: RunSection,
+    #[serde(default)]
+    output: OutputSection,
+    ephemeris: EphemerisSection,
+    body: Vec<BodySection>,
+}
+
+fn default_solar_constant() -> f64 {
+    crate::SOLAR_CONSTANT_W_M2
+}
+fn default_steps() -> usize {
+    360
+}
+fn one<T: From<u8>>() -> T {
+    T::from(1)
+}
+
+/// The epoch used when a scene gives none: J2000 (2000-01-01T12:00:00 TDB).
+pub const DEFAULT_START: &str = "2000-01-01T12:00:00 TDB";
+
+impl Scene {
+    /// Reads and validates a scene file.
+    pub fn load(path: &Path) -> Result<Scene> {
+        let source = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+        let text = std::str::from_utf8(&source)
+            .map_err(|e| Error::file(path, format!("not UTF-8 text: {e}")))?;
+        Scene::parse(path, text, source.clone())
+    }
+
+    /// Parses scene text as if read from `path` (paths resolve relative to its folder).
+    pub fn parse(path: &Path, text: &str, source: Vec<u8>) -> Result<Scene> {
+        let de = toml::Deserializer::parse(text).map_err(|e| toml_error(path, text, &e))?;
+        let file: SceneFile = serde_path_to_error::deserialize(de).map_err(|e| Error::Scene {
+            path: path.to_path_buf(),
+            key: key_path(&e.path().to_string()),
+            msg: first_line(&e.inner().to_string()),
+        })?;
+        let folder = path.parent().unwrap_or(Path::new("."));
+        let mut bodies = file.body;
+        for b in &mut bodies {
+            b.mesh = folder.join(&b.mesh);
+        }
+        let start_text = match &file.ephemeris {
+            EphemerisSection::Spin(s) => s.start.clone(),
+            EphemerisSection::Fixed(f) => f.start.clone(),
+        };
+        let start = Epoch::from_str(start_text.as_deref().unwrap_or(DEFAULT_START)).map_err(|e| {
+            Error::Scene {
+                path: path.to_path_buf(),
+                key: "ephemeris.start".into(),
+                msg: format!("not an epoch ({e}); write e.g. \"2018-06-10T00:00:00 UTC\""),
+            }
+        })?;
+        let name = file.run.name.clone().unwrap_or_else(|| {
+            path.file_stem()
+                .map_or("run".into(), |s| s.to_string_lossy().into_owned())
+        });
+        let scene = Scene {
+            path: path.to_path_buf(),
+            source,
+            name,
+            run: file.run,
+            output: file.output,
+            ephemeris: file.ephemeris,
+            bodies,
+            start,
+        };
+        scene.validate()?;
+        Ok(scene)
+    }
+
+    fn err(&self, key: impl Into<String>, msg: impl Into<String>) -> Error {
+        Error::Scene {
+            path: self.path.clone(),
+            key: key.into(),
+            msg: msg.into(),
+        }
+    }
+
+    fn validate(&self) -> Result<()> {
+        positive(self, "run.bin_width_w_m2", self.run.bin_width_w_m2)?;
+        if self.bodies.is_empty() {
+            return Err(self.err("body", "a scene needs at least one [[body]]"));
+        }
+        for (i, b) in self.bodies.iter().enumerate() {
+            let key = |k: &str| format!("body[{i}].{k}");
+            if b.name.trim().is_empty() {
+                return Err(self.err(key("name"), "must not be empty"));
+            }
+            if self.bodies[..i].iter().any(|o| o.name == b.name) {
+                return Err(self.err(key("name"), format!("'{}' is used twice", b.name)));
+            }
+            if b.position_km.iter().any(|x| !x.is_finite()) {
+                return Err(self.err(key("position_km"), "must be finite numbers"));
+            }
+            if let Some(p) = b.spin_period_h {
+                positive(self, &key("spin_period_h"), p)?;
+            }
+            finite(self, &key("initial_rotation_deg"), b.initial_rotation_deg)?;
+        }
+        match &self.ephemeris {
+            EphemerisSection::Spin(s) => self.validate_spin(s),
+            EphemerisSection::Fixed(f) => self.validate_fixed(f),
+        }
+    }
+
+    fn validate_spin(&self, s: &SpinSection) -> Result<()> {
+        positive(self, "ephemeris.distance_au", s.distance_au)?;
+        positive(self, "ephemeris.solar_constant_w_m2", s.solar_constant_w_m2)?;
+        positive(self, "ephemeris.periods", s.periods)?;
+        if s.steps_per_period == 0 {
+            return Err(self.err("ephemeris.steps_per_period", "must be at least 1"));
+        }
+        if self.bodies[0].spin_period_h.is_none() {
+            return Err(self.err(
+                "body[0].spin_period_h",
+                "spin mode needs the first body's spin period (hours)",
+            ));
+        }
+        match (s.subsolar_latitude_deg, s.obliquity_deg, s.solar_longitude_deg) {
+            (Some(lat), None, None) if (-90.0..=90.0).contains(&lat) => Ok(()),
+            (Some(_), None, None) => Err(self.err(
+                "ephemeris.subsolar_latitude_deg",
+                "must be between -90 and 90 degrees",
+            )),
+            (None, Some(o), Some(l)) if o.is_finite() && l.is_finite() => Ok(()),
+            (None, None, None) => Ok(()),
+            _ => Err(self.err(
+                "ephemeris",
+                "give either subsolar_latitude_deg, or both obliquity_deg and solar_longitude_deg \
+                 (finite numbers)",
+            )),
+        }
+    }
+
+    fn validate_fixed(&self, f: &FixedSection) -> Result<()> {
+        positive(self, "ephemeris.step_s", f.step_s)?;
+        positive(self, "ephemeris.solar_constant_w_m2", f.solar_constant_w_m2)?;
+        if f.sun.is_empty() {
+            return Err(self.err("ephemeris.sun", "fixed mode needs at least one [[ephemeris.sun]]"));
+        }
+        for (i, s) in f.sun.iter().enumerate() {
+            let key = |k: &str| format!("ephemeris.sun[{i}].{k}");
+            if crate::ephemeris::fixed::normalized_direction(s.direction).is_none() {
+                return Err(self.err(key("direction"), "must be a finite, non-zero vector"));
+            }
+            match (s.distance_au, s.flux_w_m2) {
+                (Some(d), None) => positive(self, &key("distance_au"), d)?,
+                (None, Some(w)) if w.is_finite() && w >= 0.0 => {}
+                (None, Some(_)) => {
+                    return Err(self.err(key("flux_w_m2"), "must be a finite number ≥ 0"))
+                }
+                _ => {
+                    return Err(self.err(
+                        format!("ephemeris.sun[{i}]"),
+                        "give exactly one of distance_au and flux_w_m2",
+                    ))
+                }
+            }
+        }
+        Ok(())
+    }
+}
+
+fn positive(scene: &Scene, key: &str, x: f64) -> Result<()> {
+    if x.is_finite() && x > 0.0 {
+        Ok(())
+    } else {
+        Err(scene.err(key, format!("must be a positive number, not {x}")))
+    }
+}
+
+fn finite(scene: &Scene, key: &str, x: f64) -> Result<()> {
+    if x.is_finite() {
+        Ok(())
+    } else {
+        Err(scene.err(key, format!("must be a finite number, not {x}")))
+    }
+}
+
+/// A TOML syntax error, located by line.
+fn toml_error(path: &Path, text: &str, e: &toml::de::Error) -> Error {
+    let line = e.span().map_or(1, |s| {
+        text.get(..s.start).map_or(1, |before| before.matches('\n').count() + 1)
+    });
+    Error::at_line(path, line, e.message().trim())
+}
+
+/// The key path of a deserialisation error (`body[0].units`), or "(top level)".
+fn key_path(path: &str) -> String {
+    if path.is_empty() || path == "." {
+        "(top level)".into()
+    } else {
+        path.to_string()
+    }
+}
+
+fn first_line(s: &str) -> String {
+    s.lines().next().unwrap_or(s).to_string()
+}

@@ -1,0 +1,64 @@
+//! Trace: shadow queries against one body's mesh, behind one trait.
+//!
+//! In: a [`Mesh`] (metres, body frame) and, per query batch, a unit direction toward the
+//! Sun in that frame. Out: for a ray `origin + t·dir`, whether any facet (other than the
+//! one the ray starts on) is hit at a distance `t > t_min` — the any-hit query a shadow test
+//! needs.
+//!
+//! Two structures implement [`Tracer`]:
+//! - [`grid::UniformGrid`]: the SLIM paper's reference (section 6.1), a 3-D uniform grid
+//!   over the body's bounding box walked cell by cell with Amanatides–Woo traversal.
+//! - [`sunview::SunView`]: the fast path. All shadow rays of a step are parallel to the
+//!   Sun, so the mesh is projected once onto the plane perpendicular to the Sun and binned
+//!   into a 2-D grid; a shadow query is then a point lookup in one cell.
+//!
+//! Both decide a hit with the same exact predicate ([`ray::hit_distance`]), evaluated in a
+//! frame that depends only on the ray direction, so they classify every ray identically;
+//! they differ only in which facets they test.
+
+pub mod grid;
+pub mod ray;
+pub mod sunview;
+
+use crate::mesh::Mesh;
+use glam::DVec3;
+use serde::{Deserialize, Serialize};
+
+/// Any-hit queries for rays parallel to one direction.
+pub trait ShadowQuery: Sync {
+    /// True if the ray `origin + t·dir` hits a facet other than `skip` for some `t > t_min`
+    /// (`origin` in the mesh frame, metres).
+    fn blocked(&self, origin: DVec3, t_min: f64, skip: Option<u32>) -> bool;
+}
+
+/// An acceleration structure over one mesh that answers shadow queries.
+pub trait Tracer: Send + Sync {
+    /// Queries for rays along the unit vector `dir` (mesh frame).
+    fn toward(&self, dir: DVec3) -> Box<dyn ShadowQuery + '_>;
+}
+
+/// Which tracer a run uses.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "lowercase")]
+pub enum TracerKind {
+    /// The paper's 3-D uniform grid (reference).
+    Grid,
+    /// The Sun-parallel 2-D projection grid (fast; default).
+    #[default]
+    Sunview,
+}
+
+/// Builds a tracer of `kind` over `mesh`.
+pub fn build(kind: TracerKind, mesh: &Mesh) -> Box<dyn Tracer + '_> {
+    match kind {
+        TracerKind::Grid => Box::new(grid::UniformGrid::build(mesh)),
+        TracerKind::Sunview => Box::new(sunview::SunView::new(mesh)),
+    }
+}
+
+/// Indices of the facets that can cast shadows: every facet with a non-zero area.
+pub(crate) fn caster_facets(mesh: &Mesh) -> Vec<u32> {
+    (0..mesh.len() as u32)
+        .filter(|&i| mesh.areas[i as usize] > 0.0)
+        .collect()
+}

@@ -1,0 +1,114 @@
+//! World: every body of a scene in its own body-fixed frame, and the poses that place the
+//! bodies relative to each other.
+//!
+//! In: meshes in metres (body-fixed, relative to each body's centre). Out: [`World`], the
+//! bodies with their facet-id offsets, and [`Pose`] transforms between body frames. Keeping
+//! each body in its own frame is what keeps a 1 m facet 20,000 km from the scene origin as
+//! exact as one at the origin: only differences of body positions are ever formed.
+
+use crate::mesh::Mesh;
+use glam::{DMat3, DVec3};
+
+/// Where a body is at one epoch: its rotation and the position of its centre, both
+/// relative to the scene frame (an inertial frame; for SPICE scenes, J2000).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Pose {
+    /// Rotation taking body-fixed vectors to the scene frame.
+    pub body_to_scene: DMat3,
+    /// Body centre in the scene frame, metres.
+    pub position_m: DVec3,
+}
+
+impl Pose {
+    /// A body at the scene origin with axes aligned to the scene frame.
+    pub const IDENTITY: Pose = Pose {
+        body_to_scene: DMat3::IDENTITY,
+        position_m: DVec3::ZERO,
+    };
+
+    /// The transform taking points in this body's frame to points in `other`'s frame.
+    pub fn relative_to(&self, other: &Pose) -> FrameTransform {
+        let scene_to_other = other.body_to_scene.transpose();
+        FrameTransform {
+            rotation: scene_to_other * self.body_to_scene,
+            // Difference of positions first: both may be huge, their difference is not.
+            offset_m: scene_to_other * (self.position_m - other.position_m),
+        }
+    }
+}
+
+/// A rigid transform between two body frames: `x_to = rotation · x_from + offset_m`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FrameTransform {
+    pub rotation: DMat3,
+    pub offset_m: DVec3,
+}
+
+impl FrameTransform {
+    /// Maps a point (metres).
+    pub fn point(&self, p: DVec3) -> DVec3 {
+        self.rotation * p + self.offset_m
+    }
+
+    /// Maps a direction.
+    pub fn vector(&self, v: DVec3) -> DVec3 {
+        self.rotation * v
+    }
+}
+
+/// One body: a named mesh in its own frame.
+#[derive(Debug, Clone)]
+pub struct Body {
+    /// Name used in outputs (unique within a scene).
+    pub name: String,
+    /// The mesh in metres, body-fixed frame.
+    pub mesh: Mesh,
+    /// True when the mesh was found to be a closed convex surface (no self-shadowing).
+    pub convex: bool,
+    /// Radius of a sphere about the body origin that contains every vertex, metres.
+    pub bounding_radius_m: f64,
+}
+
+impl Body {
+    /// A body from a mesh; `convex` comes from the mesh inspection.
+    pub fn new(name: impl Into<String>, mesh: Mesh, convex: bool) -> Body {
+        let bounding_radius_m = mesh
+            .triangles
+            .iter()
+            .flatten()
+            .map(|&v| mesh.vertices[v as usize].length())
+            .fold(0.0, f64::max);
+        Body {
+            name: name.into(),
+            mesh,
+            convex,
+            bounding_radius_m,
+        }
+    }
+}
+
+/// All bodies of a scene. Global facet id = `offsets[body] + local id`.
+#[derive(Debug, Clone, Default)]
+pub struct World {
+    pub bodies: Vec<Body>,
+}
+
+impl World {
+    /// Total number of facets over all bodies.
+    pub fn facet_count(&self) -> usize {
+        self.bodies.iter().map(|b| b.mesh.len()).sum()
+    }
+
+    /// First global facet id of each body.
+    pub fn offsets(&self) -> Vec<usize> {
+        let mut acc = 0;
+        self.bodies
+            .iter()
+            .map(|b| {
+                let o = acc;
+                acc += b.mesh.len();
+                o
+            })
+            .collect()
+    }
+}
