@@ -13,7 +13,11 @@ use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use std::path::PathBuf;
 
 #[derive(Parser, Debug)]
-#[command(name = "slim", version, about = "Sunlight on airless bodies: shadowed irradiance and per-facet statistics")]
+#[command(
+    name = "slim",
+    version,
+    about = "Sunlight on airless bodies: shadowed irradiance and per-facet statistics"
+)]
 struct Cli {
     #[command(subcommand)]
     command: Command,
@@ -101,7 +105,11 @@ fn execute(cli: Cli) -> Result<()> {
             }
             Ok(())
         }
-        Command::Info { mesh, units, format } => {
+        Command::Info {
+            mesh,
+            units,
+            format,
+        } => {
             let format = format.map(|f| match f {
                 Format::Obj => MeshFormat::Obj,
                 Format::Ply => MeshFormat::Ply,
@@ -146,8 +154,10 @@ impl TerminalProgress {
         };
         let bar = ProgressBar::with_draw_target(None, target);
         bar.set_style(
-            ProgressStyle::with_template("{bar:40} {pos}/{len} steps  {elapsed} elapsed, {eta} left")
-                .expect("valid template"),
+            ProgressStyle::with_template(
+                "{bar:40} {pos}/{len} steps  {elapsed} elapsed, {eta} left",
+            )
+            .expect("valid template"),
         );
         TerminalProgress { quiet, bar }
     }

@@ -88,7 +88,12 @@ impl<'w> Direct<'w> {
     }
 
     /// Bodies whose bounding spheres can reach into the receiver's shadow cylinder.
-    fn foreign_casters(&self, receiver: usize, state: &EpochState, sun: DVec3) -> Vec<ForeignCaster<'_>> {
+    fn foreign_casters(
+        &self,
+        receiver: usize,
+        state: &EpochState,
+        sun: DVec3,
+    ) -> Vec<ForeignCaster<'_>> {
         let bodies = &self.world.bodies;
         let rx = &state.bodies[receiver];
         (0..bodies.len())

@@ -20,6 +20,7 @@
 //!
 //! [`run::run_scene`] drives the whole pipeline; [`plan`] decides what a scene needs.
 
+pub mod analytic;
 pub mod cli;
 pub mod ephemeris;
 pub mod error;

@@ -87,9 +87,17 @@ pub fn build_world(scene: &Scene) -> Result<(World, Vec<BodyRecord>, Vec<String>
         if flip {
             mesh = flipped(mesh);
             report = inspect(&mesh);
-            warnings.push(format!("body '{}': every facet was flipped (orient option)", b.name));
+            warnings.push(format!(
+                "body '{}': every facet was flipped (orient option)",
+                b.name
+            ));
         }
-        warnings.extend(report.problems().into_iter().map(|p| format!("body '{}': {p}", b.name)));
+        warnings.extend(
+            report
+                .problems()
+                .into_iter()
+                .map(|p| format!("body '{}': {p}", b.name)),
+        );
         let convex = report.convex;
         records.push(BodyRecord {
             name: b.name.clone(),
@@ -118,7 +126,11 @@ pub fn build_ephemeris(scene: &Scene) -> Box<dyn Ephemeris> {
 }
 
 fn spin_model(scene: &Scene, s: &SpinSection) -> SpinModel {
-    let latitude = match (s.subsolar_latitude_deg, s.obliquity_deg, s.solar_longitude_deg) {
+    let latitude = match (
+        s.subsolar_latitude_deg,
+        s.obliquity_deg,
+        s.solar_longitude_deg,
+    ) {
         (Some(lat), _, _) => lat.to_radians(),
         (None, Some(obl), Some(ls)) => (obl.to_radians().sin() * ls.to_radians().sin()).asin(),
         _ => 0.0,
@@ -205,7 +217,9 @@ pub fn simulate(
     let mut counts = StepCounts::default();
     progress.begin_steps(states.len() as u64);
     for state in states {
-        counts += timings.time("direct irradiance", || direct.compute(state, &mut irradiance))?;
+        counts += timings.time("direct irradiance", || {
+            direct.compute(state, &mut irradiance)
+        })?;
         timings.time("statistics", || stats.add_step(&irradiance));
         timings.time("history", || on_step(state, &irradiance))?;
         progress.step_done();
@@ -237,10 +251,19 @@ pub fn run_scene(scene: &Scene, out_dir: &Path, progress: &dyn Progress) -> Resu
     progress.note(&plan.to_string());
     let bins = bins_for(scene, &states);
     let csv = scene.output.csv;
-    let mut history = scene.output.history.then(|| HistoryWriter::new(out_dir, csv, &world));
-    let sim = simulate(&world, &states, scene.run.tracer, bins, &mut timings, progress, |s, e| {
-        history.as_mut().map_or(Ok(()), |h| h.write_step(s, e))
-    })?;
+    let mut history = scene
+        .output
+        .history
+        .then(|| HistoryWriter::new(out_dir, csv, &world));
+    let sim = simulate(
+        &world,
+        &states,
+        scene.run.tracer,
+        bins,
+        &mut timings,
+        progress,
+        |s, e| history.as_mut().map_or(Ok(()), |h| h.write_step(s, e)),
+    )?;
     let mut outputs = timings.time("output", || -> Result<Vec<_>> {
         let mut files = output::write_summary(out_dir, csv, &world, &sim.stats)?;
         files.extend(output::write_cdf(out_dir, csv, &world, &sim.stats)?);

@@ -226,13 +226,14 @@ impl Scene {
             EphemerisSection::Spin(s) => s.start.clone(),
             EphemerisSection::Fixed(f) => f.start.clone(),
         };
-        let start = Epoch::from_str(start_text.as_deref().unwrap_or(DEFAULT_START)).map_err(|e| {
-            Error::Scene {
-                path: path.to_path_buf(),
-                key: "ephemeris.start".into(),
-                msg: format!("not an epoch ({e}); write e.g. \"2018-06-10T00:00:00 UTC\""),
-            }
-        })?;
+        let start =
+            Epoch::from_str(start_text.as_deref().unwrap_or(DEFAULT_START)).map_err(|e| {
+                Error::Scene {
+                    path: path.to_path_buf(),
+                    key: "ephemeris.start".into(),
+                    msg: format!("not an epoch ({e}); write e.g. \"2018-06-10T00:00:00 UTC\""),
+                }
+            })?;
         let name = file.run.name.clone().unwrap_or_else(|| {
             path.file_stem()
                 .map_or("run".into(), |s| s.to_string_lossy().into_owned())
@@ -299,7 +300,11 @@ impl Scene {
                 "spin mode needs the first body's spin period (hours)",
             ));
         }
-        match (s.subsolar_latitude_deg, s.obliquity_deg, s.solar_longitude_deg) {
+        match (
+            s.subsolar_latitude_deg,
+            s.obliquity_deg,
+            s.solar_longitude_deg,
+        ) {
             (Some(lat), None, None) if (-90.0..=90.0).contains(&lat) => Ok(()),
             (Some(_), None, None) => Err(self.err(
                 "ephemeris.subsolar_latitude_deg",
@@ -319,7 +324,10 @@ impl Scene {
         positive(self, "ephemeris.step_s", f.step_s)?;
         positive(self, "ephemeris.solar_constant_w_m2", f.solar_constant_w_m2)?;
         if f.sun.is_empty() {
-            return Err(self.err("ephemeris.sun", "fixed mode needs at least one [[ephemeris.sun]]"));
+            return Err(self.err(
+                "ephemeris.sun",
+                "fixed mode needs at least one [[ephemeris.sun]]",
+            ));
         }
         for (i, s) in f.sun.iter().enumerate() {
             let key = |k: &str| format!("ephemeris.sun[{i}].{k}");
@@ -363,7 +371,8 @@ fn finite(scene: &Scene, key: &str, x: f64) -> Result<()> {
 /// A TOML syntax error, located by line.
 fn toml_error(path: &Path, text: &str, e: &toml::de::Error) -> Error {
     let line = e.span().map_or(1, |s| {
-        text.get(..s.start).map_or(1, |before| before.matches('\n').count() + 1)
+        text.get(..s.start)
+            .map_or(1, |before| before.matches('\n').count() + 1)
     });
     Error::at_line(path, line, e.message().trim())
 }

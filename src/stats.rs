@@ -109,7 +109,11 @@ impl FacetStats {
     /// Merges statistics of a disjoint time range of the same facets and bins.
     pub fn merge(&mut self, other: &FacetStats) {
         assert_eq!(self.bins, other.bins, "merging needs equal bins");
-        assert_eq!(self.moments.len(), other.moments.len(), "merging needs equal facets");
+        assert_eq!(
+            self.moments.len(),
+            other.moments.len(),
+            "merging needs equal facets"
+        );
         let (na, nb) = (self.steps as f64, other.steps as f64);
         let n = na + nb;
         if other.steps == 0 {

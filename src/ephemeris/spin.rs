@@ -71,9 +71,7 @@ impl Ephemeris for SpinModel {
             .iter()
             .map(|spin| {
                 let angle = spin.initial_angle_rad
-                    + spin
-                        .period_s
-                        .map_or(0.0, |p| std::f64::consts::TAU * t / p);
+                    + spin.period_s.map_or(0.0, |p| std::f64::consts::TAU * t / p);
                 let body_to_scene = DMat3::from_rotation_z(angle);
                 BodyState {
                     sun_dir: body_to_scene.transpose() * self.sun_dir_scene,

@@ -33,6 +33,9 @@ pub struct MeshReport {
     pub inconsistent_edges: usize,
     /// No boundary and no non-manifold edges.
     pub closed: bool,
+    /// Closed once coincident vertices are merged, consistently and outward oriented
+    /// (see [`is_watertight`]).
+    pub watertight: bool,
     /// Sum over facets of a·(b×c)/6; positive when the normals point outward.
     pub signed_volume_m3: f64,
     /// Closed, connected, consistently and outward oriented, without degenerate facets,
@@ -84,12 +87,55 @@ pub fn inspect(mesh: &Mesh) -> MeshReport {
         non_manifold_edges,
         inconsistent_edges,
         closed,
+        watertight: is_watertight(mesh),
         signed_volume_m3,
         convex,
         extent_m: extent.to_array(),
         total_area_m2: mesh.areas.iter().sum(),
         mean_edge_m: mean_edge_length(mesh, &edges),
     }
+}
+
+/// True when the surface is closed once vertices at bitwise-equal positions are merged
+/// (duplicated seam and pole vertices do not open a surface geometrically), every edge is
+/// shared by exactly two facets running it in opposite directions, and the normals point
+/// outward. A ray that leaves such a surface can only be blocked by crossing, from
+/// outside, a facet that faces against the ray.
+pub fn is_watertight(mesh: &Mesh) -> bool {
+    let welded = welded(mesh);
+    let degenerate: Vec<bool> = (0..welded.len())
+        .map(|f| is_degenerate(&welded, f))
+        .collect();
+    let edges = edge_map(&welded, &degenerate);
+    !edges.is_empty()
+        && edges
+            .values()
+            .all(|e| e.uses == 2 && e.forward[0] != e.forward[1])
+        && signed_volume(mesh) > 0.0
+}
+
+/// `mesh` with every vertex replaced by the first vertex at the same position.
+fn welded(mesh: &Mesh) -> Mesh {
+    let mut first: HashMap<[u64; 3], u32> = HashMap::with_capacity(mesh.vertices.len());
+    let canonical: Vec<u32> = mesh
+        .vertices
+        .iter()
+        .enumerate()
+        .map(|(i, v)| {
+            // +0.0 for -0.0, so the two zeros weld.
+            let key = v.to_array().map(|c| (c + 0.0).to_bits());
+            *first.entry(key).or_insert(i as u32)
+        })
+        .collect();
+    let raw = crate::mesh::RawMesh {
+        vertices: mesh.vertices.clone(),
+        triangles: mesh
+            .triangles
+            .iter()
+            .map(|t| t.map(|v| canonical[v as usize]))
+            .collect(),
+    };
+    Mesh::from_raw(raw, crate::mesh::LengthUnit::M)
 }
 
 fn has_repeated_vertex([a, b, c]: [u32; 3]) -> bool {
@@ -360,6 +406,14 @@ impl fmt::Display for MeshReport {
              are flipped relative to their neighbours, so their normals point the wrong way",
         )?;
         write_volume(f, self)?;
+        if self.watertight {
+            writeln!(f, "  ok: watertight once coincident vertices are merged")?;
+        } else {
+            writeln!(
+                f,
+                "  not watertight: light may pass through gaps or reach facets' backs"
+            )?;
+        }
         if self.convex {
             writeln!(
                 f,

@@ -10,6 +10,7 @@
 //! facets, unreferenced vertices, boundary and non-manifold edges, inconsistent or inward
 //! orientation) are found by [`inspect`], reported, and fixed only when asked.
 
+pub mod generate;
 pub mod inspect;
 mod obj;
 mod pds;
@@ -82,13 +83,15 @@ impl LengthUnit {
 
 /// Reads a mesh file. `format` overrides detection by extension.
 pub fn read_mesh(path: &Path, format: Option<MeshFormat>) -> Result<RawMesh> {
-    let format = format.or_else(|| MeshFormat::from_path(path)).ok_or_else(|| {
-        Error::file(
+    let format = format
+        .or_else(|| MeshFormat::from_path(path))
+        .ok_or_else(|| {
+            Error::file(
             path,
             "unknown mesh format: use the extension .obj, .ply, .stl or .tab/.txt (PDS plates), \
              or set the format explicitly",
         )
-    })?;
+        })?;
     let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
     let mesh = match format {
         MeshFormat::Obj => obj::parse(path, &bytes)?,

@@ -28,15 +28,26 @@ use table::{Table, TableWriter, Values};
 const FACETS_PER_BATCH: usize = 1 << 14;
 
 /// Writes `summary` (one row per facet).
-pub fn write_summary(dir: &Path, csv: bool, world: &World, stats: &FacetStats) -> Result<Vec<PathBuf>> {
+pub fn write_summary(
+    dir: &Path,
+    csv: bool,
+    world: &World,
+    stats: &FacetStats,
+) -> Result<Vec<PathBuf>> {
     let mut writer = TableWriter::new(dir, "summary", csv);
     for_facet_batches(world, |body, range, offset| {
         let mesh = &world.bodies[body].mesh;
         let global = || range.clone().map(|i| offset + i);
         let vec_column = |f: &dyn Fn(usize) -> f64| Values::F64(range.clone().map(f).collect());
         let batch = Table::default()
-            .with("body", Values::Str(vec![world.bodies[body].name.clone(); range.len()]))
-            .with("facet", Values::U32(range.clone().map(|i| i as u32).collect()))
+            .with(
+                "body",
+                Values::Str(vec![world.bodies[body].name.clone(); range.len()]),
+            )
+            .with(
+                "facet",
+                Values::U32(range.clone().map(|i| i as u32).collect()),
+            )
             .with("area_m2", vec_column(&|i| mesh.areas[i]))
             .with("centroid_x_m", vec_column(&|i| mesh.centroids[i].x))
             .with("centroid_y_m", vec_column(&|i| mesh.centroids[i].y))
@@ -44,11 +55,26 @@ pub fn write_summary(dir: &Path, csv: bool, world: &World, stats: &FacetStats) -
             .with("normal_x", vec_column(&|i| mesh.normals[i].x))
             .with("normal_y", vec_column(&|i| mesh.normals[i].y))
             .with("normal_z", vec_column(&|i| mesh.normals[i].z))
-            .with("min_w_m2", Values::F64(global().map(|g| stats.min(g)).collect()))
-            .with("max_w_m2", Values::F64(global().map(|g| stats.max(g)).collect()))
-            .with("mean_w_m2", Values::F64(global().map(|g| stats.mean(g)).collect()))
-            .with("std_w_m2", Values::F64(global().map(|g| stats.std(g)).collect()))
-            .with("lit_fraction", Values::F64(global().map(|g| stats.lit_fraction(g)).collect()));
+            .with(
+                "min_w_m2",
+                Values::F64(global().map(|g| stats.min(g)).collect()),
+            )
+            .with(
+                "max_w_m2",
+                Values::F64(global().map(|g| stats.max(g)).collect()),
+            )
+            .with(
+                "mean_w_m2",
+                Values::F64(global().map(|g| stats.mean(g)).collect()),
+            )
+            .with(
+                "std_w_m2",
+                Values::F64(global().map(|g| stats.std(g)).collect()),
+            )
+            .with(
+                "lit_fraction",
+                Values::F64(global().map(|g| stats.lit_fraction(g)).collect()),
+            );
         writer.write(&batch)
     })?;
     writer.finish()
@@ -71,7 +97,10 @@ pub fn write_cdf(dir: &Path, csv: bool, world: &World, stats: &FacetStats) -> Re
             }
         }
         let batch = Table::default()
-            .with("body", Values::Str(vec![world.bodies[body].name.clone(); rows]))
+            .with(
+                "body",
+                Values::Str(vec![world.bodies[body].name.clone(); rows]),
+            )
             .with("facet", Values::U32(facet))
             .with("irradiance_w_m2", Values::F64(threshold))
             .with("cdf", Values::F64(cdf));
@@ -81,17 +110,42 @@ pub fn write_cdf(dir: &Path, csv: bool, world: &World, stats: &FacetStats) -> Re
 }
 
 /// Writes `geometry` (one row per step and body).
-pub fn write_geometry(dir: &Path, csv: bool, world: &World, states: &[EpochState]) -> Result<Vec<PathBuf>> {
+pub fn write_geometry(
+    dir: &Path,
+    csv: bool,
+    world: &World,
+    states: &[EpochState],
+) -> Result<Vec<PathBuf>> {
     let mut writer = TableWriter::new(dir, "geometry", csv);
-    let rows = || states.iter().flat_map(|s| s.bodies.iter().enumerate().map(move |(b, x)| (s, b, x)));
+    let rows = || {
+        states
+            .iter()
+            .flat_map(|s| s.bodies.iter().enumerate().map(move |(b, x)| (s, b, x)))
+    };
     let column = |f: &dyn Fn(&crate::ephemeris::BodyState) -> f64| {
         Values::F64(rows().map(|(_, _, x)| f(x)).collect())
     };
     let batch = Table::default()
-        .with("step", Values::U64(rows().map(|(s, _, _)| s.step as u64).collect()))
-        .with("et_tdb_s", Values::F64(rows().map(|(s, _, _)| et_tdb_s(s)).collect()))
-        .with("utc", Values::Str(rows().map(|(s, _, _)| utc_string(s)).collect()))
-        .with("body", Values::Str(rows().map(|(_, b, _)| world.bodies[b].name.clone()).collect()))
+        .with(
+            "step",
+            Values::U64(rows().map(|(s, _, _)| s.step as u64).collect()),
+        )
+        .with(
+            "et_tdb_s",
+            Values::F64(rows().map(|(s, _, _)| et_tdb_s(s)).collect()),
+        )
+        .with(
+            "utc",
+            Values::Str(rows().map(|(s, _, _)| utc_string(s)).collect()),
+        )
+        .with(
+            "body",
+            Values::Str(
+                rows()
+                    .map(|(_, b, _)| world.bodies[b].name.clone())
+                    .collect(),
+            ),
+        )
         .with("sun_x", column(&|x| x.sun_dir.x))
         .with("sun_y", column(&|x| x.sun_dir.y))
         .with("sun_z", column(&|x| x.sun_dir.z))
@@ -109,7 +163,10 @@ pub fn et_tdb_s(state: &EpochState) -> f64 {
 /// ISO-8601 UTC of a step, millisecond precision.
 pub fn utc_string(state: &EpochState) -> String {
     let (y, mo, d, h, mi, s, ns) = state.epoch.to_gregorian_utc();
-    format!("{y:04}-{mo:02}-{d:02}T{h:02}:{mi:02}:{s:02}.{:03}Z", ns / 1_000_000)
+    format!(
+        "{y:04}-{mo:02}-{d:02}T{h:02}:{mi:02}:{s:02}.{:03}Z",
+        ns / 1_000_000
+    )
 }
 
 /// Calls `f(body, local facet range, body offset)` for batches of facets, body by body.
@@ -137,7 +194,11 @@ impl HistoryWriter {
     pub fn new(dir: &Path, csv: bool, world: &World) -> HistoryWriter {
         HistoryWriter {
             writer: TableWriter::new(dir, "history", csv),
-            bodies: world.bodies.iter().map(|b| (b.name.clone(), b.mesh.len())).collect(),
+            bodies: world
+                .bodies
+                .iter()
+                .map(|b| (b.name.clone(), b.mesh.len()))
+                .collect(),
         }
     }
 
@@ -149,7 +210,11 @@ impl HistoryWriter {
             .iter()
             .flat_map(|(name, len)| std::iter::repeat_n(name.clone(), *len))
             .collect();
-        let facet = self.bodies.iter().flat_map(|(_, len)| 0..*len as u32).collect();
+        let facet = self
+            .bodies
+            .iter()
+            .flat_map(|(_, len)| 0..*len as u32)
+            .collect();
         let batch = Table::default()
             .with("step", Values::U64(vec![state.step as u64; n]))
             .with("et_tdb_s", Values::F64(vec![et_tdb_s(state); n]))

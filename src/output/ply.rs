@@ -21,7 +21,12 @@ pub fn write_ply(path: &Path, mesh: &Mesh, stats: &FacetStats, offset: usize) ->
     commit(&tmp, path)
 }
 
-fn write_body(out: &mut impl Write, mesh: &Mesh, stats: &FacetStats, offset: usize) -> std::io::Result<()> {
+fn write_body(
+    out: &mut impl Write,
+    mesh: &Mesh,
+    stats: &FacetStats,
+    offset: usize,
+) -> std::io::Result<()> {
     write!(
         out,
         "ply\nformat binary_little_endian 1.0\n\
@@ -45,7 +50,12 @@ fn write_body(out: &mut impl Write, mesh: &Mesh, stats: &FacetStats, offset: usi
             out.write_all(&(v as i32).to_le_bytes())?;
         }
         let g = offset + i;
-        for value in [stats.mean(g), stats.max(g), stats.min(g), stats.lit_fraction(g)] {
+        for value in [
+            stats.mean(g),
+            stats.max(g),
+            stats.min(g),
+            stats.lit_fraction(g),
+        ] {
             out.write_all(&(value as f32).to_le_bytes())?;
         }
     }

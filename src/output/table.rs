@@ -100,8 +100,11 @@ impl Table {
     }
 
     fn to_record_batch(&self, schema: SchemaRef) -> std::result::Result<RecordBatch, String> {
-        RecordBatch::try_new(schema, self.columns.iter().map(|(_, v)| v.to_arrow()).collect())
-            .map_err(|e| e.to_string())
+        RecordBatch::try_new(
+            schema,
+            self.columns.iter().map(|(_, v)| v.to_arrow()).collect(),
+        )
+        .map_err(|e| e.to_string())
     }
 }
 

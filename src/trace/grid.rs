@@ -122,7 +122,8 @@ fn grid_dims(extent: DVec3, facets: usize) -> IVec3 {
     let cells = (facets.max(1) as f64 / FACETS_PER_CELL).max(1.0);
     let side = (extent.x * extent.y * extent.z / cells).cbrt();
     let n = (extent / side).ceil();
-    IVec3::new(n.x as i32, n.y as i32, n.z as i32).clamp(IVec3::ONE, IVec3::splat(MAX_CELLS_PER_AXIS))
+    IVec3::new(n.x as i32, n.y as i32, n.z as i32)
+        .clamp(IVec3::ONE, IVec3::splat(MAX_CELLS_PER_AXIS))
 }
 
 fn for_cells(lo: IVec3, hi: IVec3, mut f: impl FnMut(IVec3)) {

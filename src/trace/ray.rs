@@ -69,8 +69,8 @@ pub fn hit_distance(tri: &[DVec3; 3], q: DVec3) -> Option<f64> {
     let e_ab = edge(a.truncate(), b.truncate(), q2);
     let e_bc = edge(b.truncate(), c.truncate(), q2);
     let e_ca = edge(c.truncate(), a.truncate(), q2);
-    let inside = (e_ab >= 0.0 && e_bc >= 0.0 && e_ca >= 0.0)
-        || (e_ab <= 0.0 && e_bc <= 0.0 && e_ca <= 0.0);
+    let inside =
+        (e_ab >= 0.0 && e_bc >= 0.0 && e_ca >= 0.0) || (e_ab <= 0.0 && e_bc <= 0.0 && e_ca <= 0.0);
     let sum = e_ab + e_bc + e_ca;
     if !inside || sum == 0.0 {
         return None;

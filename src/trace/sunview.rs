@@ -7,22 +7,29 @@
 //! per cell); a query looks at one cell. Building costs O(facets) per Sun direction, a
 //! query O(facets in a cell), independent of how far the ray travels.
 //!
+//! On a watertight mesh (see [`crate::mesh::inspect::is_watertight`]) only facets facing
+//! away from the Sun are binned: a ray leaving the surface toward the Sun is outside the
+//! body, so the first facet it crosses is crossed from outside, against its normal.
+//!
 //! In: a mesh (metres, body frame) and a unit Sun direction. Out: [`ShadowQuery`] answers
-//! that agree bit for bit with the reference grid (same predicate, same projection).
+//! computed with the same predicate and projection as the reference grid.
 
 use super::ray::{hit_distance, RayFrame};
 use super::{caster_facets, ShadowQuery, Tracer};
-use crate::mesh::Mesh;
+use crate::mesh::{inspect::is_watertight, Mesh};
 use glam::{DVec2, DVec3};
 use rayon::prelude::*;
 
 /// Target number of facet entries per cell, on average.
 const FACETS_PER_CELL: f64 = 2.0;
+/// Largest number of cells along one axis.
+const MAX_CELLS_PER_AXIS: usize = 1 << 14;
 
 /// The tracer: remembers the mesh and which facets cast shadows.
 pub struct SunView<'m> {
     mesh: &'m Mesh,
     casters: Vec<u32>,
+    watertight: bool,
 }
 
 impl<'m> SunView<'m> {
@@ -30,13 +37,23 @@ impl<'m> SunView<'m> {
         SunView {
             mesh,
             casters: caster_facets(mesh),
+            watertight: is_watertight(mesh),
         }
     }
 }
 
 impl Tracer for SunView<'_> {
     fn toward(&self, dir: DVec3) -> Box<dyn ShadowQuery + '_> {
-        Box::new(SunGrid::build(self.mesh, &self.casters, RayFrame::new(dir)))
+        let casters: Vec<u32> = if self.watertight {
+            self.casters
+                .par_iter()
+                .copied()
+                .filter(|&f| self.mesh.normals[f as usize].dot(dir) <= 0.0)
+                .collect()
+        } else {
+            self.casters.clone()
+        };
+        Box::new(SunGrid::build(self.mesh, &casters, RayFrame::new(dir)))
     }
 }
 
@@ -48,19 +65,27 @@ struct Projected {
     max_depth: f64,
 }
 
-/// The 2-D grid for one Sun direction (compressed rows of `Projected` facets).
+/// The 2-D grid for one Sun direction: compressed rows of indices into `projected`.
 struct SunGrid {
     frame: RayFrame,
     lo: DVec2,
     inv_cell: f64,
     dims: [usize; 2],
     cell_start: Vec<u32>,
-    entries: Vec<Projected>,
+    cell_items: Vec<u32>,
+    /// Per cell, the largest depth (nearest the Sun) of any facet listed there: a ray
+    /// starting nearer the Sun than that is unblocked without looking at the facets.
+    cell_max_depth: Vec<f64>,
+    projected: Vec<Projected>,
 }
 
 impl SunGrid {
     fn build(mesh: &Mesh, casters: &[u32], frame: RayFrame) -> SunGrid {
-        let vertices: Vec<DVec3> = mesh.vertices.par_iter().map(|&v| frame.project(v)).collect();
+        let vertices: Vec<DVec3> = mesh
+            .vertices
+            .par_iter()
+            .map(|&v| frame.project(v))
+            .collect();
         let projected: Vec<Projected> = casters
             .par_iter()
             .map(|&f| {
@@ -73,16 +98,13 @@ impl SunGrid {
                 }
             })
             .collect();
-        let (lo, hi) = projected.iter().flat_map(|p| p.corners).fold(
-            (DVec2::splat(f64::INFINITY), DVec2::splat(f64::NEG_INFINITY)),
-            |(lo, hi), c| (lo.min(c.truncate()), hi.max(c.truncate())),
-        );
+        let (lo, hi) = bounds_2d(projected.iter().flat_map(|p| p.corners));
         let extent = (hi - lo).max(DVec2::splat(1e-9 * (hi - lo).max_element().max(1e-9)));
         let cells = (projected.len() as f64 / FACETS_PER_CELL).max(1.0);
         let side = (extent.x * extent.y / cells).sqrt();
         let dims = [
-            ((extent.x / side).ceil() as usize).clamp(1, 1 << 14),
-            ((extent.y / side).ceil() as usize).clamp(1, 1 << 14),
+            ((extent.x / side).ceil() as usize).clamp(1, MAX_CELLS_PER_AXIS),
+            ((extent.y / side).ceil() as usize).clamp(1, MAX_CELLS_PER_AXIS),
         ];
         let cell = (extent.x / dims[0] as f64).max(extent.y / dims[1] as f64);
         let mut grid = SunGrid {
@@ -91,20 +113,21 @@ impl SunGrid {
             inv_cell: 1.0 / cell,
             dims,
             cell_start: Vec::new(),
-            entries: Vec::new(),
+            cell_items: Vec::new(),
+            cell_max_depth: Vec::new(),
+            projected,
         };
-        grid.bin(projected, cell);
+        grid.bin(cell);
         grid
     }
 
-    fn bin(&mut self, projected: Vec<Projected>, cell: f64) {
-        let ranges: Vec<[usize; 4]> = projected
+    /// Lists every projected facet in each cell its padded 2-D bounding box overlaps.
+    fn bin(&mut self, cell: f64) {
+        let ranges: Vec<[usize; 4]> = self
+            .projected
             .par_iter()
             .map(|p| {
-                let (lo, hi) = p.corners.iter().fold(
-                    (DVec2::splat(f64::INFINITY), DVec2::splat(f64::NEG_INFINITY)),
-                    |(lo, hi), c| (lo.min(c.truncate()), hi.max(c.truncate())),
-                );
+                let (lo, hi) = bounds_2d(p.corners);
                 // Padding makes a facet whose edge lies on a cell boundary visible from
                 // both cells; the exact predicate decides the rest.
                 let pad = DVec2::splat(cell * 1e-9 + (hi - lo).max_element() * 1e-9);
@@ -113,31 +136,31 @@ impl SunGrid {
                 [x0, y0, x1, y1]
             })
             .collect();
-        let mut counts = vec![0u32; self.dims[0] * self.dims[1] + 1];
+        let width = self.dims[0];
+        let cells_of = move |r: [usize; 4]| {
+            (r[1]..=r[3]).flat_map(move |y| (r[0]..=r[2]).map(move |x| y * width + x))
+        };
+        let mut start = vec![0u32; self.dims[0] * self.dims[1] + 1];
         for r in &ranges {
-            for y in r[1]..=r[3] {
-                for x in r[0]..=r[2] {
-                    counts[y * self.dims[0] + x + 1] += 1;
-                }
+            cells_of(*r).for_each(|c| start[c + 1] += 1);
+        }
+        for i in 1..start.len() {
+            start[i] += start[i - 1];
+        }
+        let mut fill = start.clone();
+        let mut items = vec![0u32; *start.last().unwrap_or(&0) as usize];
+        let mut max_depth = vec![f64::NEG_INFINITY; self.dims[0] * self.dims[1]];
+        for (k, r) in ranges.iter().enumerate() {
+            let depth = self.projected[k].max_depth;
+            for c in cells_of(*r) {
+                items[fill[c] as usize] = k as u32;
+                fill[c] += 1;
+                max_depth[c] = max_depth[c].max(depth);
             }
         }
-        for i in 1..counts.len() {
-            counts[i] += counts[i - 1];
-        }
-        let mut fill = counts.clone();
-        let total = *counts.last().unwrap_or(&0) as usize;
-        let mut entries = vec![projected.first().copied().unwrap_or(EMPTY); total];
-        for (p, r) in projected.iter().zip(&ranges) {
-            for y in r[1]..=r[3] {
-                for x in r[0]..=r[2] {
-                    let slot = &mut fill[y * self.dims[0] + x];
-                    entries[*slot as usize] = *p;
-                    *slot += 1;
-                }
-            }
-        }
-        self.cell_start = counts;
-        self.entries = entries;
+        self.cell_start = start;
+        self.cell_items = items;
+        self.cell_max_depth = max_depth;
     }
 
     fn cell_of(&self, p: DVec2) -> (usize, usize) {
@@ -154,24 +177,31 @@ impl SunGrid {
     }
 }
 
-const EMPTY: Projected = Projected {
-    facet: u32::MAX,
-    corners: [DVec3::ZERO; 3],
-    max_depth: f64::NEG_INFINITY,
-};
+fn bounds_2d(points: impl IntoIterator<Item = DVec3>) -> (DVec2, DVec2) {
+    points.into_iter().fold(
+        (DVec2::splat(f64::INFINITY), DVec2::splat(f64::NEG_INFINITY)),
+        |(lo, hi), c| (lo.min(c.truncate()), hi.max(c.truncate())),
+    )
+}
 
 impl ShadowQuery for SunGrid {
     fn blocked(&self, origin: DVec3, t_min: f64, skip: Option<u32>) -> bool {
         let q = self.frame.project(origin);
-        if !self.contains(q.truncate()) {
+        if self.projected.is_empty() || !self.contains(q.truncate()) {
             return false;
         }
         let (x, y) = self.cell_of(q.truncate());
         let i = y * self.dims[0] + x;
-        let cell = &self.entries[self.cell_start[i] as usize..self.cell_start[i + 1] as usize];
+        // Interpolated depths can exceed the largest corner depth by rounding only.
         let nearest_useful = q.z + t_min;
-        cell.iter().any(|p| {
-            p.max_depth > nearest_useful
+        let slack = 1e-12 * (q.z.abs() + t_min);
+        if self.cell_max_depth[i] + slack <= nearest_useful {
+            return false;
+        }
+        let items = &self.cell_items[self.cell_start[i] as usize..self.cell_start[i + 1] as usize];
+        items.iter().any(|&k| {
+            let p = &self.projected[k as usize];
+            p.max_depth + slack > nearest_useful
                 && Some(p.facet) != skip
                 && hit_distance(&p.corners, q).is_some_and(|t| t > t_min)
         })
