@@ -157,7 +157,7 @@ pub fn write_geometry(
 
 /// TDB seconds past J2000 of a step.
 pub fn et_tdb_s(state: &EpochState) -> f64 {
-    state.epoch.to_et_seconds()
+    state.epoch.to_tdb_seconds()
 }
 
 /// ISO-8601 UTC of a step, millisecond precision.
