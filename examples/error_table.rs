@@ -73,14 +73,30 @@ fn sphere_table() -> Result<(), Error> {
         let t0 = Instant::now();
         let states = epoch_states(&spin)?;
         let bins = Bins::covering(10.0, flux);
-        let sim = simulate(&world, &states, TracerKind::Sunview, bins, &mut Timings::default(), &Silent, |_, _| Ok(()))?;
+        let sim = simulate(
+            &world,
+            &states,
+            TracerKind::Sunview,
+            bins,
+            &mut Timings::default(),
+            &Silent,
+            |_, _| Ok(()),
+        )?;
         let seconds = t0.elapsed().as_secs_f64();
         let normals = &world.bodies[0].mesh.normals;
         let exact = |i: usize| SphereLatitude::from_normal_z(normals[i].z, subsolar, flux);
-        row(steps, seconds, &errors(&sim.stats, |i| {
-            let e = exact(i);
-            (e.mean(), e.max(), (0..bins.count).map(|b| e.cdf(bins.threshold(b))).collect())
-        }));
+        row(
+            steps,
+            seconds,
+            &errors(&sim.stats, |i| {
+                let e = exact(i);
+                (
+                    e.mean(),
+                    e.max(),
+                    (0..bins.count).map(|b| e.cdf(bins.threshold(b))).collect(),
+                )
+            }),
+        );
     }
     Ok(())
 }
@@ -97,7 +113,15 @@ fn phobos_table() -> Result<(), Error> {
         let t0 = Instant::now();
         let states = epoch_states(build_ephemeris(&s).as_ref())?;
         let bins = bins_for(&s, &states);
-        let sim = simulate(&world, &states, TracerKind::Sunview, bins, &mut Timings::default(), &Silent, |_, _| Ok(()))?;
+        let sim = simulate(
+            &world,
+            &states,
+            TracerKind::Sunview,
+            bins,
+            &mut Timings::default(),
+            &Silent,
+            |_, _| Ok(()),
+        )?;
         Ok((sim.stats, t0.elapsed().as_secs_f64()))
     };
     let rows = [36, 72, 144, 360, 720, 1440];
@@ -108,14 +132,24 @@ fn phobos_table() -> Result<(), Error> {
     ));
     for steps in rows {
         let (stats, seconds) = run(steps)?;
-        row(steps, seconds, &errors(&stats, |i| (reference.mean(i), reference.max(i), reference.cdf(i))));
+        row(
+            steps,
+            seconds,
+            &errors(&stats, |i| {
+                (reference.mean(i), reference.max(i), reference.cdf(i))
+            }),
+        );
     }
     Ok(())
 }
 
 /// Largest errors over facets against `truth(i) = (mean, max, cdf at every threshold)`.
 fn errors(stats: &FacetStats, truth: impl Fn(usize) -> (f64, f64, Vec<f64>)) -> Errors {
-    let mut e = Errors { mean: 0.0, max: 0.0, cdf: 0.0 };
+    let mut e = Errors {
+        mean: 0.0,
+        max: 0.0,
+        cdf: 0.0,
+    };
     for i in 0..stats.facets() {
         let (mean, max, cdf) = truth(i);
         e.mean = e.mean.max((stats.mean(i) - mean).abs());
