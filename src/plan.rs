@@ -103,8 +103,11 @@ impl std::fmt::Display for Plan {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         writeln!(
             f,
-            "plan: {} bodies, {} facets, {} steps, tracer {}",
-            self.bodies, self.facets, self.steps, self.tracer
+            "plan: {}, {} facets, {} steps, tracer {}",
+            plural(self.bodies, "body", "bodies"),
+            self.facets,
+            self.steps,
+            self.tracer
         )?;
         for d in &self.decisions {
             let mark = if d.runs { "run " } else { "skip" };
@@ -112,4 +115,8 @@ impl std::fmt::Display for Plan {
         }
         Ok(())
     }
+}
+
+fn plural(n: usize, one: &str, many: &str) -> String {
+    format!("{n} {}", if n == 1 { one } else { many })
 }

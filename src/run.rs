@@ -165,7 +165,8 @@ fn fixed_geometry(scene: &Scene, f: &FixedSection) -> FixedGeometry {
             .sun
             .iter()
             .map(|s| {
-                let distance_m = s.distance_au.unwrap_or(1.0) * crate::AU_M;
+                // A Sun given only by its flux has no distance: NaN, not a made-up one.
+                let distance_m = s.distance_au.map_or(f64::NAN, |au| au * crate::AU_M);
                 FixedSun {
                     dir_scene: normalized_direction(s.direction).unwrap_or(DVec3::X),
                     distance_m,
@@ -297,20 +298,51 @@ pub fn run_scene(scene: &Scene, out_dir: &Path, progress: &dyn Progress) -> Resu
         threads: rayon::current_num_threads(),
         timings_s: timings.0,
         warnings,
-        outputs,
+        outputs: outputs
+            .iter()
+            .filter_map(|p| Some(p.file_name()?.to_string_lossy().into_owned()))
+            .collect(),
     };
     record.write(out_dir)?;
     Ok(record)
 }
 
-/// Creates the output folder and removes a previous run's `run.json`, so the folder
-/// never vouches for files this run has not finished.
+/// Creates the output folder and clears a previous run out of it: the files its
+/// `run.json` lists, unfinished `.partial` files, then `run.json` itself. The folder never
+/// vouches for files this run has not written; nothing else in it is touched.
 fn prepare_output_dir(dir: &Path) -> Result<()> {
     std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
     let record = dir.join("run.json");
-    match std::fs::remove_file(&record) {
+    let listed = std::fs::read(&record)
+        .ok()
+        .and_then(|bytes| serde_json::from_slice::<PreviousRun>(&bytes).ok())
+        .map_or_else(Vec::new, |r| r.outputs);
+    let partial = std::fs::read_dir(dir)
+        .map_err(|e| Error::io(dir, e))?
+        .filter_map(|entry| entry.ok()?.file_name().into_string().ok())
+        .filter(|name| name.ends_with(".partial"));
+    for name in listed
+        .into_iter()
+        .filter(|n| n != "run.json")
+        .chain(partial)
+    {
+        if Path::new(&name).file_name() == Some(std::ffi::OsStr::new(&name)) {
+            remove_if_present(&dir.join(name))?;
+        }
+    }
+    remove_if_present(&record)
+}
+
+/// The part of an earlier `run.json` needed to clear its files.
+#[derive(serde::Deserialize)]
+struct PreviousRun {
+    outputs: Vec<String>,
+}
+
+fn remove_if_present(path: &Path) -> Result<()> {
+    match std::fs::remove_file(path) {
         Ok(()) => Ok(()),
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(()),
-        Err(e) => Err(Error::io(&record, e)),
+        Err(e) => Err(Error::io(path, e)),
     }
 }

@@ -75,9 +75,8 @@ impl Default for OutputSection {
     }
 }
 
-/// `[ephemeris]`: where the Sun is at each step.
-#[derive(Debug, Clone, Deserialize)]
-#[serde(tag = "mode", rename_all = "lowercase")]
+/// `[ephemeris]`: where the Sun is at each step, chosen by its `mode` key.
+#[derive(Debug, Clone)]
 pub enum EphemerisSection {
     /// Synthetic uniform rotation under a fixed Sun.
     Spin(SpinSection),
@@ -183,7 +182,8 @@ struct SceneFile {
     run: RunSection,
     #[serde(default)]
     output: OutputSection,
-    ephemeris: EphemerisSection,
+    /// Read in a second pass, by `mode`, so errors inside keep their key paths.
+    ephemeris: toml::Table,
     body: Vec<BodySection>,
 }
 
@@ -212,17 +212,14 @@ impl Scene {
     /// Parses scene text as if read from `path` (paths resolve relative to its folder).
     pub fn parse(path: &Path, text: &str, source: Vec<u8>) -> Result<Scene> {
         let de = toml::Deserializer::parse(text).map_err(|e| toml_error(path, text, &e))?;
-        let file: SceneFile = serde_path_to_error::deserialize(de).map_err(|e| Error::Scene {
-            path: path.to_path_buf(),
-            key: key_path(&e.path().to_string()),
-            msg: first_line(&e.inner().to_string()),
-        })?;
+        let file: SceneFile = deserialize_at(path, Some(text), "", de)?;
+        let ephemeris = ephemeris_section(path, file.ephemeris)?;
         let folder = path.parent().unwrap_or(Path::new("."));
         let mut bodies = file.body;
         for b in &mut bodies {
             b.mesh = folder.join(&b.mesh);
         }
-        let start_text = match &file.ephemeris {
+        let start_text = match &ephemeris {
             EphemerisSection::Spin(s) => s.start.clone(),
             EphemerisSection::Fixed(f) => f.start.clone(),
         };
@@ -244,7 +241,7 @@ impl Scene {
             name,
             run: file.run,
             output: file.output,
-            ephemeris: file.ephemeris,
+            ephemeris,
             bodies,
             start,
         };
@@ -262,15 +259,17 @@ impl Scene {
 
     fn validate(&self) -> Result<()> {
         positive(self, "run.bin_width_w_m2", self.run.bin_width_w_m2)?;
+        check_name(self, "run.name", &self.name)?;
         if self.bodies.is_empty() {
             return Err(self.err("body", "a scene needs at least one [[body]]"));
         }
         for (i, b) in self.bodies.iter().enumerate() {
             let key = |k: &str| format!("body[{i}].{k}");
-            if b.name.trim().is_empty() {
-                return Err(self.err(key("name"), "must not be empty"));
-            }
-            if self.bodies[..i].iter().any(|o| o.name == b.name) {
+            check_name(self, &key("name"), &b.name)?;
+            if self.bodies[..i]
+                .iter()
+                .any(|o| o.name.eq_ignore_ascii_case(&b.name))
+            {
                 return Err(self.err(key("name"), format!("'{}' is used twice", b.name)));
             }
             if b.position_km.iter().any(|x| !x.is_finite()) {
@@ -368,24 +367,97 @@ fn finite(scene: &Scene, key: &str, x: f64) -> Result<()> {
     }
 }
 
-/// A TOML syntax error, located by line.
-fn toml_error(path: &Path, text: &str, e: &toml::de::Error) -> Error {
-    let line = e.span().map_or(1, |s| {
-        text.get(..s.start)
-            .map_or(1, |before| before.matches('\n').count() + 1)
-    });
-    Error::at_line(path, line, e.message().trim())
+/// Names become file names (`BODY.ply`, `results/NAME`): keep them to letters, digits,
+/// `-`, `_` and `.`, not starting with a dot, so no name can reach outside a folder.
+fn check_name(scene: &Scene, key: &str, name: &str) -> Result<()> {
+    let allowed = |c: char| c.is_ascii_alphanumeric() || matches!(c, '-' | '_' | '.');
+    if name.is_empty() || name.len() > 100 || name.starts_with('.') || !name.chars().all(allowed) {
+        return Err(scene.err(
+            key,
+            format!(
+                "'{name}' is not a usable name: use 1 to 100 letters, digits, '-', '_' or '.', \
+                 not starting with '.'"
+            ),
+        ));
+    }
+    Ok(())
 }
 
-/// The key path of a deserialisation error (`body[0].units`), or "(top level)".
-fn key_path(path: &str) -> String {
-    if path.is_empty() || path == "." {
-        "(top level)".into()
-    } else {
-        path.to_string()
+/// Reads `[ephemeris]` by its `mode`.
+fn ephemeris_section(path: &Path, mut table: toml::Table) -> Result<EphemerisSection> {
+    let err = |msg: String| Error::Scene {
+        path: path.to_path_buf(),
+        key: "ephemeris.mode".into(),
+        msg,
+    };
+    let mode = match table.remove("mode") {
+        Some(toml::Value::String(mode)) => mode,
+        Some(other) => {
+            return Err(err(format!(
+                "must be the text \"spin\" or \"fixed\", not a {}",
+                other.type_str()
+            )))
+        }
+        None => {
+            return Err(err(
+                "missing: write mode = \"spin\" or mode = \"fixed\"".into()
+            ))
+        }
+    };
+    let table = toml::Value::Table(table);
+    match mode.as_str() {
+        "spin" => Ok(EphemerisSection::Spin(deserialize_at(
+            path,
+            None,
+            "ephemeris",
+            table,
+        )?)),
+        "fixed" => Ok(EphemerisSection::Fixed(deserialize_at(
+            path,
+            None,
+            "ephemeris",
+            table,
+        )?)),
+        other => Err(err(format!(
+            "unknown mode '{other}': use \"spin\" or \"fixed\""
+        ))),
     }
 }
 
-fn first_line(s: &str) -> String {
-    s.lines().next().unwrap_or(s).to_string()
+/// Deserialises `T`, reporting any error with its key path (below `prefix`), toml's own
+/// message, and the line when the source `text` is at hand.
+fn deserialize_at<'de, T, D>(path: &Path, text: Option<&str>, prefix: &str, de: D) -> Result<T>
+where
+    T: Deserialize<'de>,
+    D: serde::Deserializer<'de, Error = toml::de::Error>,
+{
+    serde_path_to_error::deserialize(de).map_err(|e| {
+        let inner = e.inner();
+        let line = text.zip(inner.span()).map(|(t, s)| line_of(t, s.start));
+        let below = e.path().to_string();
+        let key = match (prefix, below.as_str()) {
+            ("", ".") => "(top level)".to_string(),
+            (p, ".") => p.to_string(),
+            ("", b) => b.to_string(),
+            (p, b) => format!("{p}.{b}"),
+        };
+        let msg = inner.message().trim().to_string();
+        Error::Scene {
+            path: path.to_path_buf(),
+            key,
+            msg: line.map_or(msg.clone(), |l| format!("{msg} (line {l})")),
+        }
+    })
+}
+
+/// 1-based line of byte `offset` in `text`.
+fn line_of(text: &str, offset: usize) -> usize {
+    text.get(..offset)
+        .map_or(1, |before| before.matches('\n').count() + 1)
+}
+
+/// A TOML syntax error, located by line.
+fn toml_error(path: &Path, text: &str, e: &toml::de::Error) -> Error {
+    let line = e.span().map_or(1, |s| line_of(text, s.start));
+    Error::at_line(path, line, e.message().trim())
 }

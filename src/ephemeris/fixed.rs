@@ -16,7 +16,7 @@ use hifitime::{Duration, Epoch};
 pub struct FixedSun {
     /// Unit vector toward the Sun, scene frame.
     pub dir_scene: DVec3,
-    /// Sun distance, metres (used for outputs; the flux is given).
+    /// Sun distance, metres (for outputs only; NaN when the scene gives only the flux).
     pub distance_m: f64,
     /// Irradiance, W/m².
     pub flux_w_m2: f64,

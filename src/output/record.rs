@@ -40,7 +40,8 @@ pub struct RunRecord {
     /// Wall time per stage, seconds.
     pub timings_s: Vec<(String, f64)>,
     pub warnings: Vec<String>,
-    pub outputs: Vec<PathBuf>,
+    /// Files written, by name, in the output folder (`run.json` last).
+    pub outputs: Vec<String>,
 }
 
 /// SHA-256 of a byte string, hex.

@@ -1,0 +1,346 @@
+//! The `slim` command, run as a process.
+//!
+//! In: small scenes in temporary folders (the shipped Itokawa 8-level mesh, non-convex, so
+//! shadow rays are traced) and broken inputs. Out: exit codes, one-line errors that name
+//! the file, quiet and non-terminal output without progress-bar escapes, and results that
+//! do not depend on the number of threads.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+// ---------------------------------------------------------------------------------------
+// Helpers
+
+/// A fresh directory for one test, removed on drop.
+struct TempDir(PathBuf);
+
+impl TempDir {
+    fn new(test: &str) -> TempDir {
+        let dir = std::env::temp_dir().join(format!("slim-cli-test-{}-{test}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).expect("create temp dir");
+        TempDir(dir)
+    }
+
+    fn join(&self, name: &str) -> PathBuf {
+        self.0.join(name)
+    }
+}
+
+impl Drop for TempDir {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.0);
+    }
+}
+
+fn itokawa() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("data/shapes/itokawa/itokawa_8.obj")
+}
+
+/// A spin scene over the shipped Itokawa mesh (768 facets, non-convex), 24 steps.
+fn write_scene(dir: &TempDir, name: &str) -> PathBuf {
+    let text = format!(
+        "[output]\ncsv = true\nply = true\nhistory = true\n\n\
+         [ephemeris]\nmode = \"spin\"\ndistance_au = 1.1\nsubsolar_latitude_deg = 15.0\nsteps_per_period = 24\n\n\
+         [[body]]\nname = \"itokawa\"\nmesh = {:?}\nunits = \"km\"\nspin_period_h = 12.13\n",
+        itokawa().display().to_string()
+    );
+    let path = dir.join(name);
+    std::fs::write(&path, text).unwrap();
+    path
+}
+
+fn slim(args: &[&str], cwd: &Path) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_slim"))
+        .args(args)
+        .current_dir(cwd)
+        .output()
+        .expect("run slim")
+}
+
+fn text(bytes: &[u8]) -> String {
+    String::from_utf8_lossy(bytes).into_owned()
+}
+
+/// Asserts a failure: non-zero exit, nothing on stdout, stderr exactly one line starting
+/// with "slim: error:" and containing every needle. Returns the line.
+#[track_caller]
+fn assert_one_line_error(out: &Output, needles: &[&str]) -> String {
+    let stderr = text(&out.stderr);
+    assert!(!out.status.success(), "succeeded; stderr: {stderr}");
+    assert_eq!(out.status.code(), Some(1), "exit code; stderr: {stderr}");
+    assert!(out.stdout.is_empty(), "stdout: {}", text(&out.stdout));
+    assert!(
+        stderr.ends_with('\n'),
+        "stderr not a terminated line: {stderr:?}"
+    );
+    assert_eq!(
+        stderr.lines().count(),
+        1,
+        "stderr is not one line: {stderr:?}"
+    );
+    assert!(stderr.starts_with("slim: error:"), "{stderr:?}");
+    for n in needles {
+        assert!(
+            stderr.contains(n),
+            "stderr does not mention {n:?}: {stderr:?}"
+        );
+    }
+    stderr.trim_end().to_string()
+}
+
+fn s(p: &Path) -> &str {
+    p.to_str().expect("UTF-8 temp path")
+}
+
+// ---------------------------------------------------------------------------------------
+// slim run
+
+#[test]
+fn run_succeeds_writes_run_json_and_draws_no_bar_when_not_a_terminal() {
+    let dir = TempDir::new("run-ok");
+    let scene = write_scene(&dir, "ito.toml");
+    let out_dir = dir.join("out");
+    let out = slim(
+        &["run", s(&scene), "-o", s(&out_dir), "--threads", "1"],
+        &dir.0,
+    );
+    let stderr = text(&out.stderr);
+    assert!(out.status.success(), "failed: {stderr}");
+    assert!(out_dir.join("run.json").is_file());
+    assert!(out_dir.join("summary.parquet").is_file());
+    assert!(out_dir.join("itokawa.ply").is_file());
+    assert!(
+        !stderr.contains('\r'),
+        "carriage return in stderr: {stderr:?}"
+    );
+    assert!(
+        !stderr.contains("\x1b["),
+        "escape codes in stderr: {stderr:?}"
+    );
+    assert!(stderr.contains("plan:"), "the plan is shown: {stderr}");
+    assert!(stderr.contains("768 facets"), "{stderr}");
+    assert!(stderr.contains("wrote "), "{stderr}");
+    let record: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out_dir.join("run.json")).unwrap()).unwrap();
+    assert_eq!(record["threads"].as_u64(), Some(1));
+    assert!(
+        record["counts"]["rays"].as_u64().unwrap() > 0,
+        "non-convex mesh: rays traced"
+    );
+}
+
+#[test]
+fn quiet_run_prints_nothing() {
+    let dir = TempDir::new("quiet");
+    let scene = write_scene(&dir, "ito.toml");
+    let out_dir = dir.join("out");
+    let out = slim(&["run", s(&scene), "-o", s(&out_dir), "--quiet"], &dir.0);
+    assert!(out.status.success(), "failed: {}", text(&out.stderr));
+    assert!(out.stdout.is_empty(), "stdout: {:?}", text(&out.stdout));
+    assert!(out.stderr.is_empty(), "stderr: {:?}", text(&out.stderr));
+    assert!(out_dir.join("run.json").is_file());
+}
+
+#[test]
+fn default_output_folder_is_results_slash_scene_name_in_the_working_directory() {
+    let dir = TempDir::new("default-out");
+    let scene = write_scene(&dir, "my-run.toml");
+    let out = slim(&["run", "my-run.toml", "-q"], &dir.0);
+    assert!(out.status.success(), "failed: {}", text(&out.stderr));
+    assert!(dir.join("results/my-run/run.json").is_file());
+    drop(scene);
+}
+
+#[test]
+fn results_do_not_depend_on_the_number_of_threads() {
+    let dir = TempDir::new("threads");
+    let scene = write_scene(&dir, "ito.toml");
+    let one = dir.join("one");
+    let two = dir.join("two");
+    for (out_dir, n) in [(&one, "1"), (&two, "2")] {
+        let out = slim(
+            &["run", s(&scene), "-o", s(out_dir), "--threads", n, "-q"],
+            &dir.0,
+        );
+        assert!(
+            out.status.success(),
+            "--threads {n} failed: {}",
+            text(&out.stderr)
+        );
+    }
+    for name in [
+        "summary.csv",
+        "cdf.csv",
+        "history.csv",
+        "geometry.csv",
+        "summary.parquet",
+        "itokawa.ply",
+    ] {
+        let a = std::fs::read(one.join(name)).unwrap();
+        let b = std::fs::read(two.join(name)).unwrap();
+        assert!(a == b, "{name} differs between --threads 1 and --threads 2");
+    }
+    let record: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(two.join("run.json")).unwrap()).unwrap();
+    assert_eq!(record["threads"].as_u64(), Some(2));
+}
+
+// ---------------------------------------------------------------------------------------
+// slim run: errors
+
+#[test]
+fn missing_scene_file_is_a_one_line_error_naming_it() {
+    let dir = TempDir::new("missing-scene");
+    let out = slim(&["run", "nowhere.toml", "-o", "out"], &dir.0);
+    assert_one_line_error(&out, &["nowhere.toml"]);
+    assert!(
+        !dir.join("out").exists(),
+        "no output folder for a scene that does not load"
+    );
+}
+
+#[test]
+fn unknown_scene_key_is_a_one_line_error_naming_file_and_key() {
+    let dir = TempDir::new("bad-scene");
+    let scene = write_scene(&dir, "bad.toml");
+    let text = std::fs::read_to_string(&scene)
+        .unwrap()
+        .replace("spin_period_h", "spin_perod_h");
+    std::fs::write(&scene, text).unwrap();
+    let out = slim(&["run", "bad.toml", "-o", "out"], &dir.0);
+    assert_one_line_error(&out, &["bad.toml", "body[0]", "spin_perod_h"]);
+}
+
+#[test]
+fn toml_syntax_error_is_a_one_line_error_with_the_line() {
+    let dir = TempDir::new("syntax");
+    let scene = write_scene(&dir, "syntax.toml");
+    let text = std::fs::read_to_string(&scene)
+        .unwrap()
+        .replace("distance_au = 1.1", "distance_au = = 1.1");
+    std::fs::write(&scene, text).unwrap();
+    let out = slim(&["run", "syntax.toml", "-o", "out"], &dir.0);
+    assert_one_line_error(&out, &["syntax.toml", "line 8"]);
+}
+
+#[test]
+fn broken_mesh_is_a_one_line_error_naming_the_mesh() {
+    let dir = TempDir::new("broken-mesh");
+    std::fs::write(
+        dir.join("broken.obj"),
+        "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 9\n",
+    )
+    .unwrap();
+    let scene = "[ephemeris]\nmode = \"fixed\"\n[[ephemeris.sun]]\ndirection = [1, 0, 0]\nflux_w_m2 = 100\n\n\
+                 [[body]]\nname = \"x\"\nmesh = \"broken.obj\"\nunits = \"m\"\n";
+    std::fs::write(dir.join("scene.toml"), scene).unwrap();
+    let out = slim(&["run", "scene.toml", "-o", "out"], &dir.0);
+    assert_one_line_error(&out, &["broken.obj"]);
+    assert!(!dir.join("out/run.json").exists());
+}
+
+#[test]
+fn missing_mesh_is_a_one_line_error_naming_the_mesh() {
+    let dir = TempDir::new("missing-mesh");
+    let scene = "[ephemeris]\nmode = \"fixed\"\n[[ephemeris.sun]]\ndirection = [1, 0, 0]\nflux_w_m2 = 100\n\n\
+                 [[body]]\nname = \"x\"\nmesh = \"absent.obj\"\nunits = \"m\"\n";
+    std::fs::write(dir.join("scene.toml"), scene).unwrap();
+    let out = slim(&["run", "scene.toml", "-o", "out"], &dir.0);
+    assert_one_line_error(&out, &["absent.obj"]);
+}
+
+#[test]
+fn zero_threads_is_a_one_line_error() {
+    let dir = TempDir::new("zero-threads");
+    let scene = write_scene(&dir, "ito.toml");
+    let out = slim(&["run", s(&scene), "-o", "out", "--threads", "0"], &dir.0);
+    assert_one_line_error(&out, &["--threads"]);
+    assert!(!dir.join("out").exists());
+}
+
+// ---------------------------------------------------------------------------------------
+// slim info
+
+#[test]
+fn info_reports_facets_and_vertices() {
+    let dir = TempDir::new("info");
+    let out = slim(&["info", s(&itokawa())], &dir.0);
+    let stdout = text(&out.stdout);
+    assert!(out.status.success(), "failed: {}", text(&out.stderr));
+    assert!(stdout.contains("itokawa_8.obj"), "{stdout}");
+    assert!(stdout.contains("768 facets"), "{stdout}");
+    assert!(stdout.contains("386 vertices"), "{stdout}");
+}
+
+/// The three extents of the "size: X x Y x Z m" line.
+fn extents(stdout: &str) -> [f64; 3] {
+    let line = stdout
+        .lines()
+        .find(|l| l.trim_start().starts_with("size:"))
+        .expect("size line");
+    let dims = line.trim_start().trim_start_matches("size:");
+    let dims = &dims[..dims.find(" m").expect("unit")];
+    let v: Vec<f64> = dims
+        .split(" x ")
+        .map(|x| x.trim().parse().expect("number"))
+        .collect();
+    [v[0], v[1], v[2]]
+}
+
+#[test]
+fn info_units_scale_the_report() {
+    let dir = TempDir::new("info-units");
+    let km = slim(&["info", s(&itokawa())], &dir.0);
+    let m = slim(&["info", "--units", "m", s(&itokawa())], &dir.0);
+    assert!(km.status.success() && m.status.success());
+    let (km, m) = (extents(&text(&km.stdout)), extents(&text(&m.stdout)));
+    for i in 0..3 {
+        // Itokawa is ~535 × 294 × 209 m: in km units the size is hundreds of metres.
+        assert!(km[i] > 100.0 && km[i] < 1000.0, "{km:?}");
+        assert!((km[i] / 1000.0 - m[i]).abs() <= 0.1, "km {km:?} vs m {m:?}");
+    }
+}
+
+#[test]
+fn info_on_a_missing_file_is_a_one_line_error() {
+    let dir = TempDir::new("info-missing");
+    let out = slim(&["info", "no-such-mesh.obj"], &dir.0);
+    assert_one_line_error(&out, &["no-such-mesh.obj"]);
+}
+
+#[test]
+fn info_on_a_broken_file_is_a_one_line_error_with_the_line() {
+    let dir = TempDir::new("info-broken");
+    std::fs::write(
+        dir.join("bad.obj"),
+        "v 0 0 0\nv 1 0 0\nv 0 1 zero\nf 1 2 3\n",
+    )
+    .unwrap();
+    let out = slim(&["info", "bad.obj"], &dir.0);
+    assert_one_line_error(&out, &["bad.obj", "line 3"]);
+}
+
+#[test]
+fn unknown_ephemeris_key_is_a_one_line_error_naming_the_key() {
+    let dir = TempDir::new("bad-ephemeris");
+    let scene = write_scene(&dir, "eph.toml");
+    let text = std::fs::read_to_string(&scene)
+        .unwrap()
+        .replace("steps_per_period", "steps_per_perod");
+    std::fs::write(&scene, text).unwrap();
+    let out = slim(&["run", "eph.toml", "-o", "out"], &dir.0);
+    assert_one_line_error(&out, &["eph.toml", "ephemeris", "steps_per_perod"]);
+}
+
+#[test]
+fn missing_body_key_is_a_one_line_error_naming_the_key() {
+    let dir = TempDir::new("missing-body-key");
+    let scene = write_scene(&dir, "nokey.toml");
+    let text = std::fs::read_to_string(&scene)
+        .unwrap()
+        .replace("units = \"km\"\n", "");
+    std::fs::write(&scene, text).unwrap();
+    let out = slim(&["run", "nokey.toml", "-o", "out"], &dir.0);
+    assert_one_line_error(&out, &["nokey.toml", "body[0]", "units"]);
+}
