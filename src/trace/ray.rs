@@ -68,6 +68,10 @@ pub fn hit_distance(tri: &[DVec3; 3], q: DVec3) -> Option<f64> {
     let q2 = q.truncate();
     let e_ab = edge(a.truncate(), b.truncate(), q2);
     let e_bc = edge(b.truncate(), c.truncate(), q2);
+    // Opposite strict signs on two edges already put q outside.
+    if (e_ab < 0.0 && e_bc > 0.0) || (e_ab > 0.0 && e_bc < 0.0) {
+        return None;
+    }
     let e_ca = edge(c.truncate(), a.truncate(), q2);
     let inside =
         (e_ab >= 0.0 && e_bc >= 0.0 && e_ca >= 0.0) || (e_ab <= 0.0 && e_bc <= 0.0 && e_ca <= 0.0);

@@ -7,16 +7,16 @@
 //! per cell); a query looks at one cell. Building costs O(facets) per Sun direction, a
 //! query O(facets in a cell), independent of how far the ray travels.
 //!
-//! On a watertight mesh (see [`crate::mesh::inspect::is_watertight`]) only facets facing
-//! away from the Sun are binned: a ray leaving the surface toward the Sun is outside the
-//! body, so the first facet it crosses is crossed from outside, against its normal.
+//! Every facet with an area is binned, whichever way it faces: culling facets that face
+//! the Sun would be valid only for embedded closed surfaces, and real shape models fold
+//! (m1phobos has fins below its surface along a seam).
 //!
 //! In: a mesh (metres, body frame) and a unit Sun direction. Out: [`ShadowQuery`] answers
 //! computed with the same predicate and projection as the reference grid.
 
 use super::ray::{hit_distance, RayFrame};
 use super::{caster_facets, ShadowQuery, Tracer};
-use crate::mesh::{inspect::is_watertight, Mesh};
+use crate::mesh::Mesh;
 use glam::{DVec2, DVec3};
 use rayon::prelude::*;
 
@@ -29,7 +29,6 @@ const MAX_CELLS_PER_AXIS: usize = 1 << 14;
 pub struct SunView<'m> {
     mesh: &'m Mesh,
     casters: Vec<u32>,
-    watertight: bool,
 }
 
 impl<'m> SunView<'m> {
@@ -37,23 +36,13 @@ impl<'m> SunView<'m> {
         SunView {
             mesh,
             casters: caster_facets(mesh),
-            watertight: is_watertight(mesh),
         }
     }
 }
 
 impl Tracer for SunView<'_> {
     fn toward(&self, dir: DVec3) -> Box<dyn ShadowQuery + '_> {
-        let casters: Vec<u32> = if self.watertight {
-            self.casters
-                .par_iter()
-                .copied()
-                .filter(|&f| self.mesh.normals[f as usize].dot(dir) <= 0.0)
-                .collect()
-        } else {
-            self.casters.clone()
-        };
-        Box::new(SunGrid::build(self.mesh, &casters, RayFrame::new(dir)))
+        Box::new(SunGrid::build(self.mesh, &self.casters, RayFrame::new(dir)))
     }
 }
 
@@ -72,7 +61,9 @@ struct SunGrid {
     inv_cell: f64,
     dims: [usize; 2],
     cell_start: Vec<u32>,
-    cell_items: Vec<u32>,
+    /// Per entry, the facet's largest depth (so most candidates are rejected without
+    /// touching the facet) and its index in `projected`.
+    cell_items: Vec<(f64, u32)>,
     /// Per cell, the largest depth (nearest the Sun) of any facet listed there: a ray
     /// starting nearer the Sun than that is unblocked without looking at the facets.
     cell_max_depth: Vec<f64>,
@@ -148,12 +139,12 @@ impl SunGrid {
             start[i] += start[i - 1];
         }
         let mut fill = start.clone();
-        let mut items = vec![0u32; *start.last().unwrap_or(&0) as usize];
+        let mut items = vec![(0.0, 0u32); *start.last().unwrap_or(&0) as usize];
         let mut max_depth = vec![f64::NEG_INFINITY; self.dims[0] * self.dims[1]];
         for (k, r) in ranges.iter().enumerate() {
             let depth = self.projected[k].max_depth;
             for c in cells_of(*r) {
-                items[fill[c] as usize] = k as u32;
+                items[fill[c] as usize] = (depth, k as u32);
                 fill[c] += 1;
                 max_depth[c] = max_depth[c].max(depth);
             }
@@ -199,11 +190,11 @@ impl ShadowQuery for SunGrid {
             return false;
         }
         let items = &self.cell_items[self.cell_start[i] as usize..self.cell_start[i + 1] as usize];
-        items.iter().any(|&k| {
-            let p = &self.projected[k as usize];
-            p.max_depth + slack > nearest_useful
-                && Some(p.facet) != skip
-                && hit_distance(&p.corners, q).is_some_and(|t| t > t_min)
+        items.iter().any(|&(max_depth, k)| {
+            max_depth + slack > nearest_useful && {
+                let p = &self.projected[k as usize];
+                Some(p.facet) != skip && hit_distance(&p.corners, q).is_some_and(|t| t > t_min)
+            }
         })
     }
 }
