@@ -8,7 +8,7 @@
 //! from the cell holding the origin (or the ray's entry into the box) until it leaves the
 //! box, and tests the facets listed there with the shared exact predicate.
 
-use super::ray::{hit_distance, RayFrame};
+use super::ray::{blocks, DepthPlane, RayFrame};
 use super::{caster_facets, ShadowQuery, Tracer};
 use crate::mesh::Mesh;
 use glam::{DVec3, IVec3};
@@ -154,9 +154,9 @@ impl GridQuery<'_, '_> {
     fn cell_blocks(&self, cell: IVec3, q: DVec3, t_min: f64, skip: Option<u32>) -> bool {
         let mesh = self.grid.mesh;
         self.grid.facets_in(cell).iter().any(|&f| {
-            Some(f) != skip
-                && hit_distance(&mesh.corners(f as usize).map(|p| self.frame.project(p)), q)
-                    .is_some_and(|t| t > t_min)
+            let tri = mesh.corners(f as usize).map(|p| self.frame.project(p));
+            let plane = DepthPlane::new(self.frame.project(mesh.normals[f as usize]), tri[0]);
+            Some(f) != skip && blocks(&tri, &plane, q, t_min)
         })
     }
 }

@@ -12,7 +12,7 @@
 //!   Sun, so the mesh is projected once onto the plane perpendicular to the Sun and binned
 //!   into a 2-D grid; a shadow query is then a point lookup in one cell.
 //!
-//! Both decide a hit with the same exact predicate ([`ray::hit_distance`]), evaluated in a
+//! Both decide a hit with the same exact predicate ([`ray::blocks`]), evaluated in a
 //! frame that depends only on the ray direction, so they classify every ray identically;
 //! they differ only in which facets they test.
 

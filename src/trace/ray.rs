@@ -59,28 +59,65 @@ fn edge(a: DVec2, b: DVec2, q: DVec2) -> f64 {
     }
 }
 
-/// Distance along the ray at which the ray through projected point `q` crosses the
-/// projected triangle `tri`, or `None` when it misses (or the triangle is seen edge-on).
-/// Points on an edge or vertex count as hits.
+/// The plane of a facet in a ray frame, as depth over the projection plane:
+/// depth(x, y) = a·x + b·y + c.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct DepthPlane {
+    a: f64,
+    b: f64,
+    c: f64,
+}
+
+impl DepthPlane {
+    /// The plane with projected unit normal `n` through projected point `p`. A facet seen
+    /// edge-on (n.z = 0) gets a plane that is never in front of anything.
+    #[inline]
+    pub fn new(n: DVec3, p: DVec3) -> DepthPlane {
+        if n.z == 0.0 {
+            return DepthPlane {
+                a: 0.0,
+                b: 0.0,
+                c: f64::NEG_INFINITY,
+            };
+        }
+        DepthPlane {
+            a: -n.x / n.z,
+            b: -n.y / n.z,
+            c: n.dot(p) / n.z,
+        }
+    }
+
+    /// Distance along the ray from projected point `q` to the plane (negative: behind).
+    #[inline]
+    pub fn distance(&self, q: DVec3) -> f64 {
+        self.a * q.x + self.b * q.y + self.c - q.z
+    }
+}
+
+/// True when projected point `q` lies inside the projected triangle `tri` or on its edges
+/// (never for a triangle seen edge-on).
 #[inline]
-pub fn hit_distance(tri: &[DVec3; 3], q: DVec3) -> Option<f64> {
-    let [a, b, c] = *tri;
-    let q2 = q.truncate();
-    let e_ab = edge(a.truncate(), b.truncate(), q2);
-    let e_bc = edge(b.truncate(), c.truncate(), q2);
+pub fn inside(tri: &[DVec3; 3], q: DVec3) -> bool {
+    let [a, b, c] = tri.map(|p| p.truncate());
+    let q = q.truncate();
+    let e_ab = edge(a, b, q);
+    let e_bc = edge(b, c, q);
     // Opposite strict signs on two edges already put q outside.
     if (e_ab < 0.0 && e_bc > 0.0) || (e_ab > 0.0 && e_bc < 0.0) {
-        return None;
+        return false;
     }
-    let e_ca = edge(c.truncate(), a.truncate(), q2);
-    let inside =
-        (e_ab >= 0.0 && e_bc >= 0.0 && e_ca >= 0.0) || (e_ab <= 0.0 && e_bc <= 0.0 && e_ca <= 0.0);
-    let sum = e_ab + e_bc + e_ca;
-    if !inside || sum == 0.0 {
-        return None;
-    }
-    let depth = (e_bc * a.z + e_ca * b.z + e_ab * c.z) / sum;
-    Some(depth - q.z)
+    let e_ca = edge(c, a, q);
+    let all_ge = e_ab >= 0.0 && e_bc >= 0.0 && e_ca >= 0.0;
+    let all_le = e_ab <= 0.0 && e_bc <= 0.0 && e_ca <= 0.0;
+    (all_ge || all_le) && e_ab + e_bc + e_ca != 0.0
+}
+
+/// The predicate every tracer uses: the ray through projected point `q` hits the facet with
+/// projected corners `tri` and depth plane `plane` at a distance greater than `t_min`.
+/// The cheap plane test runs first; the order does not change the answer.
+#[inline]
+pub fn blocks(tri: &[DVec3; 3], plane: &DepthPlane, q: DVec3, t_min: f64) -> bool {
+    plane.distance(q) > t_min && inside(tri, q)
 }
 
 #[cfg(test)]
@@ -121,22 +158,27 @@ mod tests {
         for k in 0..=100 {
             let s = k as f64 / 100.0 * 0.7 + 0.1;
             let q = DVec3::new(s, s, 0.0);
-            assert!(hit_distance(&t1, q).is_some() || hit_distance(&t2, q).is_some());
+            assert!(inside(&t1, q) || inside(&t2, q));
         }
         // Points a hair off the edge fall into exactly one of the two.
         let q = DVec3::new(0.5, f64::from_bits(0.5f64.to_bits() + 1), 0.0);
-        assert!(hit_distance(&t1, q).is_some() != hit_distance(&t2, q).is_some());
+        assert!(inside(&t1, q) != inside(&t2, q));
     }
 
     #[test]
-    fn depth_is_interpolated() {
+    fn plane_depth_and_blocking() {
+        // The plane z = x + 2y through the origin; its unit normal is (1, 2, -1)/√6.
         let t = [
             DVec3::new(0.0, 0.0, 0.0),
             DVec3::new(2.0, 0.0, 2.0),
             DVec3::new(0.0, 2.0, 4.0),
         ];
-        let d = hit_distance(&t, DVec3::new(0.5, 0.5, -1.0)).unwrap();
-        assert!((d - (0.5 + 1.0 + 1.0)).abs() < 1e-12);
-        assert!(hit_distance(&t, DVec3::new(1.5, 1.5, 0.0)).is_none());
+        let plane = DepthPlane::new(DVec3::new(1.0, 2.0, -1.0).normalize(), t[0]);
+        let q = DVec3::new(0.5, 0.5, -1.0);
+        assert!((plane.distance(q) - 2.5).abs() < 1e-12);
+        assert!(blocks(&t, &plane, q, 2.4) && !blocks(&t, &plane, q, 2.6));
+        assert!(!blocks(&t, &plane, DVec3::new(1.5, 1.5, 0.0), 0.0));
+        let edge_on = DepthPlane::new(DVec3::X, DVec3::ZERO);
+        assert!(edge_on.distance(q) < 0.0);
     }
 }

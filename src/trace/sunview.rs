@@ -11,24 +11,29 @@
 //! the Sun would be valid only for embedded closed surfaces, and real shape models fold
 //! (m1phobos has fins below its surface along a seam).
 //!
+//! The per-step buffers (tens of MB for large meshes) are kept between steps: allocating
+//! them afresh made the kernel zero new pages every step.
+//!
 //! In: a mesh (metres, body frame) and a unit Sun direction. Out: [`ShadowQuery`] answers
 //! computed with the same predicate and projection as the reference grid.
 
-use super::ray::{hit_distance, RayFrame};
+use super::ray::{blocks, DepthPlane, RayFrame};
 use super::{caster_facets, ShadowQuery, Tracer};
 use crate::mesh::Mesh;
 use glam::{DVec2, DVec3};
 use rayon::prelude::*;
+use std::sync::Mutex;
 
 /// Target number of facet entries per cell, on average.
 const FACETS_PER_CELL: f64 = 2.0;
 /// Largest number of cells along one axis.
 const MAX_CELLS_PER_AXIS: usize = 1 << 14;
 
-/// The tracer: remembers the mesh and which facets cast shadows.
+/// The tracer: the mesh, the facets that cast shadows, and buffers kept between steps.
 pub struct SunView<'m> {
     mesh: &'m Mesh,
     casters: Vec<u32>,
+    spare: Mutex<Option<Buffers>>,
 }
 
 impl<'m> SunView<'m> {
@@ -36,62 +41,76 @@ impl<'m> SunView<'m> {
         SunView {
             mesh,
             casters: caster_facets(mesh),
+            spare: Mutex::new(None),
         }
     }
 }
 
 impl Tracer for SunView<'_> {
     fn toward(&self, dir: DVec3) -> Box<dyn ShadowQuery + '_> {
-        Box::new(SunGrid::build(self.mesh, &self.casters, RayFrame::new(dir)))
+        let buffers = self
+            .spare
+            .lock()
+            .ok()
+            .and_then(|mut s| s.take())
+            .unwrap_or_default();
+        Box::new(SunGrid::build(self, buffers, RayFrame::new(dir)))
     }
 }
 
-/// One projected caster: its corners in the ray frame and its nearest-to-Sun depth.
-#[derive(Clone, Copy)]
-struct Projected {
-    facet: u32,
-    corners: [DVec3; 3],
-    max_depth: f64,
+/// Storage of one Sun-view grid, reused from step to step.
+#[derive(Default)]
+struct Buffers {
+    /// Every vertex in the ray frame.
+    vertices: Vec<DVec3>,
+    /// Per caster: its cell range [x0, y0, x1, y1] and its largest depth.
+    ranges: Vec<([u32; 4], f64)>,
+    /// Per caster: its projected corners and depth plane, in one record so a candidate
+    /// costs one memory access.
+    projected: Vec<Projected>,
+    /// Compressed rows: entries of cell c are `items[start[c]..start[c + 1]]`.
+    start: Vec<u32>,
+    fill: Vec<u32>,
+    /// Per entry: the facet's largest depth (candidates behind the ray's origin are
+    /// rejected on it alone) and the caster's index.
+    items: Vec<(f64, u32)>,
+    /// Per cell, the largest depth of any facet listed there: a ray starting nearer the
+    /// Sun than that is unblocked without looking at the facets.
+    cell_max_depth: Vec<f64>,
 }
 
-/// The 2-D grid for one Sun direction: compressed rows of indices into `projected`.
-struct SunGrid {
+/// A caster in the ray frame.
+#[derive(Clone, Copy)]
+struct Projected {
+    corners: [DVec3; 3],
+    plane: DepthPlane,
+}
+
+/// The 2-D grid for one Sun direction.
+struct SunGrid<'v, 'm> {
+    view: &'v SunView<'m>,
     frame: RayFrame,
     lo: DVec2,
     inv_cell: f64,
     dims: [usize; 2],
-    cell_start: Vec<u32>,
-    /// Per entry, the facet's largest depth (so most candidates are rejected without
-    /// touching the facet) and its index in `projected`.
-    cell_items: Vec<(f64, u32)>,
-    /// Per cell, the largest depth (nearest the Sun) of any facet listed there: a ray
-    /// starting nearer the Sun than that is unblocked without looking at the facets.
-    cell_max_depth: Vec<f64>,
-    projected: Vec<Projected>,
+    buf: Buffers,
 }
 
-impl SunGrid {
-    fn build(mesh: &Mesh, casters: &[u32], frame: RayFrame) -> SunGrid {
-        let vertices: Vec<DVec3> = mesh
-            .vertices
+impl<'v, 'm> SunGrid<'v, 'm> {
+    fn build(view: &'v SunView<'m>, mut buf: Buffers, frame: RayFrame) -> SunGrid<'v, 'm> {
+        let mesh = view.mesh;
+        buf.vertices.clear();
+        mesh.vertices
             .par_iter()
             .map(|&v| frame.project(v))
-            .collect();
-        let projected: Vec<Projected> = casters
+            .collect_into_vec(&mut buf.vertices);
+        let (lo, hi) = view
+            .casters
             .par_iter()
-            .map(|&f| {
-                let corners = mesh.triangles[f as usize].map(|v| vertices[v as usize]);
-                let max_depth = corners[0].z.max(corners[1].z).max(corners[2].z);
-                Projected {
-                    facet: f,
-                    corners,
-                    max_depth,
-                }
-            })
-            .collect();
-        let (lo, hi) = bounds_2d(projected.iter().flat_map(|p| p.corners));
+            .map(|&f| bounds_2d(corners(mesh, &buf.vertices, f)))
+            .reduce(empty_bounds, |a, b| (a.0.min(b.0), a.1.max(b.1)));
         let extent = (hi - lo).max(DVec2::splat(1e-9 * (hi - lo).max_element().max(1e-9)));
-        let cells = (projected.len() as f64 / FACETS_PER_CELL).max(1.0);
+        let cells = (view.casters.len() as f64 / FACETS_PER_CELL).max(1.0);
         let side = (extent.x * extent.y / cells).sqrt();
         let dims = [
             ((extent.x / side).ceil() as usize).clamp(1, MAX_CELLS_PER_AXIS),
@@ -99,59 +118,77 @@ impl SunGrid {
         ];
         let cell = (extent.x / dims[0] as f64).max(extent.y / dims[1] as f64);
         let mut grid = SunGrid {
+            view,
             frame,
             lo,
             inv_cell: 1.0 / cell,
             dims,
-            cell_start: Vec::new(),
-            cell_items: Vec::new(),
-            cell_max_depth: Vec::new(),
-            projected,
+            buf,
         };
         grid.bin(cell);
         grid
     }
 
-    /// Lists every projected facet in each cell its padded 2-D bounding box overlaps.
+    /// Lists every caster in each cell its padded 2-D bounding box overlaps.
     fn bin(&mut self, cell: f64) {
-        let ranges: Vec<[usize; 4]> = self
-            .projected
+        let mesh = self.view.mesh;
+        let mut buf = std::mem::take(&mut self.buf);
+        let vertices = &buf.vertices;
+        self.view
+            .casters
             .par_iter()
-            .map(|p| {
-                let (lo, hi) = bounds_2d(p.corners);
+            .map(|&f| {
+                let c = corners(mesh, vertices, f);
+                let (lo, hi) = bounds_2d(c);
                 // Padding makes a facet whose edge lies on a cell boundary visible from
                 // both cells; the exact predicate decides the rest.
                 let pad = DVec2::splat(cell * 1e-9 + (hi - lo).max_element() * 1e-9);
                 let (x0, y0) = self.cell_of(lo - pad);
                 let (x1, y1) = self.cell_of(hi + pad);
-                [x0, y0, x1, y1]
+                (
+                    [x0, y0, x1, y1].map(|i| i as u32),
+                    c[0].z.max(c[1].z).max(c[2].z),
+                )
             })
-            .collect();
+            .collect_into_vec(&mut buf.ranges);
+        let frame = self.frame;
+        self.view
+            .casters
+            .par_iter()
+            .map(|&f| {
+                let corners = corners(mesh, vertices, f);
+                let normal = frame.project(mesh.normals[f as usize]);
+                Projected {
+                    corners,
+                    plane: DepthPlane::new(normal, corners[0]),
+                }
+            })
+            .collect_into_vec(&mut buf.projected);
         let width = self.dims[0];
-        let cells_of = move |r: [usize; 4]| {
-            (r[1]..=r[3]).flat_map(move |y| (r[0]..=r[2]).map(move |x| y * width + x))
+        let n_cells = self.dims[0] * self.dims[1];
+        let cells_of = move |r: [u32; 4]| {
+            (r[1] as usize..=r[3] as usize)
+                .flat_map(move |y| (r[0] as usize..=r[2] as usize).map(move |x| y * width + x))
         };
-        let mut start = vec![0u32; self.dims[0] * self.dims[1] + 1];
-        for r in &ranges {
-            cells_of(*r).for_each(|c| start[c + 1] += 1);
+        reset(&mut buf.start, n_cells + 1, 0);
+        for (r, _) in &buf.ranges {
+            cells_of(*r).for_each(|c| buf.start[c + 1] += 1);
         }
-        for i in 1..start.len() {
-            start[i] += start[i - 1];
+        for i in 1..buf.start.len() {
+            buf.start[i] += buf.start[i - 1];
         }
-        let mut fill = start.clone();
-        let mut items = vec![(0.0, 0u32); *start.last().unwrap_or(&0) as usize];
-        let mut max_depth = vec![f64::NEG_INFINITY; self.dims[0] * self.dims[1]];
-        for (k, r) in ranges.iter().enumerate() {
-            let depth = self.projected[k].max_depth;
-            for c in cells_of(*r) {
-                items[fill[c] as usize] = (depth, k as u32);
-                fill[c] += 1;
-                max_depth[c] = max_depth[c].max(depth);
+        buf.fill.clear();
+        buf.fill.extend_from_slice(&buf.start);
+        reset(&mut buf.items, buf.start[n_cells] as usize, (0.0, 0));
+        reset(&mut buf.cell_max_depth, n_cells, f64::NEG_INFINITY);
+        for (k, &(r, depth)) in buf.ranges.iter().enumerate() {
+            for c in cells_of(r) {
+                buf.items[buf.fill[c] as usize] = (depth, k as u32);
+                buf.fill[c] += 1;
+                buf.cell_max_depth[c] = buf.cell_max_depth[c].max(depth);
             }
         }
-        self.cell_start = start;
-        self.cell_items = items;
-        self.cell_max_depth = max_depth;
+        self.buf = buf;
     }
 
     fn cell_of(&self, p: DVec2) -> (usize, usize) {
@@ -168,17 +205,40 @@ impl SunGrid {
     }
 }
 
-fn bounds_2d(points: impl IntoIterator<Item = DVec3>) -> (DVec2, DVec2) {
-    points.into_iter().fold(
-        (DVec2::splat(f64::INFINITY), DVec2::splat(f64::NEG_INFINITY)),
-        |(lo, hi), c| (lo.min(c.truncate()), hi.max(c.truncate())),
-    )
+impl Drop for SunGrid<'_, '_> {
+    fn drop(&mut self) {
+        if let Ok(mut spare) = self.view.spare.lock() {
+            *spare = Some(std::mem::take(&mut self.buf));
+        }
+    }
 }
 
-impl ShadowQuery for SunGrid {
+/// Facet `f`'s corners in the ray frame.
+#[inline]
+fn corners(mesh: &Mesh, projected: &[DVec3], f: u32) -> [DVec3; 3] {
+    mesh.triangles[f as usize].map(|v| projected[v as usize])
+}
+
+fn empty_bounds() -> (DVec2, DVec2) {
+    (DVec2::splat(f64::INFINITY), DVec2::splat(f64::NEG_INFINITY))
+}
+
+fn bounds_2d(points: [DVec3; 3]) -> (DVec2, DVec2) {
+    points.iter().fold(empty_bounds(), |(lo, hi), c| {
+        (lo.min(c.truncate()), hi.max(c.truncate()))
+    })
+}
+
+/// Sets `v` to `len` copies of `value`, keeping its allocation.
+fn reset<T: Copy>(v: &mut Vec<T>, len: usize, value: T) {
+    v.clear();
+    v.resize(len, value);
+}
+
+impl ShadowQuery for SunGrid<'_, '_> {
     fn blocked(&self, origin: DVec3, t_min: f64, skip: Option<u32>) -> bool {
         let q = self.frame.project(origin);
-        if self.projected.is_empty() || !self.contains(q.truncate()) {
+        if self.view.casters.is_empty() || !self.contains(q.truncate()) {
             return false;
         }
         let (x, y) = self.cell_of(q.truncate());
@@ -186,14 +246,15 @@ impl ShadowQuery for SunGrid {
         // Interpolated depths can exceed the largest corner depth by rounding only.
         let nearest_useful = q.z + t_min;
         let slack = 1e-12 * (q.z.abs() + t_min);
-        if self.cell_max_depth[i] + slack <= nearest_useful {
+        if self.buf.cell_max_depth[i] + slack <= nearest_useful {
             return false;
         }
-        let items = &self.cell_items[self.cell_start[i] as usize..self.cell_start[i + 1] as usize];
+        let items = &self.buf.items[self.buf.start[i] as usize..self.buf.start[i + 1] as usize];
         items.iter().any(|&(max_depth, k)| {
             max_depth + slack > nearest_useful && {
-                let p = &self.projected[k as usize];
-                Some(p.facet) != skip && hit_distance(&p.corners, q).is_some_and(|t| t > t_min)
+                let p = &self.buf.projected[k as usize];
+                Some(self.view.casters[k as usize]) != skip
+                    && blocks(&p.corners, &p.plane, q, t_min)
             }
         })
     }
