@@ -14,7 +14,7 @@ use glam::DVec3;
 use slim::analytic::SphereLatitude;
 use slim::ephemeris::spin::{Spin, SpinModel};
 use slim::mesh::{generate::icosphere, LengthUnit, Mesh};
-use slim::run::{bins_for, build_ephemeris, build_world, epoch_states, simulate, Silent, Timings};
+use slim::run::{bins_for, build_ephemeris, build_world, epoch_states, statistics};
 use slim::scene::{EphemerisSection, Scene};
 use slim::stats::{Bins, FacetStats};
 use slim::trace::TracerKind;
@@ -73,15 +73,7 @@ fn sphere_table() -> Result<(), Error> {
         let t0 = Instant::now();
         let states = epoch_states(&spin)?;
         let bins = Bins::covering(10.0, flux);
-        let sim = simulate(
-            &world,
-            &states,
-            TracerKind::Sunview,
-            bins,
-            &mut Timings::default(),
-            &Silent,
-            |_, _| Ok(()),
-        )?;
+        let sim = statistics(&world, &states, TracerKind::Sunview, bins)?;
         let seconds = t0.elapsed().as_secs_f64();
         let normals = &world.bodies[0].mesh.normals;
         let exact = |i: usize| SphereLatitude::from_normal_z(normals[i].z, subsolar, flux);
@@ -113,15 +105,7 @@ fn phobos_table() -> Result<(), Error> {
         let t0 = Instant::now();
         let states = epoch_states(build_ephemeris(&s).as_ref())?;
         let bins = bins_for(&s, &states);
-        let sim = simulate(
-            &world,
-            &states,
-            TracerKind::Sunview,
-            bins,
-            &mut Timings::default(),
-            &Silent,
-            |_, _| Ok(()),
-        )?;
+        let sim = statistics(&world, &states, TracerKind::Sunview, bins)?;
         Ok((sim.stats, t0.elapsed().as_secs_f64()))
     };
     let rows = [36, 72, 144, 360, 720, 1440];

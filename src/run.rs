@@ -229,6 +229,24 @@ pub fn simulate(
     Ok(Simulation { stats, counts })
 }
 
+/// [`simulate`] without timings, progress or per-step output: the statistics alone.
+pub fn statistics(
+    world: &World,
+    states: &[EpochState],
+    tracer: TracerKind,
+    bins: Bins,
+) -> Result<Simulation> {
+    simulate(
+        world,
+        states,
+        tracer,
+        bins,
+        &mut Timings::default(),
+        &Silent,
+        |_, _| Ok(()),
+    )
+}
+
 /// CDF bins covering the largest flux of the run.
 pub fn bins_for(scene: &Scene, states: &[EpochState]) -> Bins {
     let max_flux = states

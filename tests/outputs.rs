@@ -7,7 +7,8 @@
 //! independent reduction of the history; the CDF, geometry, PLY and run.json are
 //! consistent; runs are reproducible; failed runs leave no run.json behind.
 
-use arrow::array::{Array, Float64Array, StringArray, UInt32Array, UInt64Array};
+use arrow::array::{Array, ArrowPrimitiveType, PrimitiveArray, StringArray};
+use arrow::datatypes::{Float64Type, UInt32Type, UInt64Type};
 use arrow::record_batch::RecordBatch;
 use glam::DVec3;
 use parquet::arrow::arrow_reader::ParquetRecordBatchReaderBuilder;
@@ -219,40 +220,29 @@ impl Pq {
         })
     }
 
-    fn f64(&self, name: &str) -> Vec<f64> {
+    /// Every value of a primitive column, all batches in order.
+    fn values<T: ArrowPrimitiveType>(&self, name: &str) -> Vec<T::Native> {
         self.column(name)
             .flat_map(|c| {
                 let a = c
                     .as_any()
-                    .downcast_ref::<Float64Array>()
-                    .unwrap_or_else(|| panic!("{name} is not f64"));
+                    .downcast_ref::<PrimitiveArray<T>>()
+                    .unwrap_or_else(|| panic!("{name} is not {:?}", T::DATA_TYPE));
                 a.values().to_vec()
             })
             .collect()
+    }
+
+    fn f64(&self, name: &str) -> Vec<f64> {
+        self.values::<Float64Type>(name)
     }
 
     fn u32(&self, name: &str) -> Vec<u32> {
-        self.column(name)
-            .flat_map(|c| {
-                let a = c
-                    .as_any()
-                    .downcast_ref::<UInt32Array>()
-                    .unwrap_or_else(|| panic!("{name} is not u32"));
-                a.values().to_vec()
-            })
-            .collect()
+        self.values::<UInt32Type>(name)
     }
 
     fn u64(&self, name: &str) -> Vec<u64> {
-        self.column(name)
-            .flat_map(|c| {
-                let a = c
-                    .as_any()
-                    .downcast_ref::<UInt64Array>()
-                    .unwrap_or_else(|| panic!("{name} is not u64"));
-                a.values().to_vec()
-            })
-            .collect()
+        self.values::<UInt64Type>(name)
     }
 
     fn str(&self, name: &str) -> Vec<String> {

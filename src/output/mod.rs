@@ -186,40 +186,34 @@ fn for_facet_batches(
 /// Streams the irradiance history: one batch per step.
 pub struct HistoryWriter {
     writer: TableWriter,
-    bodies: Vec<(String, usize)>,
+    /// The body and facet columns, the same every step.
+    body: Values,
+    facet: Values,
 }
 
 impl HistoryWriter {
     /// A writer for `history.parquet` (and `.csv`).
     pub fn new(dir: &Path, csv: bool, world: &World) -> HistoryWriter {
+        let bodies = || world.bodies.iter();
         HistoryWriter {
             writer: TableWriter::new(dir, "history", csv),
-            bodies: world
-                .bodies
-                .iter()
-                .map(|b| (b.name.clone(), b.mesh.len()))
-                .collect(),
+            body: Values::Str(
+                bodies()
+                    .flat_map(|b| std::iter::repeat_n(b.name.clone(), b.mesh.len()))
+                    .collect(),
+            ),
+            facet: Values::U32(bodies().flat_map(|b| 0..b.mesh.len() as u32).collect()),
         }
     }
 
     /// Appends one step's irradiance (global facet order).
     pub fn write_step(&mut self, state: &EpochState, irradiance: &[f64]) -> Result<()> {
         let n = irradiance.len();
-        let body = self
-            .bodies
-            .iter()
-            .flat_map(|(name, len)| std::iter::repeat_n(name.clone(), *len))
-            .collect();
-        let facet = self
-            .bodies
-            .iter()
-            .flat_map(|(_, len)| 0..*len as u32)
-            .collect();
         let batch = Table::default()
             .with("step", Values::U64(vec![state.step as u64; n]))
             .with("et_tdb_s", Values::F64(vec![et_tdb_s(state); n]))
-            .with("body", Values::Str(body))
-            .with("facet", Values::U32(facet))
+            .with("body", self.body.clone())
+            .with("facet", self.facet.clone())
             .with("irradiance_w_m2", Values::F64(irradiance.to_vec()));
         self.writer.write(&batch)
     }
