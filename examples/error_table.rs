@@ -96,14 +96,14 @@ fn sphere_table() -> Result<(), Error> {
 fn phobos_table() -> Result<(), Error> {
     let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("data/phobos-spin.toml");
     let scene = Scene::load(&path)?;
-    let (world, _, _) = build_world(&scene)?;
+    let (world, _, _) = build_world(&scene, None)?;
     let run = |steps: usize| -> Result<(FacetStats, f64), Error> {
         let mut s = scene.clone();
         if let EphemerisSection::Spin(spin) = &mut s.ephemeris {
             spin.steps_per_period = steps;
         }
         let t0 = Instant::now();
-        let states = epoch_states(build_ephemeris(&s).as_ref())?;
+        let states = epoch_states(build_ephemeris(&s, None)?.as_ref())?;
         let bins = bins_for(&s, &states);
         let sim = statistics(&world, &states, TracerKind::Sunview, bins)?;
         Ok((sim.stats, t0.elapsed().as_secs_f64()))

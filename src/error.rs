@@ -43,6 +43,15 @@ pub enum Error {
         step: usize,
         msg: String,
     },
+    /// A SPICE query failed: which body, in which frame, at which epoch, and why.
+    #[error("SPICE: body '{body}' (NAIF {naif_id}), frame {frame}, epoch {epoch}: {msg}")]
+    Spice {
+        body: String,
+        naif_id: i32,
+        frame: String,
+        epoch: String,
+        msg: String,
+    },
     /// Writing a result failed.
     #[error("{}: {msg}", path.display())]
     Output { path: PathBuf, msg: String },

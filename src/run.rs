@@ -5,16 +5,21 @@
 //! through [`Progress`] so the CLI can draw a bar and a service can track jobs.
 
 use crate::ephemeris::fixed::{normalized_direction, FixedGeometry, FixedSun};
+use crate::ephemeris::spice::{parse_aberration, Kernels, SpiceBody, SpiceEphemeris};
 use crate::ephemeris::spin::{Spin, SpinModel};
 use crate::ephemeris::{flux_at, Ephemeris, EpochState};
 use crate::error::{Error, Result};
 use crate::illum::{Direct, StepCounts};
+use crate::mesh::generate::ellipsoid;
 use crate::mesh::inspect::inspect;
+use crate::mesh::LengthUnit;
 use crate::mesh::{read_mesh, Mesh};
 use crate::output::record::{input_file, BodyRecord, InputFile, RunRecord};
 use crate::output::{self, HistoryWriter};
 use crate::plan::Plan;
-use crate::scene::{EphemerisSection, FixedSection, Orient, Scene, SpinSection};
+use crate::scene::{
+    EphemerisSection, FixedSection, Orient, Scene, Shape, SpiceSection, SpinSection,
+};
 use crate::stats::{Bins, FacetStats};
 use crate::trace::TracerKind;
 use crate::world::{Body, Pose, World};
@@ -63,14 +68,25 @@ impl Timings {
     }
 }
 
-/// Loads every body's mesh, applies the orientation option and inspects it.
-pub fn build_world(scene: &Scene) -> Result<(World, Vec<BodyRecord>, Vec<String>)> {
+/// The scene's SPICE kernels, loaded, if it is a SPICE scene.
+pub fn load_kernels(scene: &Scene) -> Result<Option<Kernels>> {
+    match &scene.ephemeris {
+        EphemerisSection::Spice(s) => Kernels::load(&s.kernels).map(Some),
+        _ => Ok(None),
+    }
+}
+
+/// Loads or generates every body's mesh, applies the orientation option and inspects it.
+/// Ellipsoids without radii take them from the kernels' text PCK.
+pub fn build_world(
+    scene: &Scene,
+    kernels: Option<&Kernels>,
+) -> Result<(World, Vec<BodyRecord>, Vec<String>)> {
     let mut world = World::default();
     let mut records = Vec::new();
     let mut warnings = Vec::new();
-    for b in &scene.bodies {
-        let raw = read_mesh(&b.mesh, b.format)?;
-        let mut mesh = Mesh::from_raw(raw, b.units);
+    for (i, b) in scene.bodies.iter().enumerate() {
+        let (mut mesh, file, shape) = load_shape(scene, i, kernels)?;
         let mut report = inspect(&mesh);
         let flip = match b.orient {
             Orient::AsIs => false,
@@ -101,12 +117,62 @@ pub fn build_world(scene: &Scene) -> Result<(World, Vec<BodyRecord>, Vec<String>
         let convex = report.convex;
         records.push(BodyRecord {
             name: b.name.clone(),
-            mesh: input_file(&b.mesh)?,
+            mesh: file,
+            shape,
             report,
         });
         world.bodies.push(Body::new(b.name.clone(), mesh, convex));
     }
     Ok((world, records, warnings))
+}
+
+/// Body `i`'s mesh, its file record (none when generated) and a description.
+fn load_shape(
+    scene: &Scene,
+    i: usize,
+    kernels: Option<&Kernels>,
+) -> Result<(Mesh, Option<InputFile>, String)> {
+    let b = &scene.bodies[i];
+    match b.shape() {
+        Shape::File {
+            path,
+            units,
+            format,
+        } => {
+            let mesh = Mesh::from_raw(read_mesh(path, format)?, units);
+            Ok((
+                mesh,
+                Some(input_file(path)?),
+                format!("mesh file {}", path.display()),
+            ))
+        }
+        Shape::Ellipsoid { radii_km, levels } => {
+            let radii = match (radii_km, b.naif_id, kernels) {
+                (Some(r), _, _) => DVec3::from_array(r),
+                (None, Some(id), Some(k)) => k.radii_km(id).ok_or_else(|| Error::Scene {
+                    path: scene.path.clone(),
+                    key: format!("body[{i}].ellipsoid.radii_km"),
+                    msg: format!("the loaded text PCKs give no BODY{id}_RADII; give radii_km"),
+                })?,
+                _ => {
+                    return Err(Error::Scene {
+                        path: scene.path.clone(),
+                        key: format!("body[{i}].ellipsoid.radii_km"),
+                        msg: "missing".into(),
+                    })
+                }
+            };
+            let mesh = Mesh::from_raw(ellipsoid(levels, radii), LengthUnit::Km);
+            let shape = format!(
+                "ellipsoid {} x {} x {} km, {} facets",
+                radii.x,
+                radii.y,
+                radii.z,
+                mesh.len()
+            );
+            Ok((mesh, None, shape))
+        }
+    }
 }
 
 fn flipped(mesh: Mesh) -> Mesh {
@@ -117,12 +183,60 @@ fn flipped(mesh: Mesh) -> Mesh {
     Mesh::from_raw(raw, crate::mesh::LengthUnit::M)
 }
 
-/// The scene's ephemeris.
-pub fn build_ephemeris(scene: &Scene) -> Box<dyn Ephemeris> {
-    match &scene.ephemeris {
-        EphemerisSection::Spin(s) => Box::new(spin_model(scene, s)),
-        EphemerisSection::Fixed(f) => Box::new(fixed_geometry(scene, f)),
-    }
+/// The scene's ephemeris; a SPICE scene takes its loaded kernels.
+pub fn build_ephemeris(scene: &Scene, kernels: Option<Kernels>) -> Result<Box<dyn Ephemeris>> {
+    Ok(match (&scene.ephemeris, kernels) {
+        (EphemerisSection::Spin(s), _) => Box::new(spin_model(scene, s)),
+        (EphemerisSection::Fixed(f), _) => Box::new(fixed_geometry(scene, f)),
+        (EphemerisSection::Spice(s), Some(k)) => Box::new(spice_ephemeris(scene, s, k)?),
+        (EphemerisSection::Spice(s), None) => {
+            Box::new(spice_ephemeris(scene, s, Kernels::load(&s.kernels)?)?)
+        }
+    })
+}
+
+fn spice_ephemeris(scene: &Scene, s: &SpiceSection, kernels: Kernels) -> Result<SpiceEphemeris> {
+    let bodies = scene
+        .bodies
+        .iter()
+        .map(|b| SpiceBody::new(&kernels, &b.name, b.naif_id.unwrap_or_default()))
+        .collect::<Result<Vec<_>>>()?;
+    let (step_s, count) = match (scene.stop, s.step_s, s.spins) {
+        (Some(stop), Some(step), _) => (
+            step,
+            ((stop - scene.start).to_seconds() / step).ceil() as usize,
+        ),
+        (_, _, Some(spins)) => {
+            let per_spin = s.steps_per_spin.unwrap_or(360);
+            let period_s = match scene.bodies[0].spin_period_h {
+                Some(h) => h * 3600.0,
+                None => bodies[0]
+                    .rotation
+                    .rotation_period_s()
+                    .ok_or_else(|| Error::Scene {
+                        path: scene.path.clone(),
+                        key: "body[0].spin_period_h".into(),
+                        msg: "the PCK gives this body no rotation rate: set the spin period".into(),
+                    })?,
+            };
+            (
+                period_s / per_spin as f64,
+                (per_spin as f64 * spins).round().max(1.0) as usize,
+            )
+        }
+        _ => unreachable!("validated by Scene::load"),
+    };
+    let epochs = (0..count)
+        .map(|k| scene.start + hifitime::Duration::from_seconds(step_s * k as f64))
+        .collect();
+    Ok(SpiceEphemeris::new(
+        kernels,
+        bodies,
+        epochs,
+        step_s,
+        parse_aberration(&s.aberration).flatten(),
+        s.solar_constant_w_m2,
+    ))
 }
 
 fn spin_model(scene: &Scene, s: &SpinSection) -> SpinModel {
@@ -260,11 +374,21 @@ pub fn bins_for(scene: &Scene, states: &[EpochState]) -> Bins {
 pub fn run_scene(scene: &Scene, out_dir: &Path, progress: &dyn Progress) -> Result<RunRecord> {
     let mut timings = Timings::default();
     prepare_output_dir(out_dir)?;
-    let (world, bodies, warnings) = timings.time("mesh input", || build_world(scene))?;
+    let kernels = timings.time("kernels", || load_kernels(scene))?;
+    let kernel_files = match &kernels {
+        Some(k) => k
+            .files()
+            .iter()
+            .map(|f| input_file(f))
+            .collect::<Result<Vec<_>>>()?,
+        None => Vec::new(),
+    };
+    let (world, bodies, warnings) =
+        timings.time("mesh input", || build_world(scene, kernels.as_ref()))?;
     for w in &warnings {
         progress.note(&format!("warning: {w}"));
     }
-    let ephemeris = build_ephemeris(scene);
+    let ephemeris = build_ephemeris(scene, kernels)?;
     let states = timings.time("ephemeris", || epoch_states(ephemeris.as_ref()))?;
     let plan = Plan::new(scene, &world, states.len());
     progress.note(&plan.to_string());
@@ -308,6 +432,7 @@ pub fn run_scene(scene: &Scene, out_dir: &Path, progress: &dyn Progress) -> Resu
             path: scene.path.clone(),
             sha256: output::record::sha256_hex(&scene.source),
         },
+        kernels: kernel_files,
         bodies,
         plan,
         counts: sim.counts,

@@ -29,6 +29,8 @@ pub struct Scene {
     pub bodies: Vec<BodySection>,
     /// Epoch of the first step.
     pub start: Epoch,
+    /// Epoch the run stops before (SPICE mode with `stop`).
+    pub stop: Option<Epoch>,
 }
 
 /// `[run]`: how to compute.
@@ -82,6 +84,59 @@ pub enum EphemerisSection {
     Spin(SpinSection),
     /// Sun directions and fluxes listed in the scene.
     Fixed(FixedSection),
+    /// Real geometry from SPICE kernels.
+    Spice(SpiceSection),
+}
+
+/// `[ephemeris] mode = "spice"`.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SpiceSection {
+    /// Kernel files, relative to the scene file (SPK, binary PCK, text PCK, FK, LSK).
+    pub kernels: Vec<PathBuf>,
+    /// Epoch of the first step ("2018-06-10T00:00:00 UTC" or "... TDB").
+    pub start: String,
+    /// End of the window (exclusive), with `step_s`.
+    pub stop: Option<String>,
+    /// Time between steps, seconds, with `stop`.
+    pub step_s: Option<f64>,
+    /// Number of spins of the first body (instead of stop/step_s).
+    pub spins: Option<f64>,
+    /// Steps per spin, with `spins` (default 360).
+    pub steps_per_spin: Option<usize>,
+    /// Aberration correction of the Sun's position: NONE, LT, LT+S (default), CN, CN+S.
+    #[serde(default = "default_aberration")]
+    pub aberration: String,
+    /// Irradiance at 1 AU, W/m².
+    #[serde(default = "default_solar_constant")]
+    pub solar_constant_w_m2: f64,
+}
+
+/// `ellipsoid = { ... }` of a body: a generated triaxial ellipsoid mesh.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct EllipsoidSection {
+    /// Semi-axes a, b, c in km (default: the body's radii from the loaded text PCK).
+    pub radii_km: Option<[f64; 3]>,
+    /// Geodesic subdivisions: 20·4^levels facets (default 4: 5,120 facets).
+    #[serde(default = "default_levels")]
+    pub levels: u32,
+}
+
+/// Where a body's shape comes from.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Shape<'a> {
+    /// A mesh file.
+    File {
+        path: &'a Path,
+        units: LengthUnit,
+        format: Option<MeshFormat>,
+    },
+    /// A generated ellipsoid.
+    Ellipsoid {
+        radii_km: Option<[f64; 3]>,
+        levels: u32,
+    },
 }
 
 /// `[ephemeris] mode = "spin"`.
@@ -156,10 +211,14 @@ pub enum Orient {
 pub struct BodySection {
     /// Unique name used in outputs.
     pub name: String,
-    /// Mesh file, relative to the scene file.
-    pub mesh: PathBuf,
+    /// Mesh file, relative to the scene file (or give `ellipsoid`).
+    pub mesh: Option<PathBuf>,
     /// Length unit of the mesh file: "km" or "m".
-    pub units: LengthUnit,
+    pub units: Option<LengthUnit>,
+    /// A generated ellipsoid instead of a mesh file.
+    pub ellipsoid: Option<EllipsoidSection>,
+    /// NAIF id (SPICE mode).
+    pub naif_id: Option<i32>,
     /// Mesh format (default: from the extension).
     pub format: Option<MeshFormat>,
     /// Orientation handling.
@@ -173,6 +232,27 @@ pub struct BodySection {
     /// Rotation angle about the spin axis at the first step, degrees.
     #[serde(default)]
     pub initial_rotation_deg: f64,
+}
+
+impl BodySection {
+    /// The body's shape source (valid after [`Scene::load`]).
+    pub fn shape(&self) -> Shape<'_> {
+        match (&self.mesh, &self.ellipsoid) {
+            (Some(path), _) => Shape::File {
+                path,
+                units: self.units.unwrap_or_default(),
+                format: self.format,
+            },
+            (None, Some(e)) => Shape::Ellipsoid {
+                radii_km: e.radii_km,
+                levels: e.levels,
+            },
+            (None, None) => Shape::Ellipsoid {
+                radii_km: None,
+                levels: default_levels(),
+            },
+        }
+    }
 }
 
 #[derive(Debug, Deserialize)]
@@ -189,6 +269,12 @@ struct SceneFile {
 
 fn default_solar_constant() -> f64 {
     crate::SOLAR_CONSTANT_W_M2
+}
+fn default_aberration() -> String {
+    "LT+S".into()
+}
+fn default_levels() -> u32 {
+    4
 }
 fn default_steps() -> usize {
     360
@@ -217,20 +303,22 @@ impl Scene {
         let folder = path.parent().unwrap_or(Path::new("."));
         let mut bodies = file.body;
         for b in &mut bodies {
-            b.mesh = folder.join(&b.mesh);
+            b.mesh = b.mesh.as_ref().map(|m| folder.join(m));
         }
-        let start_text = match &ephemeris {
-            EphemerisSection::Spin(s) => s.start.clone(),
-            EphemerisSection::Fixed(f) => f.start.clone(),
+        let mut ephemeris = ephemeris;
+        if let EphemerisSection::Spice(s) = &mut ephemeris {
+            s.kernels = s.kernels.iter().map(|k| folder.join(k)).collect();
+        }
+        let (start_text, stop_text) = match &ephemeris {
+            EphemerisSection::Spin(s) => (s.start.clone(), None),
+            EphemerisSection::Fixed(f) => (f.start.clone(), None),
+            EphemerisSection::Spice(s) => (Some(s.start.clone()), s.stop.clone()),
         };
-        let start =
-            Epoch::from_str(start_text.as_deref().unwrap_or(DEFAULT_START)).map_err(|e| {
-                Error::Scene {
-                    path: path.to_path_buf(),
-                    key: "ephemeris.start".into(),
-                    msg: format!("not an epoch ({e}); write e.g. \"2018-06-10T00:00:00 UTC\""),
-                }
-            })?;
+        let start_text = start_text.as_deref().unwrap_or(DEFAULT_START);
+        let start = parse_epoch(path, "ephemeris.start", start_text)?;
+        let stop = stop_text
+            .map(|t| parse_epoch(path, "ephemeris.stop", &t))
+            .transpose()?;
         let name = file.run.name.clone().unwrap_or_else(|| {
             path.file_stem()
                 .map_or("run".into(), |s| s.to_string_lossy().into_owned())
@@ -244,6 +332,7 @@ impl Scene {
             ephemeris,
             bodies,
             start,
+            stop,
         };
         scene.validate()?;
         Ok(scene)
@@ -280,9 +369,92 @@ impl Scene {
             }
             finite(self, &key("initial_rotation_deg"), b.initial_rotation_deg)?;
         }
+        for (i, b) in self.bodies.iter().enumerate() {
+            self.validate_shape(i, b)?;
+        }
         match &self.ephemeris {
             EphemerisSection::Spin(s) => self.validate_spin(s),
             EphemerisSection::Fixed(f) => self.validate_fixed(f),
+            EphemerisSection::Spice(s) => self.validate_spice(s),
+        }
+    }
+
+    fn validate_shape(&self, i: usize, b: &BodySection) -> Result<()> {
+        let key = |k: &str| format!("body[{i}].{k}");
+        match (&b.mesh, &b.ellipsoid, b.units) {
+            (Some(_), None, Some(_)) => Ok(()),
+            (Some(_), None, None) => Err(self.err(
+                key("units"),
+                "missing field `units`: the mesh file's length unit, \"km\" or \"m\"",
+            )),
+            (Some(_), Some(_), _) => Err(self.err(
+                format!("body[{i}]"),
+                "give either mesh or ellipsoid, not both",
+            )),
+            (None, None, _) => Err(self.err(
+                format!("body[{i}]"),
+                "give a mesh file (mesh = ..., units = ...) or ellipsoid = { ... }",
+            )),
+            (None, Some(e), _) => {
+                if let Some(r) = e.radii_km {
+                    if r.iter().any(|x| !(x.is_finite() && *x > 0.0)) {
+                        return Err(
+                            self.err(key("ellipsoid.radii_km"), "must be three positive numbers")
+                        );
+                    }
+                } else if b.naif_id.is_none()
+                    || !matches!(self.ephemeris, EphemerisSection::Spice(_))
+                {
+                    return Err(self.err(key("ellipsoid.radii_km"), "missing: give the radii, or a naif_id in spice mode to take them from the PCK"));
+                }
+                if e.levels > 8 {
+                    return Err(self.err(key("ellipsoid.levels"), "at most 8 (1,310,720 facets)"));
+                }
+                Ok(())
+            }
+        }
+    }
+
+    fn validate_spice(&self, s: &SpiceSection) -> Result<()> {
+        if s.kernels.is_empty() {
+            return Err(self.err("ephemeris.kernels", "list at least one kernel"));
+        }
+        positive(self, "ephemeris.solar_constant_w_m2", s.solar_constant_w_m2)?;
+        if crate::ephemeris::spice::parse_aberration(&s.aberration).is_none()
+            && s.aberration != "NONE"
+        {
+            return Err(self.err(
+                "ephemeris.aberration",
+                format!("'{}' is not one of NONE, LT, LT+S, CN, CN+S", s.aberration),
+            ));
+        }
+        for (i, b) in self.bodies.iter().enumerate() {
+            if b.naif_id.is_none() {
+                return Err(self.err(
+                    format!("body[{i}].naif_id"),
+                    "missing: spice mode needs each body's NAIF id (e.g. 401 for Phobos)",
+                ));
+            }
+        }
+        match (s.stop.is_some(), s.step_s, s.spins, s.steps_per_spin) {
+            (true, Some(step), None, None) => {
+                positive(self, "ephemeris.step_s", step)?;
+                if self.stop.is_some_and(|stop| stop <= self.start) {
+                    return Err(self.err("ephemeris.stop", "must be after start"));
+                }
+                Ok(())
+            }
+            (false, None, Some(spins), steps) => {
+                positive(self, "ephemeris.spins", spins)?;
+                if steps == Some(0) {
+                    return Err(self.err("ephemeris.steps_per_spin", "must be at least 1"));
+                }
+                Ok(())
+            }
+            _ => Err(self.err(
+                "ephemeris",
+                "give either stop and step_s, or spins (and steps_per_spin)",
+            )),
         }
     }
 
@@ -367,6 +539,14 @@ fn finite(scene: &Scene, key: &str, x: f64) -> Result<()> {
     }
 }
 
+fn parse_epoch(path: &Path, key: &str, text: &str) -> Result<Epoch> {
+    Epoch::from_str(text).map_err(|e| Error::Scene {
+        path: path.to_path_buf(),
+        key: key.into(),
+        msg: format!("'{text}' is not an epoch ({e}); write e.g. \"2018-06-10T00:00:00 UTC\""),
+    })
+}
+
 /// Names become file names (`BODY.ply`, `results/NAME`): keep them to letters, digits,
 /// `-`, `_` and `.`, not starting with a dot, so no name can reach outside a folder.
 fn check_name(scene: &Scene, key: &str, name: &str) -> Result<()> {
@@ -390,19 +570,11 @@ fn ephemeris_section(path: &Path, mut table: toml::Table) -> Result<EphemerisSec
         key: "ephemeris.mode".into(),
         msg,
     };
+    const MODES: &str = "\"spin\", \"fixed\" or \"spice\"";
     let mode = match table.remove("mode") {
         Some(toml::Value::String(mode)) => mode,
-        Some(other) => {
-            return Err(err(format!(
-                "must be the text \"spin\" or \"fixed\", not a {}",
-                other.type_str()
-            )))
-        }
-        None => {
-            return Err(err(
-                "missing: write mode = \"spin\" or mode = \"fixed\"".into()
-            ))
-        }
+        Some(other) => return Err(err(format!("must be {MODES}, not a {}", other.type_str()))),
+        None => return Err(err(format!("missing: write mode = one of {MODES}"))),
     };
     let table = toml::Value::Table(table);
     match mode.as_str() {
@@ -418,9 +590,13 @@ fn ephemeris_section(path: &Path, mut table: toml::Table) -> Result<EphemerisSec
             "ephemeris",
             table,
         )?)),
-        other => Err(err(format!(
-            "unknown mode '{other}': use \"spin\" or \"fixed\""
-        ))),
+        "spice" => Ok(EphemerisSection::Spice(deserialize_at(
+            path,
+            None,
+            "ephemeris",
+            table,
+        )?)),
+        other => Err(err(format!("unknown mode '{other}': use {MODES}"))),
     }
 }
 

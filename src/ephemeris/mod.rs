@@ -9,6 +9,7 @@
 //! Units: directions are unit vectors, distances metres, flux W/m², epochs hifitime `Epoch`.
 
 pub mod fixed;
+pub mod spice;
 pub mod spin;
 
 use crate::error::Result;

@@ -64,6 +64,14 @@ pub fn icosphere(levels: u32, radius: f64, centre: DVec3) -> RawMesh {
     mesh
 }
 
+/// A triaxial ellipsoid with semi-axes `radii` along x, y, z: a geodesic sphere of
+/// `levels` subdivisions stretched along the axes (outward facets stay outward).
+pub fn ellipsoid(levels: u32, radii: DVec3) -> RawMesh {
+    let mut mesh = icosphere(levels, 1.0, DVec3::ZERO);
+    mesh.vertices.iter_mut().for_each(|v| *v *= radii);
+    mesh
+}
+
 /// Splits every facet into four at its edge midpoints (shared midpoints are shared
 /// vertices, so a closed mesh stays closed). Facet count ×4, shape unchanged.
 pub fn subdivide(mesh: &RawMesh) -> RawMesh {

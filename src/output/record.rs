@@ -20,7 +20,10 @@ pub struct InputFile {
 #[derive(Debug, Clone, Serialize)]
 pub struct BodyRecord {
     pub name: String,
-    pub mesh: InputFile,
+    /// The mesh file (none for a generated shape).
+    pub mesh: Option<InputFile>,
+    /// Where the shape came from, in words.
+    pub shape: String,
     pub report: MeshReport,
 }
 
@@ -31,6 +34,8 @@ pub struct RunRecord {
     pub version: String,
     pub name: String,
     pub scene: InputFile,
+    /// SPICE kernels used, with checksums.
+    pub kernels: Vec<InputFile>,
     pub bodies: Vec<BodyRecord>,
     pub plan: Plan,
     pub counts: StepCounts,
