@@ -290,3 +290,97 @@ fn missing_bodies_list_what_the_kernels_provide() {
         "{e}"
     );
 }
+
+/// Phobos's lit facets at each epoch, with Mars (a PCK-sized ellipsoid) as occluder.
+fn phobos_lit_facets(epochs: Vec<hifitime::Epoch>) -> Vec<usize> {
+    use slim::illum::Direct;
+    use slim::mesh::{generate::ellipsoid, read_mesh, LengthUnit, Mesh};
+    use slim::world::{Body, World};
+    let kernels = kernels(&case_kernels("phobos").unwrap());
+    let mars_radii = kernels.radii_km(499).expect("pck00011 has Mars radii");
+    let bodies = vec![
+        SpiceBody::new(&kernels, "phobos", 401).unwrap(),
+        SpiceBody::new(&kernels, "mars", 499).unwrap(),
+    ];
+    let phobos = read_mesh(&root().join("data/shapes/phobos/m1phobos.obj"), None).unwrap();
+    let world = World {
+        bodies: vec![
+            Body::new("phobos", Mesh::from_raw(phobos, LengthUnit::Km), false),
+            Body::new(
+                "mars",
+                Mesh::from_raw(ellipsoid(5, mars_radii), LengthUnit::Km),
+                true,
+            ),
+        ],
+    };
+    let n_phobos = world.bodies[0].mesh.len();
+    let eph = SpiceEphemeris::new(
+        kernels,
+        bodies,
+        epochs,
+        1.0,
+        parse_aberration("LT+S").unwrap(),
+        1361.0,
+    );
+    let direct = Direct::new(&world, slim::trace::TracerKind::Sunview);
+    let mut e = vec![0.0; world.facet_count()];
+    (0..eph.steps())
+        .map(|k| {
+            direct.compute(&eph.state(k).unwrap(), &mut e).unwrap();
+            e[..n_phobos].iter().filter(|&&x| x > 0.0).count()
+        })
+        .collect()
+}
+
+#[test]
+fn phobos_goes_dark_for_the_mars_eclipse_cspice_predicts() {
+    // CSPICE's gfoclt (Sun as an ellipsoid behind Mars, seen from Phobos, LT+S) gives the
+    // total and partial intervals. With a point Sun and centroid rays, every facet must be
+    // dark inside the total interval and the body lit again outside the partial one; the
+    // dark spell must start and end within the penumbral ~30 s at each end.
+    let eclipses = rows("phobos_eclipses.csv");
+    let first = |kind: &str| {
+        let r = eclipses.iter().find(|r| r["type"] == kind).unwrap();
+        (num(r, "start_et_tdb_s"), num(r, "stop_et_tdb_s"))
+    };
+    let (full, any) = (first("FULL"), first("ANY"));
+    let step = 5.0;
+    let t0 = any.0 - 60.0;
+    let n = ((any.1 + 60.0 - t0) / step) as usize;
+    let times: Vec<f64> = (0..n).map(|k| t0 + step * k as f64).collect();
+    let lit = phobos_lit_facets(
+        times
+            .iter()
+            .map(|&t| hifitime::Epoch::from_tdb_seconds(t))
+            .collect(),
+    );
+    for (t, l) in times.iter().zip(&lit) {
+        if *t >= full.0 && *t <= full.1 {
+            assert_eq!(*l, 0, "lit facets inside the total eclipse at ET {t}");
+        }
+        if *t < any.0 || *t > any.1 {
+            assert!(
+                *l > 1000,
+                "Phobos should be sunlit at ET {t}, {l} facets lit"
+            );
+        }
+    }
+    let dark: Vec<f64> = times
+        .iter()
+        .zip(&lit)
+        .filter(|(_, l)| **l == 0)
+        .map(|(t, _)| *t)
+        .collect();
+    let (begin, end) = (dark[0], dark[dark.len() - 1]);
+    println!(
+        "dark {:.0} s (ET {begin} .. {end}); CSPICE total {:.0} s, partial {:.0} s",
+        end - begin + step,
+        full.1 - full.0,
+        any.1 - any.0
+    );
+    assert!(
+        begin >= any.0 && begin <= full.0 + step,
+        "dark from {begin}"
+    );
+    assert!(end <= any.1 && end >= full.1 - step, "dark until {end}");
+}

@@ -6,7 +6,8 @@
 //!   metres), min/max/mean/std irradiance (W/m²), lit_fraction;
 //! - `cdf`: one row per facet and threshold — F_k(x) = share of time with E ≤ x;
 //! - `geometry`: one row per step and body — epoch, Sun unit vector (body frame), Sun
-//!   distance (km), flux (W/m²);
+//!   distance (km), flux (W/m²), and the pose: body centre relative to the first body
+//!   (km) and body → scene rotation (unit quaternion), scene frame (J2000 for SPICE);
 //! - `history` (when asked): one row per step and facet, streamed as the run goes;
 //! - `BODY.ply` per body with per-face statistics; `run.json` (see [`record`]).
 //!
@@ -150,9 +151,26 @@ pub fn write_geometry(
         .with("sun_y", column(&|x| x.sun_dir.y))
         .with("sun_z", column(&|x| x.sun_dir.z))
         .with("sun_distance_km", column(&|x| x.sun_distance_m / 1000.0))
-        .with("flux_w_m2", column(&|x| x.flux_w_m2));
+        .with("flux_w_m2", column(&|x| x.flux_w_m2))
+        .with("position_x_km", column(&|x| x.pose.position_m.x / 1000.0))
+        .with("position_y_km", column(&|x| x.pose.position_m.y / 1000.0))
+        .with("position_z_km", column(&|x| x.pose.position_m.z / 1000.0))
+        .with("rotation_w", column(&|x| quaternion(x).w))
+        .with("rotation_x", column(&|x| quaternion(x).x))
+        .with("rotation_y", column(&|x| quaternion(x).y))
+        .with("rotation_z", column(&|x| quaternion(x).z));
     writer.write(&batch)?;
     writer.finish()
+}
+
+/// The body → scene rotation as a unit quaternion with w ≥ 0.
+fn quaternion(state: &crate::ephemeris::BodyState) -> glam::DQuat {
+    let q = glam::DQuat::from_mat3(&state.pose.body_to_scene);
+    if q.w < 0.0 {
+        -q
+    } else {
+        q
+    }
 }
 
 /// TDB seconds past J2000 of a step.
