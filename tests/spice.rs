@@ -233,7 +233,7 @@ fn unsupported_kernels_are_refused_by_name() {
     ] {
         let path = dir.join(name);
         std::fs::write(&path, b"x").unwrap();
-        let e = Kernels::load(&[path.clone()])
+        let e = Kernels::load(std::slice::from_ref(&path))
             .err()
             .expect("refused")
             .to_string();
