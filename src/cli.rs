@@ -1,11 +1,15 @@
 //! CLI: the `slim` command — a thin layer over the library.
 //!
 //! `slim run SCENE.toml [-o DIR] [--threads N] [--quiet]` runs a scene; `slim info MESH`
-//! loads a mesh and prints its inspection report. Errors are printed as one line and the
+//! loads a mesh and prints its inspection report; `slim report RUN_DIR` draws a finished
+//! run's figures and HTML page (`slim run --report` does so right after the run). Errors are printed as one line and the
 //! exit code is non-zero.
 
 use crate::error::{Error, Result};
 use crate::mesh::{inspect::inspect, read_mesh, LengthUnit, Mesh, MeshFormat};
+use crate::report::colormap::Colormap;
+use crate::report::select::{FacetRef, LatLon};
+use crate::report::{write_report, ReportOptions};
 use crate::run::{run_scene, Progress};
 use crate::scene::Scene;
 use clap::{Parser, Subcommand, ValueEnum};
@@ -38,6 +42,19 @@ enum Command {
         /// Print nothing but errors.
         #[arg(short, long)]
         quiet: bool,
+        /// Also write the report (figures and index.html) into OUTPUT/report.
+        #[arg(long)]
+        report: bool,
+    },
+    /// Draw a finished run's figures and its self-contained index.html.
+    Report {
+        /// The run folder (holding run.json).
+        run_dir: PathBuf,
+        /// Report folder (default: RUN_DIR/report).
+        #[arg(short, long)]
+        output: Option<PathBuf>,
+        #[command(flatten)]
+        options: ReportArgs,
     },
     /// Load a mesh and report its size, topology and orientation.
     Info {
@@ -50,6 +67,35 @@ enum Command {
         #[arg(long, value_enum)]
         format: Option<Format>,
     },
+}
+
+/// What the report draws.
+#[derive(clap::Args, Debug)]
+struct ReportArgs {
+    /// Plot the CDF of this facet (BODY:ID; repeatable).
+    #[arg(long = "facet", value_name = "BODY:ID")]
+    facets: Vec<FacetRef>,
+    /// Plot the CDF of the facet nearest to this latitude,longitude (degrees, east-positive;
+    /// repeatable).
+    #[arg(long, value_name = "LAT,LON", allow_hyphen_values = true)]
+    near: Vec<LatLon>,
+    /// Threshold of the "time above" map, W/m².
+    #[arg(long, value_name = "W/m2", default_value_t = 100.0)]
+    threshold: f64,
+    /// Colour map: viridis or cividis.
+    #[arg(long, default_value = "viridis")]
+    colormap: Colormap,
+}
+
+impl ReportArgs {
+    fn options(self) -> ReportOptions {
+        ReportOptions {
+            facets: self.facets,
+            near: self.near,
+            threshold_w_m2: self.threshold,
+            colormap: self.colormap,
+        }
+    }
 }
 
 #[derive(Clone, Copy, Debug, ValueEnum)]
@@ -85,6 +131,7 @@ fn execute(cli: Cli) -> Result<()> {
             output,
             threads,
             quiet,
+            report,
         } => {
             if let Some(n) = threads {
                 set_threads(n)?;
@@ -103,6 +150,26 @@ fn execute(cli: Cli) -> Result<()> {
                     record.counts.rays
                 );
             }
+            if report {
+                let written = write_report(&out, None, &ReportOptions::default())?;
+                if !quiet {
+                    eprintln!("wrote the report to {}", written.index.display());
+                }
+            }
+            Ok(())
+        }
+        Command::Report {
+            run_dir,
+            output,
+            options,
+        } => {
+            let written = write_report(&run_dir, output.as_deref(), &options.options())?;
+            eprintln!(
+                "wrote {} files to {}; open {}",
+                written.files.len(),
+                written.dir.display(),
+                written.index.display()
+            );
             Ok(())
         }
         Command::Info {

@@ -28,6 +28,7 @@ pub mod illum;
 pub mod mesh;
 pub mod output;
 pub mod plan;
+pub mod report;
 pub mod run;
 pub mod scene;
 pub mod stats;

@@ -749,10 +749,23 @@ fn geometry_has_one_row_per_step_and_body_with_unit_sun_vectors() {
                 "sun_y",
                 "sun_z",
                 "sun_distance_km",
-                "flux_w_m2"
+                "flux_w_m2",
+                "position_x_km",
+                "position_y_km",
+                "position_z_km",
+                "rotation_w",
+                "rotation_x",
+                "rotation_y",
+                "rotation_z"
             ]
         );
         assert_eq!(g.rows(), steps * bodies.len());
+        let q = ["rotation_w", "rotation_x", "rotation_y", "rotation_z"].map(|c| g.f64(c));
+        for i in 0..g.rows() {
+            let norm = q.iter().map(|c| c[i] * c[i]).sum::<f64>().sqrt();
+            assert!((norm - 1.0).abs() < 1e-12, "rotation quaternion of row {i}");
+            assert!(q[0][i] >= 0.0, "w ≥ 0 chosen");
+        }
         let (step, et, utc, body) = (
             g.u64("step"),
             g.f64("et_tdb_s"),

@@ -6,8 +6,9 @@
 //!   metres), min/max/mean/std irradiance (W/m²), lit_fraction;
 //! - `cdf`: one row per facet and threshold — F_k(x) = share of time with E ≤ x;
 //! - `geometry`: one row per step and body — epoch, Sun unit vector (body frame), Sun
-//!   distance (km), flux (W/m²), and the pose: body centre relative to the first body
-//!   (km) and body → scene rotation (unit quaternion), scene frame (J2000 for SPICE);
+//!   distance (km), flux (W/m²), and the pose: body centre in the scene frame (km) and
+//!   body → scene rotation (unit quaternion, w ≥ 0); for SPICE scenes the scene frame has
+//!   J2000 axes and the first body at its origin;
 //! - `history` (when asked): one row per step and facet, streamed as the run goes;
 //! - `BODY.ply` per body with per-face statistics; `run.json` (see [`record`]).
 //!
