@@ -420,9 +420,7 @@ impl Scene {
             return Err(self.err("ephemeris.kernels", "list at least one kernel"));
         }
         positive(self, "ephemeris.solar_constant_w_m2", s.solar_constant_w_m2)?;
-        if crate::ephemeris::spice::parse_aberration(&s.aberration).is_none()
-            && s.aberration != "NONE"
-        {
+        if crate::ephemeris::spice::parse_aberration(&s.aberration).is_none() {
             return Err(self.err(
                 "ephemeris.aberration",
                 format!("'{}' is not one of NONE, LT, LT+S, CN, CN+S", s.aberration),
