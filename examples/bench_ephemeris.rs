@@ -17,8 +17,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let scene = Scene::load(&path)?;
     let kernels = load_kernels(&scene)?.ok_or("data/phobos.toml is a SPICE scene")?;
     let bodies = vec![
-        SpiceBody::new(&kernels, "phobos", 401)?,
-        SpiceBody::new(&kernels, "mars", 499)?,
+        SpiceBody::new(&kernels, "phobos", 401)?.into(),
+        SpiceBody::new(&kernels, "mars", 499)?.into(),
     ];
     let n = 10_000;
     let window_s = 4.0 * 86_400.0;
@@ -32,7 +32,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         window_s / n as f64,
         parse_aberration("LT+S").flatten(),
         1361.0,
-    );
+    )?;
     let t0 = Instant::now();
     let states = epoch_states(&eph)?;
     let seconds = t0.elapsed().as_secs_f64();

@@ -5,20 +5,22 @@
 //! through [`Progress`] so the CLI can draw a bar and a service can track jobs.
 
 use crate::ephemeris::fixed::{normalized_direction, FixedGeometry, FixedSun};
-use crate::ephemeris::spice::{parse_aberration, Kernels, SpiceBody, SpiceEphemeris};
+use crate::ephemeris::spice::{parse_aberration, Kernels, SpiceBody, SpiceEphemeris, SpiceMember};
 use crate::ephemeris::spin::{Spin, SpinModel};
+use crate::ephemeris::synthetic::{CircularOrbit, SyntheticMotion};
 use crate::ephemeris::{flux_at, Ephemeris, EpochState};
 use crate::error::{Error, Result};
 use crate::illum::{Direct, StepCounts};
 use crate::mesh::generate::ellipsoid;
 use crate::mesh::inspect::inspect;
+use crate::mesh::projection::PolarStereographic;
 use crate::mesh::LengthUnit;
 use crate::mesh::{read_mesh, Mesh};
 use crate::output::record::{input_file, BodyRecord, InputFile, RunRecord};
 use crate::output::{self, HistoryWriter};
 use crate::plan::Plan;
 use crate::scene::{
-    EphemerisSection, FixedSection, Orient, Scene, Shape, SpiceSection, SpinSection,
+    BodySection, EphemerisSection, FixedSection, Orient, Scene, Shape, SpiceSection, SpinSection,
 };
 use crate::stats::{Bins, FacetStats};
 use crate::trace::TracerKind;
@@ -139,7 +141,15 @@ fn load_shape(
             units,
             format,
         } => {
-            let mesh = Mesh::from_raw(read_mesh(path, format)?, units);
+            let mut raw = read_mesh(path, format)?;
+            if let Some(p) = &b.stereographic {
+                let projection = PolarStereographic {
+                    pole: p.pole,
+                    radius: p.radius_km * 1000.0 / units.metres(),
+                };
+                raw = projection.apply(raw);
+            }
+            let mesh = Mesh::from_raw(raw, units);
             Ok((
                 mesh,
                 Some(input_file(path)?),
@@ -196,11 +206,15 @@ pub fn build_ephemeris(scene: &Scene, kernels: Option<Kernels>) -> Result<Box<dy
 }
 
 fn spice_ephemeris(scene: &Scene, s: &SpiceSection, kernels: Kernels) -> Result<SpiceEphemeris> {
-    let bodies = scene
+    let members = scene
         .bodies
         .iter()
-        .map(|b| SpiceBody::new(&kernels, &b.name, b.naif_id.unwrap_or_default()))
+        .map(|b| spice_member(b, &kernels))
         .collect::<Result<Vec<_>>>()?;
+    let first_period_s = match &members[0] {
+        SpiceMember::Kernel(body) => body.rotation_period_s,
+        SpiceMember::Synthetic { .. } => None,
+    };
     let (step_s, count) = match (scene.stop, s.step_s, s.spins) {
         (Some(stop), Some(step), _) => (
             step,
@@ -210,14 +224,11 @@ fn spice_ephemeris(scene: &Scene, s: &SpiceSection, kernels: Kernels) -> Result<
             let per_spin = s.steps_per_spin.unwrap_or(360);
             let period_s = match scene.bodies[0].spin_period_h {
                 Some(h) => h * 3600.0,
-                None => bodies[0]
-                    .rotation
-                    .rotation_period_s()
-                    .ok_or_else(|| Error::Scene {
-                        path: scene.path.clone(),
-                        key: "body[0].spin_period_h".into(),
-                        msg: "the PCK gives this body no rotation rate: set the spin period".into(),
-                    })?,
+                None => first_period_s.ok_or_else(|| Error::Scene {
+                    path: scene.path.clone(),
+                    key: "body[0].spin_period_h".into(),
+                    msg: "the PCK gives this body no rotation rate: set the spin period".into(),
+                })?,
             };
             (
                 period_s / per_spin as f64,
@@ -229,14 +240,41 @@ fn spice_ephemeris(scene: &Scene, s: &SpiceSection, kernels: Kernels) -> Result<
     let epochs = (0..count)
         .map(|k| scene.start + hifitime::Duration::from_seconds(step_s * k as f64))
         .collect();
-    Ok(SpiceEphemeris::new(
+    SpiceEphemeris::new(
         kernels,
-        bodies,
+        members,
         epochs,
         step_s,
         parse_aberration(&s.aberration).flatten(),
         s.solar_constant_w_m2,
-    ))
+    )
+}
+
+/// A SPICE-mode body: placed by the kernels in its frame, or synthetically.
+fn spice_member(b: &BodySection, kernels: &Kernels) -> Result<SpiceMember> {
+    let motion = match (b.naif_id, &b.orbit) {
+        (Some(id), _) => {
+            let body = match &b.frame {
+                Some(frame) => SpiceBody::with_frame(kernels, &b.name, id, frame)?,
+                None => SpiceBody::new(kernels, &b.name, id)?,
+            };
+            return Ok(body.into());
+        }
+        (None, Some(o)) => SyntheticMotion::Orbit(CircularOrbit::new(
+            o.radius_km,
+            o.period_h * 3600.0,
+            o.pole_ra_deg,
+            o.pole_dec_deg,
+            o.phase_deg,
+        )),
+        (None, None) => SyntheticMotion::Fixed {
+            offset_km: DVec3::from_array(b.position_km),
+        },
+    };
+    Ok(SpiceMember::Synthetic {
+        name: b.name.clone(),
+        motion,
+    })
 }
 
 fn spin_model(scene: &Scene, s: &SpinSection) -> SpinModel {

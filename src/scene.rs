@@ -6,6 +6,7 @@
 //! README documents every key with a complete example.
 
 use crate::error::{Error, Result};
+use crate::mesh::projection::Pole;
 use crate::mesh::{LengthUnit, MeshFormat};
 use crate::trace::TracerKind;
 use hifitime::Epoch;
@@ -110,6 +111,41 @@ pub struct SpiceSection {
     /// Irradiance at 1 AU, W/m².
     #[serde(default = "default_solar_constant")]
     pub solar_constant_w_m2: f64,
+}
+
+/// `stereographic = { ... }` of a body: its mesh vertices are polar-stereographic `x`, `y`
+/// and the height above a sphere, in the mesh's unit (see [`crate::mesh::projection`]).
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct StereographicSection {
+    /// "north" or "south".
+    pub pole: Pole,
+    /// Radius of the reference sphere, km.
+    pub radius_km: f64,
+}
+
+/// `orbit = { ... }` of a body: a circular, tidally locked orbit about the first body,
+/// for bodies no kernel covers.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct OrbitSection {
+    /// Orbit radius, km.
+    pub radius_km: f64,
+    /// Orbital period, hours (negative: retrograde).
+    pub period_h: f64,
+    /// Right ascension of the orbit pole, J2000, degrees (default 0).
+    #[serde(default)]
+    pub pole_ra_deg: f64,
+    /// Declination of the orbit pole, J2000, degrees (default 90).
+    #[serde(default = "default_pole_dec")]
+    pub pole_dec_deg: f64,
+    /// Angle from the ascending node at the first epoch, degrees.
+    #[serde(default)]
+    pub phase_deg: f64,
+}
+
+fn default_pole_dec() -> f64 {
+    90.0
 }
 
 /// `ellipsoid = { ... }` of a body: a generated triaxial ellipsoid mesh.
@@ -219,6 +255,12 @@ pub struct BodySection {
     pub ellipsoid: Option<EllipsoidSection>,
     /// NAIF id (SPICE mode).
     pub naif_id: Option<i32>,
+    /// Body-fixed frame (SPICE mode; default the IAU frame of `naif_id`), e.g. "MOON_ME".
+    pub frame: Option<String>,
+    /// A synthetic circular orbit about the first body (SPICE mode, instead of `naif_id`).
+    pub orbit: Option<OrbitSection>,
+    /// The mesh file holds polar-stereographic map coordinates and heights.
+    pub stereographic: Option<StereographicSection>,
     /// Mesh format (default: from the extension).
     pub format: Option<MeshFormat>,
     /// Orientation handling.
@@ -368,6 +410,12 @@ impl Scene {
                 positive(self, &key("spin_period_h"), p)?;
             }
             finite(self, &key("initial_rotation_deg"), b.initial_rotation_deg)?;
+            let spice = matches!(self.ephemeris, EphemerisSection::Spice(_));
+            for (given, what) in [(b.frame.is_some(), "frame"), (b.orbit.is_some(), "orbit")] {
+                if given && !spice {
+                    return Err(self.err(key(what), "only in spice mode"));
+                }
+            }
         }
         for (i, b) in self.bodies.iter().enumerate() {
             self.validate_shape(i, b)?;
@@ -382,7 +430,10 @@ impl Scene {
     fn validate_shape(&self, i: usize, b: &BodySection) -> Result<()> {
         let key = |k: &str| format!("body[{i}].{k}");
         match (&b.mesh, &b.ellipsoid, b.units) {
-            (Some(_), None, Some(_)) => Ok(()),
+            (Some(_), None, Some(_)) => match &b.stereographic {
+                Some(p) => positive(self, &key("stereographic.radius_km"), p.radius_km),
+                None => Ok(()),
+            },
             (Some(_), None, None) => Err(self.err(
                 key("units"),
                 "missing field `units`: the mesh file's length unit, \"km\" or \"m\"",
@@ -394,6 +445,10 @@ impl Scene {
             (None, None, _) => Err(self.err(
                 format!("body[{i}]"),
                 "give a mesh file (mesh = ..., units = ...) or ellipsoid = { ... }",
+            )),
+            (None, Some(_), _) if b.stereographic.is_some() => Err(self.err(
+                key("stereographic"),
+                "applies to mesh files only, not to a generated ellipsoid",
             )),
             (None, Some(e), _) => {
                 if let Some(r) = e.radii_km {
@@ -415,6 +470,51 @@ impl Scene {
         }
     }
 
+    /// A SPICE body is placed by the kernels (`naif_id`), or, after the first, by a
+    /// synthetic `orbit` or a fixed `position_km`.
+    fn validate_spice_placement(&self, i: usize, b: &BodySection) -> Result<()> {
+        let key = |k: &str| format!("body[{i}].{k}");
+        let fixed = b.position_km != [0.0; 3];
+        match (b.naif_id, &b.orbit) {
+            (Some(_), Some(_)) => {
+                Err(self.err(key("orbit"), "give either naif_id or orbit, not both"))
+            }
+            (Some(_), None) if fixed => Err(self.err(
+                key("position_km"),
+                "a body with a naif_id is placed by the kernels; drop position_km",
+            )),
+            (Some(_), None) => Ok(()),
+            (None, _) if i == 0 => Err(self.err(
+                key("naif_id"),
+                "missing: the first body needs a NAIF id the kernels cover (e.g. 401 for Phobos)",
+            )),
+            (None, _) if b.frame.is_some() => Err(self.err(
+                key("frame"),
+                "only bodies with a naif_id have a kernel frame",
+            )),
+            (None, Some(_)) if fixed => Err(self.err(
+                key("position_km"),
+                "give either orbit or position_km, not both",
+            )),
+            (None, Some(o)) => {
+                positive(self, &key("orbit.radius_km"), o.radius_km)?;
+                finite(self, &key("orbit.period_h"), o.period_h)?;
+                if o.period_h == 0.0 {
+                    return Err(self.err(key("orbit.period_h"), "must not be zero"));
+                }
+                finite(self, &key("orbit.pole_ra_deg"), o.pole_ra_deg)?;
+                finite(self, &key("orbit.pole_dec_deg"), o.pole_dec_deg)?;
+                finite(self, &key("orbit.phase_deg"), o.phase_deg)
+            }
+            (None, None) if fixed => Ok(()),
+            (None, None) => Err(self.err(
+                key("naif_id"),
+                "missing: give a naif_id the kernels cover, a synthetic orbit = { radius_km, \
+                 period_h, ... }, or a fixed position_km relative to the first body",
+            )),
+        }
+    }
+
     fn validate_spice(&self, s: &SpiceSection) -> Result<()> {
         if s.kernels.is_empty() {
             return Err(self.err("ephemeris.kernels", "list at least one kernel"));
@@ -427,12 +527,7 @@ impl Scene {
             ));
         }
         for (i, b) in self.bodies.iter().enumerate() {
-            if b.naif_id.is_none() {
-                return Err(self.err(
-                    format!("body[{i}].naif_id"),
-                    "missing: spice mode needs each body's NAIF id (e.g. 401 for Phobos)",
-                ));
-            }
+            self.validate_spice_placement(i, b)?;
         }
         match (s.stop.is_some(), s.step_s, s.spins, s.steps_per_spin) {
             (true, Some(step), None, None) => {

@@ -714,3 +714,122 @@ fn loaded_scene_keeps_its_bytes_and_path() {
         dir.0.join("rock.obj")
     );
 }
+
+// ---------------------------------------------------------------------------------------
+// SPICE-mode placement: kernels, a named frame, a synthetic orbit or a fixed offset
+
+/// A valid SPICE-mode scene: a kernel body, and a moonlet on a synthetic orbit.
+const SPICE: &str = r#"[ephemeris]
+mode = "spice"
+kernels = ["k/naif0012.tls"]
+start = "2018-06-10T00:00:00 UTC"
+stop = "2018-06-10T01:00:00 UTC"
+step_s = 600
+
+[[body]]
+name = "primary"
+naif_id = 401
+frame = "IAU_PHOBOS"
+ellipsoid = { levels = 1 }
+
+[[body]]
+name = "moonlet"
+ellipsoid = { radii_km = [0.1, 0.1, 0.1], levels = 1 }
+orbit = { radius_km = 1.2, period_h = 11.9, pole_ra_deg = 310, pole_dec_deg = -81 }
+"#;
+
+#[test]
+fn spice_bodies_take_a_frame_or_a_synthetic_orbit() {
+    let scene = parse(SPICE).unwrap();
+    assert_eq!(scene.bodies[0].frame.as_deref(), Some("IAU_PHOBOS"));
+    let orbit = scene.bodies[1].orbit.as_ref().unwrap();
+    assert_eq!((orbit.radius_km, orbit.phase_deg), (1.2, 0.0));
+    let fixed = edit(
+        SPICE,
+        "orbit = { radius_km = 1.2, period_h = 11.9, pole_ra_deg = 310, pole_dec_deg = -81 }",
+        "position_km = [1.2, 0.0, 0.0]",
+    );
+    assert!(parse(&fixed).is_ok());
+}
+
+#[test]
+fn spice_placement_mistakes_are_rejected_with_their_keys() {
+    let orbit =
+        "orbit = { radius_km = 1.2, period_h = 11.9, pole_ra_deg = 310, pole_dec_deg = -81 }";
+    assert_rejected(
+        &edit(SPICE, orbit, "position_km = [0.0, 0.0, 0.0]"),
+        &["body[1].naif_id", "orbit", "position_km"],
+    );
+    assert_rejected(
+        &edit(SPICE, orbit, &format!("naif_id = 402\n{orbit}")),
+        &["body[1].orbit", "not both"],
+    );
+    assert_rejected(
+        &edit(SPICE, "period_h = 11.9", "period_h = 0"),
+        &["body[1].orbit.period_h"],
+    );
+    assert_rejected(
+        &edit(SPICE, "radius_km = 1.2", "radius_km = -1"),
+        &["body[1].orbit.radius_km"],
+    );
+    assert_rejected(
+        &edit(SPICE, orbit, &format!("{orbit}\nframe = \"MOON_ME\"")),
+        &["body[1].frame", "naif_id"],
+    );
+    assert_rejected(
+        &edit(
+            &edit(SPICE, "naif_id = 401\n", ""),
+            "ellipsoid = { levels = 1 }",
+            "ellipsoid = { radii_km = [13, 11, 9], levels = 1 }",
+        ),
+        &["body[0].naif_id", "first body"],
+    );
+    assert_rejected(
+        &edit(SPICE, "orbit = { radius_km = 1.2", "orbit = { radius = 1.2"),
+        &["body[1].orbit", "radius"],
+    );
+}
+
+#[test]
+fn frames_and_orbits_are_refused_outside_spice_mode() {
+    assert_rejected(
+        &edit(
+            SPIN,
+            "spin_period_h = 5.0",
+            "spin_period_h = 5.0\nframe = \"MOON_ME\"",
+        ),
+        &["body[0].frame", "spice mode"],
+    );
+    assert_rejected(
+        &edit(
+            SPIN,
+            "spin_period_h = 5.0",
+            "spin_period_h = 5.0\norbit = { radius_km = 1.0, period_h = 2.0 }",
+        ),
+        &["body[0].orbit", "spice mode"],
+    );
+}
+
+#[test]
+fn stereographic_terrain_needs_a_mesh_file_and_a_positive_radius() {
+    let terrain = edit(
+        SPIN,
+        "units = \"km\"",
+        "units = \"km\"\nstereographic = { pole = \"south\", radius_km = 1737.4 }",
+    );
+    assert!(parse(&terrain).is_ok());
+    assert_rejected(
+        &edit(&terrain, "radius_km = 1737.4", "radius_km = 0"),
+        &["body[0].stereographic.radius_km"],
+    );
+    assert_rejected(
+        &edit(&terrain, "pole = \"south\"", "pole = \"east\""),
+        &["body[0].stereographic.pole", "east"],
+    );
+    let ellipsoid = edit(
+        &terrain,
+        "mesh = \"rock.obj\"\nunits = \"km\"",
+        "ellipsoid = { radii_km = [1, 1, 1] }",
+    );
+    assert_rejected(&ellipsoid, &["body[0].stereographic", "mesh files only"]);
+}

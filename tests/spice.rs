@@ -48,6 +48,22 @@ fn num(row: &std::collections::HashMap<String, String>, key: &str) -> f64 {
     row[key].parse().unwrap()
 }
 
+/// The fixture's row-major m00..m22 as a matrix.
+fn matrix(row: &std::collections::HashMap<String, String>) -> DMat3 {
+    let m = |r: usize, c: usize| num(row, &format!("m{r}{c}"));
+    DMat3::from_cols_array(&[
+        m(0, 0),
+        m(1, 0),
+        m(2, 0),
+        m(0, 1),
+        m(1, 1),
+        m(2, 1),
+        m(0, 2),
+        m(1, 2),
+        m(2, 2),
+    ])
+}
+
 /// Angle between two rotations, radians (robust for tiny angles).
 fn rotation_angle(a: DMat3, b: DMat3) -> f64 {
     let d = a * b.transpose();
@@ -85,17 +101,7 @@ fn iau_rotations_match_cspice() {
         let Some(id) = frame_body(&row["frame"]) else {
             continue;
         };
-        let m = DMat3::from_cols_array(&[
-            num(&row, "m00"),
-            num(&row, "m10"),
-            num(&row, "m20"),
-            num(&row, "m01"),
-            num(&row, "m11"),
-            num(&row, "m21"),
-            num(&row, "m02"),
-            num(&row, "m12"),
-            num(&row, "m22"),
-        ]);
+        let m = matrix(&row);
         let mine = k
             .rotation_model(id)
             .expect("model")
@@ -117,6 +123,34 @@ fn iau_rotations_match_cspice() {
     }
 }
 
+/// Kernels of the lunar frames (MOON_ME through MOON_PA_DE421 from the binary PCK).
+const MOON_FRAMES: &[&str] = &[
+    "spk/de421.bsp",
+    "pck/moon_pa_de421_1900-2050.bpc",
+    "fk/moon_080317.tf",
+];
+
+#[test]
+fn moon_me_rotations_match_cspice() {
+    let k = kernels(&[PCK, MOON_FRAMES].concat());
+    let body = SpiceBody::with_frame(&k, "moon", 301, "MOON_ME").unwrap();
+    let mut worst = 0f64;
+    let mut checked = 0;
+    for row in rows("rotations.csv")
+        .iter()
+        .filter(|r| r["frame"] == "MOON_ME")
+    {
+        let m = matrix(row);
+        let epoch = hifitime::Epoch::from_tdb_seconds(num(row, "et_tdb_s"));
+        let mine = body.frame.j2000_to_frame(k.almanac(), epoch).unwrap();
+        worst = worst.max(rotation_angle(mine, m));
+        checked += 1;
+    }
+    println!("MOON_ME: max rotation error {worst:.3e} rad over {checked} epochs");
+    assert_eq!(checked, 10);
+    assert!(worst < 1e-9, "MOON_ME: {worst:e} rad");
+}
+
 fn case_kernels(case: &str) -> Option<Vec<&'static str>> {
     let mut k = PCK.to_vec();
     match case {
@@ -125,6 +159,7 @@ fn case_kernels(case: &str) -> Option<Vec<&'static str>> {
             "spk/mar085_subset_2018-06/de430.bsp",
         ]),
         "moon_iau" => k.push("spk/de421.bsp"),
+        "moon_me" => k.extend(MOON_FRAMES),
         "vesta" => k.extend(["spk/de421.bsp", "spk/sb_vesta_nav_120628.bsp"]),
         _ => return None,
     }
@@ -135,7 +170,7 @@ fn case_body(case: &str) -> i32 {
     match case {
         "phobos" => 401,
         "mars" => 499,
-        "moon_iau" => 301,
+        "moon_iau" | "moon_me" => 301,
         "vesta" => 2000004,
         _ => unreachable!(),
     }
@@ -145,7 +180,7 @@ fn case_body(case: &str) -> i32 {
 fn sun_directions_match_cspice_for_every_aberration() {
     let fixture = rows("sun_directions.csv");
     let mut report = Vec::new();
-    for case in ["phobos", "mars", "moon_iau", "vesta"] {
+    for case in ["phobos", "mars", "moon_iau", "moon_me", "vesta"] {
         let k = case_kernels(case).unwrap();
         for abcorr in ["NONE", "LT", "LT+S", "CN", "CN+S"] {
             let picked: Vec<_> = fixture
@@ -158,15 +193,20 @@ fn sun_directions_match_cspice_for_every_aberration() {
                 .map(|r| hifitime::Epoch::from_tdb_seconds(num(r, "et_tdb_s")))
                 .collect();
             let kernels = kernels(&k);
-            let body = SpiceBody::new(&kernels, case, case_body(case)).unwrap();
+            let body = match picked[0]["target_frame"].as_str() {
+                "MOON_ME" => SpiceBody::with_frame(&kernels, case, 301, "MOON_ME"),
+                _ => SpiceBody::new(&kernels, case, case_body(case)),
+            }
+            .unwrap();
             let eph = SpiceEphemeris::new(
                 kernels,
-                vec![body],
+                vec![body.into()],
                 epochs,
                 1.0,
                 parse_aberration(abcorr).unwrap(),
                 1361.0,
-            );
+            )
+            .unwrap();
             let (mut dir_err, mut dist_err) = (0f64, 0f64);
             for (step, r) in picked.iter().enumerate() {
                 let s = &eph.state(step).unwrap().bodies[0];
@@ -255,7 +295,8 @@ fn epochs_outside_the_kernels_name_body_frame_epoch_and_window() {
     let kernels = kernels(&k);
     let body = SpiceBody::new(&kernels, "phobos", 401).unwrap();
     let epoch = hifitime::Epoch::from_gregorian_utc_at_midnight(2019, 1, 1);
-    let eph = SpiceEphemeris::new(kernels, vec![body], vec![epoch], 1.0, None, 1361.0);
+    let eph =
+        SpiceEphemeris::new(kernels, vec![body.into()], vec![epoch], 1.0, None, 1361.0).unwrap();
     let e = eph.state(0).unwrap_err().to_string();
     for needle in [
         "phobos",
@@ -283,7 +324,8 @@ fn missing_bodies_list_what_the_kernels_provide() {
     // A body with a frame but no ephemeris: the error lists the SPK's bodies.
     let body = SpiceBody::new(&kernels, "eros", 2000433).unwrap();
     let epoch = hifitime::Epoch::from_gregorian_utc_at_midnight(2018, 6, 11);
-    let eph = SpiceEphemeris::new(kernels, vec![body], vec![epoch], 1.0, None, 1361.0);
+    let eph =
+        SpiceEphemeris::new(kernels, vec![body.into()], vec![epoch], 1.0, None, 1361.0).unwrap();
     let e = eph.state(0).unwrap_err().to_string();
     assert!(
         e.contains("2000433") && e.contains("provide") && e.contains("401"),
@@ -299,8 +341,8 @@ fn phobos_lit_facets(epochs: Vec<hifitime::Epoch>) -> Vec<usize> {
     let kernels = kernels(&case_kernels("phobos").unwrap());
     let mars_radii = kernels.radii_km(499).expect("pck00011 has Mars radii");
     let bodies = vec![
-        SpiceBody::new(&kernels, "phobos", 401).unwrap(),
-        SpiceBody::new(&kernels, "mars", 499).unwrap(),
+        SpiceBody::new(&kernels, "phobos", 401).unwrap().into(),
+        SpiceBody::new(&kernels, "mars", 499).unwrap().into(),
     ];
     let phobos = read_mesh(&root().join("data/shapes/phobos/m1phobos.obj"), None).unwrap();
     let world = World {
@@ -321,7 +363,8 @@ fn phobos_lit_facets(epochs: Vec<hifitime::Epoch>) -> Vec<usize> {
         1.0,
         parse_aberration("LT+S").unwrap(),
         1361.0,
-    );
+    )
+    .unwrap();
     let direct = Direct::new(&world, slim::trace::TracerKind::Sunview);
     let mut e = vec![0.0; world.facet_count()];
     (0..eph.steps())
@@ -383,4 +426,140 @@ fn phobos_goes_dark_for_the_mars_eclipse_cspice_predicts() {
         "dark from {begin}"
     );
     assert!(end <= any.1 && end >= full.1 - step, "dark until {end}");
+}
+
+/// A SPICE scene whose kernels are the shipped ones (absolute paths), parsed in memory.
+fn spice_scene(kernel_names: &[&str], rest: &str) -> slim::scene::Scene {
+    let list: Vec<String> = kernel_names
+        .iter()
+        .map(|n| format!("{:?}", root().join("data/kernels").join(n)))
+        .collect();
+    let text = format!(
+        "[ephemeris]\nmode = \"spice\"\nkernels = [{}]\n{rest}",
+        list.join(", ")
+    );
+    let path = root().join("tests/in-memory-scene.toml");
+    slim::scene::Scene::parse(&path, &text, text.as_bytes().to_vec()).unwrap()
+}
+
+#[test]
+fn a_scene_frame_key_selects_moon_me() {
+    let window = "start = \"2024-01-01T00:00:00 TDB\"\nstop = \"2024-01-02T00:00:00 TDB\"\n\
+                  step_s = 21600\naberration = \"NONE\"\n";
+    let body = |frame: &str| {
+        format!("[[body]]\nname = \"moon\"\nnaif_id = 301\n{frame}ellipsoid = {{ levels = 0 }}\n")
+    };
+    let names = [PCK, MOON_FRAMES].concat();
+    let me = spice_scene(
+        &names,
+        &format!("{window}{}", body("frame = \"MOON_ME\"\n")),
+    );
+    let iau = spice_scene(&names, &format!("{window}{}", body("")));
+    let me = slim::run::build_ephemeris(&me, None).unwrap();
+    let iau = slim::run::build_ephemeris(&iau, None).unwrap();
+    let k = kernels(&names);
+    let reference = SpiceBody::with_frame(&k, "moon", 301, "MOON_ME").unwrap();
+    for step in 0..me.steps() {
+        let s = me.state(step).unwrap();
+        let expected = reference
+            .frame
+            .j2000_to_frame(k.almanac(), s.epoch)
+            .unwrap();
+        assert!(rotation_angle(s.bodies[0].pose.body_to_scene.transpose(), expected) < 1e-15);
+        // MOON_ME and IAU_MOON differ by about a hundredth of a degree, so the key matters.
+        let apart = angle(
+            s.bodies[0].sun_dir,
+            iau.state(step).unwrap().bodies[0].sun_dir,
+        );
+        assert!(apart > 1e-5, "step {step}: {apart:e} rad");
+    }
+}
+
+#[test]
+fn unknown_frames_list_what_the_frame_kernels_define() {
+    let k = kernels(&[PCK, MOON_FRAMES].concat());
+    let e = SpiceBody::with_frame(&k, "moon", 301, "MOON_XYZ")
+        .unwrap_err()
+        .to_string();
+    for needle in ["moon", "301", "MOON_XYZ", "MOON_ME", "MOON_PA_DE421"] {
+        assert!(e.contains(needle), "{needle:?} missing from: {e}");
+    }
+}
+
+#[test]
+fn a_synthetic_moonlet_follows_its_circular_orbit_and_faces_its_primary() {
+    let period_h = 2.0;
+    let radius_km = 30.0;
+    let scene = spice_scene(
+        &case_kernels("phobos").unwrap(),
+        &format!(
+            "start = \"2018-06-10T00:00:00 UTC\"\nstop = \"2018-06-10T02:00:00 UTC\"\nstep_s = 900\n\
+             [[body]]\nname = \"phobos\"\nnaif_id = 401\nellipsoid = {{ levels = 0 }}\n\
+             [[body]]\nname = \"moonlet\"\nellipsoid = {{ radii_km = [0.1, 0.1, 0.1], levels = 0 }}\n\
+             orbit = {{ radius_km = {radius_km}, period_h = {period_h}, phase_deg = 90 }}\n"
+        ),
+    );
+    let eph = slim::run::build_ephemeris(&scene, None).unwrap();
+    assert_eq!(eph.steps(), 8);
+    for step in 0..eph.steps() {
+        let s = eph.state(step).unwrap();
+        let (primary, moonlet) = (&s.bodies[0], &s.bodies[1]);
+        // Pole along J2000 z: the orbit is the equator, phase counted from +x.
+        let theta = std::f64::consts::FRAC_PI_2
+            + std::f64::consts::TAU * step as f64 * 900.0 / (period_h * 3600.0);
+        let expected = DVec3::new(theta.cos(), theta.sin(), 0.0) * radius_km * 1000.0;
+        assert!((moonlet.pose.position_m - expected).length() < 1e-6);
+        // Tidally locked: body +x toward Phobos, +z along the pole.
+        let axes = moonlet.pose.body_to_scene;
+        assert!((axes * DVec3::X + expected.normalize()).length() < 1e-12);
+        assert!((axes * DVec3::Z - DVec3::Z).length() < 1e-12);
+        // The Sun seen from the moonlet: the Sun seen from Phobos, moved by the offset.
+        let sun_scene = primary.pose.body_to_scene * primary.sun_dir * primary.sun_distance_m;
+        let from_moonlet = sun_scene - expected;
+        assert!((moonlet.sun_distance_m - from_moonlet.length()).abs() < 1e-3);
+        assert!(angle(axes * moonlet.sun_dir, from_moonlet) < 1e-12);
+    }
+}
+
+/// The shipped Moon example (data/moon-haworth.toml): the stereographic patch lands where
+/// the IAU gazetteer puts Haworth crater (87.45° S, 5.16° W, 51.4 km across), and over the
+/// month the crater floor stays dark, as LOLA-based maps of permanent shadow show (Haworth
+/// holds one of the largest permanently shadowed regions; Mazarico et al. 2011, Icarus 211).
+#[test]
+fn the_moon_example_places_haworth_and_keeps_its_floor_in_shadow() {
+    let scene = slim::scene::Scene::load(&root().join("data/moon-haworth.toml")).unwrap();
+    let kernels = slim::run::load_kernels(&scene).unwrap();
+    let (world, _, _) = slim::run::build_world(&scene, kernels.as_ref()).unwrap();
+    let eph = slim::run::build_ephemeris(&scene, kernels).unwrap();
+    let states = slim::run::epoch_states(eph.as_ref()).unwrap();
+    assert_eq!(states.len(), 720);
+    let bins = slim::run::bins_for(&scene, &states);
+    let sim = slim::run::statistics(&world, &states, scene.run.tracer, bins).unwrap();
+
+    let mesh = &world.bodies[0].mesh;
+    let radius = |i: usize| mesh.centroids[i].length();
+    let mut order: Vec<usize> = (0..mesh.len()).collect();
+    order.sort_by(|&a, &b| radius(a).total_cmp(&radius(b)));
+    let floor = &order[..mesh.len() / 20];
+    let centre = floor.iter().map(|&i| mesh.centroids[i]).sum::<DVec3>() / floor.len() as f64;
+    let lat = (centre.z / centre.length()).asin().to_degrees();
+    let lon = centre.y.atan2(centre.x).to_degrees();
+    println!("Haworth floor centre: {lat:.2}°, {lon:.2}° E");
+    // Half the crater's radius is 0.42° of latitude at the Moon's radius.
+    assert!((lat - -87.45).abs() < 0.42, "latitude {lat}");
+    assert!(
+        (lon - -5.16).abs() < 0.42 / 87.45f64.to_radians().cos(),
+        "longitude {lon}"
+    );
+
+    let lit = floor
+        .iter()
+        .filter(|&&i| sim.stats.lit_fraction(i) > 0.0)
+        .count();
+    assert_eq!(lit, 0, "{lit} of {} floor facets saw the Sun", floor.len());
+    // The rim and the pole-facing slopes do see the Sun: the run is not trivially dark.
+    let brightest = (0..mesh.len())
+        .map(|i| sim.stats.max(i))
+        .fold(0.0, f64::max);
+    assert!(brightest > 300.0, "brightest facet {brightest} W/m2");
 }

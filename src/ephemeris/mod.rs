@@ -11,6 +11,7 @@
 pub mod fixed;
 pub mod spice;
 pub mod spin;
+pub mod synthetic;
 
 use crate::error::Result;
 use crate::world::Pose;

@@ -15,6 +15,7 @@ pub mod inspect;
 mod obj;
 mod pds;
 mod ply;
+pub mod projection;
 mod stl;
 
 use crate::error::{Error, Result};

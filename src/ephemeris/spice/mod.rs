@@ -12,14 +12,17 @@
 //! epoch outside the kernels, the covered window.
 
 mod daf;
+pub mod frames;
 pub mod pck;
 pub mod text_kernel;
 
+use super::synthetic::SyntheticMotion;
 use super::{flux_at, BodyState, Ephemeris, EpochState};
 use crate::error::{Error, Result};
 use crate::world::Pose;
 use anise::constants::frames::SUN_J2000;
 use anise::prelude::{Aberration, Almanac, Frame};
+use frames::BodyFrame;
 use glam::{DMat3, DVec3};
 use hifitime::Epoch;
 use pck::RotationModel;
@@ -96,6 +99,11 @@ impl Kernels {
     /// The loaded files, in load order.
     pub fn files(&self) -> &[PathBuf] {
         &self.files
+    }
+
+    /// The loaded binary kernels (SPK, binary PCK), for evaluating frames.
+    pub fn almanac(&self) -> &Almanac {
+        &self.almanac
     }
 
     /// The IAU rotation model of body `id` from the loaded text PCKs.
@@ -187,20 +195,22 @@ pub struct SpiceBody {
     pub name: String,
     /// NAIF id.
     pub naif_id: i32,
-    /// J2000 → body-fixed rotation model.
-    pub rotation: RotationModel,
+    /// The body-fixed frame.
+    pub frame: BodyFrame,
+    /// Sidereal rotation period from the body's IAU model, if it has one, s.
+    pub rotation_period_s: Option<f64>,
 }
 
 impl SpiceBody {
-    /// The body `naif_id` with its rotation model from `kernels`, or an error that lists
-    /// the bodies the kernels do provide.
+    /// The body `naif_id` in its IAU frame (rotation model from the loaded text PCKs), or
+    /// an error that lists the bodies the kernels do provide.
     pub fn new(kernels: &Kernels, name: &str, naif_id: i32) -> Result<SpiceBody> {
-        let rotation = kernels
+        let model = kernels
             .rotation_model(naif_id)
             .ok_or_else(|| Error::Spice {
                 body: name.to_string(),
                 naif_id,
-                frame: frame_name(naif_id),
+                frame: iau_frame_name(naif_id),
                 epoch: "(any)".into(),
                 msg: format!(
                 "no rotation model (BODY{naif_id}_POLE_RA/_POLE_DEC/_PM) in the loaded text PCKs; \
@@ -211,13 +221,42 @@ impl SpiceBody {
         Ok(SpiceBody {
             name: name.to_string(),
             naif_id,
-            rotation,
+            rotation_period_s: model.rotation_period_s(),
+            frame: BodyFrame::iau(iau_frame_name(naif_id), model),
+        })
+    }
+
+    /// The body `naif_id` in the frame named `frame` (an `IAU_...` frame, or one defined by
+    /// the loaded frame kernels, e.g. `MOON_ME`).
+    pub fn with_frame(
+        kernels: &Kernels,
+        name: &str,
+        naif_id: i32,
+        frame: &str,
+    ) -> Result<SpiceBody> {
+        let resolved = BodyFrame::resolve(&kernels.text, frame, naif_id, |id| {
+            kernels.rotation_model(id)
+        })
+        .map_err(|msg| Error::Spice {
+            body: name.to_string(),
+            naif_id,
+            frame: frame.to_string(),
+            epoch: "(any)".into(),
+            msg,
+        })?;
+        Ok(SpiceBody {
+            name: name.to_string(),
+            naif_id,
+            rotation_period_s: kernels
+                .rotation_model(naif_id)
+                .and_then(|m| m.rotation_period_s()),
+            frame: resolved,
         })
     }
 }
 
-/// The body-fixed frame's name, "IAU_<id>" style.
-pub fn frame_name(naif_id: i32) -> String {
+/// The name of body `naif_id`'s IAU frame in messages.
+fn iau_frame_name(naif_id: i32) -> String {
     format!("IAU body-fixed frame of NAIF {naif_id}")
 }
 
@@ -232,10 +271,29 @@ fn list_ids(ids: &[i32]) -> String {
     }
 }
 
+/// A body of a SPICE scene: placed by the kernels, or synthetically relative to the first.
+#[derive(Debug, Clone)]
+pub enum SpiceMember {
+    Kernel(Box<SpiceBody>),
+    Synthetic {
+        name: String,
+        motion: SyntheticMotion,
+    },
+}
+
+impl From<SpiceBody> for SpiceMember {
+    fn from(body: SpiceBody) -> SpiceMember {
+        SpiceMember::Kernel(Box::new(body))
+    }
+}
+
 /// The SPICE-driven ephemeris.
 pub struct SpiceEphemeris {
     kernels: Kernels,
-    bodies: Vec<SpiceBody>,
+    /// The first body: the kernels must cover it; the scene frame is centred on it.
+    primary: SpiceBody,
+    /// All bodies in scene order, the first included.
+    members: Vec<SpiceMember>,
     epochs: Vec<Epoch>,
     step_s: f64,
     aberration: Option<Aberration>,
@@ -250,23 +308,35 @@ pub fn parse_aberration(flag: &str) -> Option<Option<Aberration>> {
 }
 
 impl SpiceEphemeris {
-    /// An ephemeris over `epochs` (each standing for `step_s` seconds).
+    /// An ephemeris of `members` over `epochs` (each standing for `step_s` seconds). The
+    /// first member must be placed by the kernels: synthetic ones are placed relative to it.
     pub fn new(
         kernels: Kernels,
-        bodies: Vec<SpiceBody>,
+        members: Vec<SpiceMember>,
         epochs: Vec<Epoch>,
         step_s: f64,
         aberration: Option<Aberration>,
         solar_constant_w_m2: f64,
-    ) -> SpiceEphemeris {
-        SpiceEphemeris {
+    ) -> Result<SpiceEphemeris> {
+        let primary = match members.first() {
+            Some(SpiceMember::Kernel(body)) => body.as_ref().clone(),
+            _ => {
+                return Err(Error::Usage(
+                    "the first body of a SPICE scene must have a naif_id the kernels cover; \
+                     synthetic bodies are placed relative to it"
+                        .into(),
+                ))
+            }
+        };
+        Ok(SpiceEphemeris {
             kernels,
-            bodies,
+            primary,
+            members,
             epochs,
             step_s,
             aberration,
             solar_constant_w_m2,
-        }
+        })
     }
 
     /// The loaded kernels.
@@ -300,10 +370,37 @@ impl SpiceEphemeris {
         Error::Spice {
             body: body.name.clone(),
             naif_id: body.naif_id,
-            frame: frame_name(body.naif_id),
+            frame: body.frame.name.clone(),
             epoch: format!("{epoch} ({} TDB s)", epoch.to_tdb_seconds()),
             msg: format!("{what}: {cause}; {covered}"),
         }
+    }
+}
+
+impl SpiceEphemeris {
+    /// The Sun seen from `body` (km, J2000, with the scene's aberration correction).
+    fn sun_km(&self, body: &SpiceBody, epoch: Epoch) -> Result<DVec3> {
+        self.kernels
+            .vector_km(SUN, body.naif_id, epoch, self.aberration)
+            .map_err(|e| self.error(body, epoch, "Sun position", e))
+    }
+
+    /// For a kernel-placed body: the Sun (km, J2000), its offset from the first body (km,
+    /// J2000, geometric) and the J2000 → body-fixed rotation.
+    fn kernel_geometry(&self, body: &SpiceBody, epoch: Epoch) -> Result<(DVec3, DVec3, DMat3)> {
+        let sun_km = self.sun_km(body, epoch)?;
+        let offset_km = if body.naif_id == self.primary.naif_id {
+            DVec3::ZERO
+        } else {
+            self.kernels
+                .vector_km(body.naif_id, self.primary.naif_id, epoch, None)
+                .map_err(|e| self.error(body, epoch, "position relative to the first body", e))?
+        };
+        let to_body = body
+            .frame
+            .j2000_to_frame(self.kernels.almanac(), epoch)
+            .map_err(|e| self.error(body, epoch, "body-fixed orientation", e))?;
+        Ok((sun_km, offset_km, to_body))
     }
 }
 
@@ -318,26 +415,23 @@ impl Ephemeris for SpiceEphemeris {
 
     fn state(&self, step: usize) -> Result<EpochState> {
         let epoch = self.epochs[step];
-        let et = epoch.to_tdb_seconds();
-        let first = &self.bodies[0];
+        let primary_sun_km = self.sun_km(&self.primary, epoch)?;
         let bodies = self
-            .bodies
+            .members
             .iter()
-            .map(|body| {
-                let sun_km = self
-                    .kernels
-                    .vector_km(SUN, body.naif_id, epoch, self.aberration)
-                    .map_err(|e| self.error(body, epoch, "Sun position", e))?;
-                let offset_km = if body.naif_id == first.naif_id {
-                    DVec3::ZERO
-                } else {
-                    self.kernels
-                        .vector_km(body.naif_id, first.naif_id, epoch, None)
-                        .map_err(|e| {
-                            self.error(body, epoch, "position relative to the first body", e)
-                        })?
+            .map(|member| {
+                let (sun_km, offset_km, to_body) = match member {
+                    SpiceMember::Kernel(body) => self.kernel_geometry(body, epoch)?,
+                    SpiceMember::Synthetic { motion, .. } => {
+                        let t_s = (epoch - self.epochs[0]).to_seconds();
+                        let (offset_km, body_to_j2000) = motion.pose_at(t_s);
+                        (
+                            primary_sun_km - offset_km,
+                            offset_km,
+                            body_to_j2000.transpose(),
+                        )
+                    }
                 };
-                let to_body: DMat3 = body.rotation.j2000_to_body(et);
                 let distance_m = sun_km.length() * 1000.0;
                 Ok(BodyState {
                     sun_dir: (to_body * sun_km).normalize(),
