@@ -285,7 +285,7 @@ fn mean_map_shows_the_closed_form_mean_by_latitude() {
         json["scale_min"].as_f64().unwrap(),
         json["scale_max"].as_f64().unwrap(),
     );
-    let rect = &json["bodies"][0]["equirectangular"]["rect"];
+    let rect = &json["bodies"][0]["map"]["rect"];
     let get = |k: &str| rect[k].as_u64().unwrap() as usize;
     let (left, top, width, height) = (get("left"), get("top"), get("width"), get("height"));
     let tolerance = 1.5 * (hi - lo) / 255.0 + 1.0;

@@ -13,9 +13,12 @@
 
 use super::colormap::Colormap;
 use super::figure::{rgb, short_number, text, write_png, DrawResult, Figure};
-use super::raster::{equirectangular, orthographic, IdRaster, VIEWS};
+use super::raster::{
+    equirectangular, is_patch, orthographic, overhead_view, Framing, IdRaster, VIEWS,
+};
 use super::read::{Facets, RunData};
 use crate::error::{Error, Result};
+use crate::mesh::Mesh;
 use crate::output::table::write_atomic;
 use plotters::coord::Shift;
 use plotters::prelude::*;
@@ -154,8 +157,17 @@ pub fn quantities(run: &RunData, threshold_w_m2: f64) -> Vec<Quantity> {
 /// A body's rasters, computed once and coloured per quantity.
 pub struct BodyRasters {
     pub name: String,
-    /// The equirectangular map and the six views, or why there are none.
-    pub rasters: std::result::Result<(IdRaster, Vec<IdRaster>), String>,
+    /// The map and the six views, or why there are none.
+    pub rasters: std::result::Result<Rasters, String>,
+}
+
+/// A body's pictures: its map and the six views.
+pub struct Rasters {
+    /// The equirectangular map of a whole body, or the view from above of a terrain patch.
+    pub map: IdRaster,
+    /// For a patch, how its view from above is framed (for the scale bar).
+    pub overhead: Option<Framing>,
+    pub views: Vec<IdRaster>,
 }
 
 /// Rasterises every body (needs its mesh from BODY.ply).
@@ -164,20 +176,29 @@ pub fn rasterise(run: &RunData) -> Vec<BodyRasters> {
         .iter()
         .map(|b| BodyRasters {
             name: b.name.clone(),
-            rasters: b.mesh.clone().map(|mesh| {
-                let map = equirectangular(
-                    (0..mesh.len()).map(|k| mesh.corners(k)),
-                    MAP_W as usize,
-                    MAP_H as usize,
-                );
-                let views = VIEWS
-                    .iter()
-                    .map(|v| orthographic(&mesh, v, VIEW as usize))
-                    .collect();
-                (map, views)
-            }),
+            rasters: b.mesh.clone().map(|mesh| body_rasters(&mesh)),
         })
         .collect()
+}
+
+fn body_rasters(mesh: &Mesh) -> Rasters {
+    let (w, h) = (MAP_W as usize, MAP_H as usize);
+    let (map, overhead) = if is_patch(mesh) {
+        let above = orthographic(mesh, &overhead_view(mesh), w, h);
+        (above, Framing::fit(mesh, w, h))
+    } else {
+        let corners = (0..mesh.len()).map(|k| mesh.corners(k));
+        (equirectangular(corners, w, h), None)
+    };
+    let views = VIEWS
+        .iter()
+        .map(|v| orthographic(mesh, v, VIEW as usize, VIEW as usize))
+        .collect();
+    Rasters {
+        map,
+        overhead,
+        views,
+    }
 }
 
 /// A pixel rectangle in the figure.
@@ -267,12 +288,7 @@ impl MapFigure<'_> {
         let body = &self.bodies[b];
         let m = map_rect(b);
         let centre = text(16.0).pos(Pos::new(HPos::Center, VPos::Bottom));
-        root.draw(&Text::new(
-            format!("{}: latitude–longitude map", body.name),
-            (m.left + m.width / 2, m.top - 6),
-            centre,
-        ))?;
-        let (map, views) = match &body.rasters {
+        let rasters = match &body.rasters {
             Ok(r) => r,
             Err(why) => {
                 root.draw(&Text::new(
@@ -289,9 +305,21 @@ impl MapFigure<'_> {
             .get(b)
             .map(Vec::as_slice)
             .unwrap_or(&[]);
-        self.paint(root, map, m, values)?;
-        map_axes(root, m)?;
-        for (v, raster) in views.iter().enumerate() {
+        let title = match rasters.overhead {
+            Some(_) => "terrain patch seen from above, north up",
+            None => "latitude–longitude map",
+        };
+        root.draw(&Text::new(
+            format!("{}: {title}", body.name),
+            (m.left + m.width / 2, m.top - 6),
+            centre,
+        ))?;
+        self.paint(root, &rasters.map, m, values)?;
+        match rasters.overhead {
+            Some(framing) => scale_bar(root, m, framing)?,
+            None => map_axes(root, m)?,
+        }
+        for (v, raster) in rasters.views.iter().enumerate() {
             let r = view_rect(b, v);
             self.paint(root, raster, r, values)?;
             let label = format!("{} (shaded)", VIEWS[v].label);
@@ -376,6 +404,35 @@ fn map_axes<DB: DrawingBackend>(root: &DrawingArea<DB, Shift>, m: Rect) -> DrawR
     Ok(())
 }
 
+/// A scale bar under the view from above in `m`: a round length near a fifth of the width.
+fn scale_bar<DB: DrawingBackend>(
+    root: &DrawingArea<DB, Shift>,
+    m: Rect,
+    framing: Framing,
+) -> DrawResult {
+    let target_m = 0.2 * m.width as f64 / framing.px_per_m;
+    let decade = 10f64.powf(target_m.log10().floor());
+    let length_m = [5.0, 2.0, 1.0]
+        .into_iter()
+        .map(|f| f * decade)
+        .find(|l| *l <= target_m)
+        .unwrap_or(decade);
+    let px = (length_m * framing.px_per_m).round() as i32;
+    let y = m.top + m.height + 10;
+    root.draw(&PathElement::new(
+        vec![(m.left, y), (m.left + px, y)],
+        BLACK.stroke_width(3),
+    ))?;
+    let label = if length_m >= 1000.0 {
+        format!("{} km", short_number(length_m / 1000.0))
+    } else {
+        format!("{} m", short_number(length_m))
+    };
+    let style = text(12.0).pos(Pos::new(HPos::Left, VPos::Center));
+    root.draw(&Text::new(label, (m.left + px + 8, y), style))?;
+    Ok(())
+}
+
 impl Figure for MapFigure<'_> {
     fn size(&self) -> (u32, u32) {
         let bodies = self.bodies.len().max(1) as i32;
@@ -402,6 +459,24 @@ impl Figure for MapFigure<'_> {
     }
 }
 
+/// What the map panel of body `b` shows, as JSON.
+fn map_description(b: usize, body: &BodyRasters) -> serde_json::Value {
+    match body.rasters.as_ref().ok().and_then(|r| r.overhead) {
+        Some(f) => json!({
+            "kind": "overhead",
+            "rect": map_rect(b).json(),
+            "centre_m": f.centre.to_array(),
+            "metres_per_pixel": 1.0 / f.px_per_m,
+        }),
+        None => json!({
+            "kind": "equirectangular",
+            "rect": map_rect(b).json(),
+            "lon_min_deg": -180.0, "lon_max_deg": 180.0,
+            "lat_top_deg": 90.0, "lat_bottom_deg": -90.0,
+        }),
+    }
+}
+
 /// The numbers a map figure was drawn from, as JSON.
 fn map_json(fig: &MapFigure, image: &str, threshold: Option<f64>) -> serde_json::Value {
     let q = fig.quantity;
@@ -420,11 +495,7 @@ fn map_json(fig: &MapFigure, image: &str, threshold: Option<f64>) -> serde_json:
                 "name": body.name,
                 "mapped": body.rasters.is_ok(),
                 "note": body.rasters.as_ref().err(),
-                "equirectangular": {
-                    "rect": map_rect(b).json(),
-                    "lon_min_deg": -180.0, "lon_max_deg": 180.0,
-                    "lat_top_deg": 90.0, "lat_bottom_deg": -90.0,
-                },
+                "map": map_description(b, body),
                 "views": VIEWS.iter().enumerate().map(|(v, view)| json!({
                     "label": view.label,
                     "rect": view_rect(b, v).json(),

@@ -258,29 +258,88 @@ pub const VIEWS: [View; 6] = [
     },
 ];
 
-/// The orthographic facet-id view of a mesh, `size` × `size` pixels, the body's farthest
-/// vertex from its centre at 95 % of the half-width.
-pub fn orthographic(mesh: &crate::mesh::Mesh, view: &View, size: usize) -> IdRaster {
-    let mut raster = IdRaster::new(size, size);
-    let reach = mesh.vertices.iter().map(|v| v.length()).fold(0.0, f64::max);
-    if reach <= 0.0 || reach.is_nan() {
-        return raster;
+/// Where an orthographic picture is centred and how large it is drawn.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Framing {
+    /// Centre of the mesh's bounding box, metres.
+    pub centre: DVec3,
+    /// Pixels per metre.
+    pub px_per_m: f64,
+}
+
+impl Framing {
+    /// The mesh's bounding box centred, its farthest vertex from that centre at 95 % of
+    /// the smaller half-side of a `width` × `height` picture; `None` for an empty mesh.
+    pub fn fit(mesh: &crate::mesh::Mesh, width: usize, height: usize) -> Option<Framing> {
+        let (lo, hi) = bounding_box(mesh)?;
+        let centre = 0.5 * (lo + hi);
+        let reach = mesh
+            .vertices
+            .iter()
+            .map(|v| (*v - centre).length())
+            .fold(0.0, f64::max);
+        (reach > 0.0 && reach.is_finite()).then(|| Framing {
+            centre,
+            px_per_m: 0.95 * width.min(height) as f64 / (2.0 * reach),
+        })
     }
-    let scale = 0.95 * size as f64 / (2.0 * reach);
-    let half = size as f64 / 2.0;
+}
+
+fn bounding_box(mesh: &crate::mesh::Mesh) -> Option<(DVec3, DVec3)> {
+    let first = *mesh.vertices.first()?;
+    Some(
+        mesh.vertices
+            .iter()
+            .fold((first, first), |(lo, hi), v| (lo.min(*v), hi.max(*v))),
+    )
+}
+
+/// True for a terrain patch: a mesh whose bounding box leaves out the body's centre (the
+/// frame origin). Whole bodies surround their centre.
+pub fn is_patch(mesh: &crate::mesh::Mesh) -> bool {
+    bounding_box(mesh)
+        .is_some_and(|(lo, hi)| lo.cmpgt(DVec3::ZERO).any() || hi.cmplt(DVec3::ZERO).any())
+}
+
+/// The view from straight above a patch (from the body's centre through the patch's
+/// centre), north (the body's +z) up.
+pub fn overhead_view(mesh: &crate::mesh::Mesh) -> View {
+    let from = bounding_box(mesh)
+        .map(|(lo, hi)| (0.5 * (lo + hi)).normalize_or(DVec3::Z))
+        .unwrap_or(DVec3::Z);
+    let north = DVec3::Z - DVec3::Z.dot(from) * from;
+    let north = north
+        .try_normalize()
+        .unwrap_or_else(|| from.any_orthonormal_vector());
+    View {
+        label: "from above",
+        from,
+        right: north.cross(from),
+        up: north,
+    }
+}
+
+/// The orthographic facet-id view of a mesh, `width` × `height` pixels, framed by
+/// [`Framing::fit`].
+pub fn orthographic(
+    mesh: &crate::mesh::Mesh,
+    view: &View,
+    width: usize,
+    height: usize,
+) -> IdRaster {
+    let mut raster = IdRaster::new(width, height);
+    let Some(framing) = Framing::fit(mesh, width, height) else {
+        return raster;
+    };
+    let half = DVec2::new(width as f64, height as f64) / 2.0;
     let light = (-0.35 * view.right + 0.45 * view.up + 0.82 * view.from).normalize();
     for k in 0..mesh.len() {
         let n = mesh.normals[k];
         if n.dot(view.from) <= 0.0 {
             continue;
         }
-        let c = mesh.corners(k);
-        let p = c.map(|v| {
-            DVec2::new(
-                half + scale * v.dot(view.right),
-                half - scale * v.dot(view.up),
-            )
-        });
+        let c = mesh.corners(k).map(|v| v - framing.centre);
+        let p = c.map(|v| half + framing.px_per_m * DVec2::new(v.dot(view.right), -v.dot(view.up)));
         let relief = 0.75 + 0.25 * n.dot(light).max(0.0) as f32;
         raster.fill(p, c.map(|v| v.dot(view.from)), k as u32, relief);
     }
