@@ -345,3 +345,51 @@ pub fn orthographic(
     }
     raster
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::mesh::{generate::icosphere, LengthUnit, Mesh, RawMesh};
+
+    fn south_polar_patch() -> Mesh {
+        // Two triangles 1 km across, 1737 km below the centre, facing down (outward).
+        let z = -1_737.0;
+        let raw = RawMesh {
+            vertices: vec![
+                DVec3::new(70.0, 0.0, z),
+                DVec3::new(71.0, 0.0, z),
+                DVec3::new(71.0, 1.0, z),
+                DVec3::new(70.0, 1.0, z),
+            ],
+            triangles: vec![[0, 2, 1], [0, 3, 2]],
+        };
+        Mesh::from_raw(raw, LengthUnit::Km)
+    }
+
+    #[test]
+    fn patches_are_told_from_whole_bodies_and_seen_from_above() {
+        assert!(!is_patch(&Mesh::from_raw(
+            icosphere(2, 1.0, DVec3::ZERO),
+            LengthUnit::Km
+        )));
+        let patch = south_polar_patch();
+        assert!(is_patch(&patch));
+        let view = overhead_view(&patch);
+        assert!(view.from.z < -0.99, "{:?}", view.from);
+        assert!((view.right.cross(view.up) - view.from).length() < 1e-12);
+        // North (+z) projects upward on the screen.
+        assert!(view.up.z > 0.0);
+        let raster = orthographic(&patch, &view, 60, 30);
+        let seen = (0..30)
+            .flat_map(|y| (0..60).map(move |x| (x, y)))
+            .filter(|&(x, y)| raster.facet(x, y).is_some())
+            .count();
+        // The square's half-diagonal spans 95 % of half the 30-pixel height, so its side
+        // is 0.95 · 30 / √2 pixels.
+        let side = 0.95 * 30.0 / 2f64.sqrt();
+        assert!(
+            (seen as f64 - side * side).abs() < 0.1 * side * side,
+            "{seen}"
+        );
+    }
+}
