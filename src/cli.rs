@@ -2,11 +2,14 @@
 //!
 //! `slim run SCENE.toml [-o DIR] [--threads N] [--quiet]` runs a scene; `slim info MESH`
 //! loads a mesh and prints its inspection report; `slim report RUN_DIR` draws a finished
-//! run's figures and HTML page (`slim run --report` does so right after the run). Errors are printed as one line and the
+//! run's figures and HTML page (`slim run --report` does so right after the run);
+//! `slim photometry MODEL ...` prints a reflectance model's r and I/F at one geometry. Errors are printed as one line and the
 //! exit code is non-zero.
 
 use crate::error::{Error, Result};
 use crate::mesh::{inspect::inspect, read_mesh, LengthUnit, Mesh, MeshFormat};
+use crate::photometry::hapke::HFunction;
+use crate::photometry::{i_over_f, Angles, Material, Reflectance};
 use crate::report::colormap::Colormap;
 use crate::report::select::{FacetRef, LatLon};
 use crate::report::{write_report, ReportOptions};
@@ -67,6 +70,78 @@ enum Command {
         #[arg(long, value_enum)]
         format: Option<Format>,
     },
+    /// Print a reflectance model's r (sr⁻¹) and I/F at one geometry (angles in degrees).
+    Photometry {
+        /// Model: lambert, lommel_seeliger or hapke.
+        model: String,
+        #[command(flatten)]
+        params: MaterialArgs,
+        /// Incidence angle i from the normal to the Sun, degrees.
+        #[arg(long)]
+        incidence: f64,
+        /// Emission angle e from the normal to the observer, degrees.
+        #[arg(long)]
+        emission: f64,
+        /// Phase angle g between Sun and observer, degrees.
+        #[arg(long)]
+        phase: f64,
+    },
+}
+
+/// Reflectance-model parameters on the command line (each model takes its own subset).
+#[derive(clap::Args, Debug)]
+struct MaterialArgs {
+    /// Lambert albedo.
+    #[arg(long)]
+    albedo: Option<f64>,
+    /// Single scattering albedo (lommel_seeliger, hapke).
+    #[arg(long)]
+    w: Option<f64>,
+    /// Hapke opposition surge amplitude B0.
+    #[arg(long)]
+    b0: Option<f64>,
+    /// Hapke opposition surge width h.
+    #[arg(long)]
+    h: Option<f64>,
+    /// Hapke one-lobe Henyey–Greenstein asymmetry (negative: back-scattering).
+    #[arg(long, allow_hyphen_values = true)]
+    xi: Option<f64>,
+    /// Hapke two-lobe Henyey–Greenstein lobe width b.
+    #[arg(long)]
+    b: Option<f64>,
+    /// Hapke two-lobe Henyey–Greenstein back-scattering weight c.
+    #[arg(long, allow_hyphen_values = true)]
+    c: Option<f64>,
+    /// Hapke macroscopic roughness (mean slope angle), degrees.
+    #[arg(long)]
+    theta_bar: Option<f64>,
+    /// Hapke H-function approximation: 1981 or 2002.
+    #[arg(long, value_parser = ["1981", "2002"])]
+    h_function: Option<String>,
+}
+
+impl MaterialArgs {
+    fn material(&self, model: &str) -> Result<Material> {
+        let named = [
+            ("albedo", self.albedo),
+            ("w", self.w),
+            ("b0", self.b0),
+            ("h", self.h),
+            ("xi", self.xi),
+            ("b", self.b),
+            ("c", self.c),
+            ("theta_bar_deg", self.theta_bar),
+        ];
+        let params: Vec<(String, f64)> = named
+            .iter()
+            .filter_map(|(n, v)| v.map(|v| (n.to_string(), v)))
+            .collect();
+        let h_function = self.h_function.as_deref().map(|f| match f {
+            "1981" => HFunction::Hapke1981,
+            _ => HFunction::Hapke2002,
+        });
+        Material::from_params(model, &params, h_function)
+    }
 }
 
 /// What the report draws.
@@ -191,6 +266,22 @@ fn execute(cli: Cli) -> Result<()> {
             let report = inspect(&Mesh::from_raw(raw, unit));
             println!("{}", mesh.display());
             println!("{report}");
+            Ok(())
+        }
+        Command::Photometry {
+            model,
+            params,
+            incidence,
+            emission,
+            phase,
+        } => {
+            let material = params.material(&model)?;
+            let angles = Angles::from_degrees(incidence, emission, phase)?;
+            let r = material.reflectance(&angles);
+            println!("{}", material.describe());
+            println!("i={incidence} e={emission} g={phase} (degrees)");
+            println!("r = {r:.9e} sr^-1");
+            println!("I/F = {:.9e}", i_over_f(r));
             Ok(())
         }
     }

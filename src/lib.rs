@@ -27,6 +27,7 @@ pub mod error;
 pub mod illum;
 pub mod mesh;
 pub mod output;
+pub mod photometry;
 pub mod plan;
 pub mod report;
 pub mod run;
