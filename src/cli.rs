@@ -3,13 +3,17 @@
 //! `slim run SCENE.toml [-o DIR] [--threads N] [--quiet]` runs a scene; `slim info MESH`
 //! loads a mesh and prints its inspection report; `slim report RUN_DIR` draws a finished
 //! run's figures and HTML page (`slim run --report` does so right after the run);
+//! `slim render SCENE.toml` writes simulated camera images; `slim compare A B` compares two images' histograms with a χ² test;
 //! `slim photometry MODEL ...` prints a reflectance model's r and I/F at one geometry. Errors are printed as one line and the
 //! exit code is non-zero.
 
+use crate::compare::{compare_images, Bins};
 use crate::error::{Error, Result};
+use crate::image::read_image;
 use crate::mesh::{inspect::inspect, read_mesh, LengthUnit, Mesh, MeshFormat};
 use crate::photometry::hapke::HFunction;
 use crate::photometry::{i_over_f, Angles, Material, Reflectance};
+use crate::render::job::render_scene;
 use crate::report::colormap::Colormap;
 use crate::report::select::{FacetRef, LatLon};
 use crate::report::{write_report, ReportOptions};
@@ -69,6 +73,36 @@ enum Command {
         /// Format (default: from the extension).
         #[arg(long, value_enum)]
         format: Option<Format>,
+    },
+    /// Render a scene's [camera] view: radiance and I/F images (FITS, PNG) per step and band.
+    Render {
+        /// The scene file (TOML) with a [camera] section and a material per body.
+        scene: PathBuf,
+        /// Output folder (default: results/<scene name>/images).
+        #[arg(short, long)]
+        output: Option<PathBuf>,
+        /// Worker threads (default: all cores).
+        #[arg(long)]
+        threads: Option<usize>,
+    },
+    /// Compare two images' value distributions (IPDF) with a two-sample χ² test.
+    Compare {
+        /// First image (FITS or PNG).
+        a: PathBuf,
+        /// Second image (FITS or PNG).
+        b: PathBuf,
+        /// Bin width, in the images' unit (the paper: 10 W/m²).
+        #[arg(long, default_value_t = 10.0)]
+        bin_width: f64,
+        /// Lower edge of the first bin.
+        #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
+        start: f64,
+        /// Upper end of the bins (default: the larger image maximum).
+        #[arg(long)]
+        end: Option<f64>,
+        /// Leave out pixels at or below this value (e.g. 0 for black sky).
+        #[arg(long, allow_hyphen_values = true)]
+        above: Option<f64>,
     },
     /// Print a reflectance model's r (sr⁻¹) and I/F at one geometry (angles in degrees).
     Photometry {
@@ -266,6 +300,46 @@ fn execute(cli: Cli) -> Result<()> {
             let report = inspect(&Mesh::from_raw(raw, unit));
             println!("{}", mesh.display());
             println!("{report}");
+            Ok(())
+        }
+        Command::Render {
+            scene,
+            output,
+            threads,
+        } => {
+            if let Some(n) = threads {
+                set_threads(n)?;
+            }
+            let scene = Scene::load(&scene)?;
+            let out =
+                output.unwrap_or_else(|| PathBuf::from("results").join(&scene.name).join("images"));
+            let files = render_scene(&scene, &out)?;
+            eprintln!("wrote {} files to {}", files.len(), out.display());
+            Ok(())
+        }
+        Command::Compare {
+            a,
+            b,
+            bin_width,
+            start,
+            end,
+            above,
+        } => {
+            let (ia, ib) = (read_image(&a)?, read_image(&b)?);
+            let end = end.unwrap_or_else(|| ia.max().max(ib.max()));
+            let bins = Bins::covering(start, end.max(start), bin_width)?;
+            let c = compare_images(&ia, &ib, bins, above)?;
+            println!("bin_start,bin_end,count_a,count_b");
+            for (k, (x, y)) in c.counts_a.iter().zip(&c.counts_b).enumerate() {
+                let lo = bins.start + k as f64 * bins.width;
+                println!("{lo},{},{x},{y}", lo + bins.width);
+            }
+            let t = c.chi_square;
+            println!(
+                "chi2 = {:.6e}, dof = {}, p = {:.6e}  (H0: both histograms come from the same \
+                 distribution; p < 0.05 rejects it)",
+                t.statistic, t.dof, t.p_value
+            );
             Ok(())
         }
         Command::Photometry {

@@ -22,8 +22,10 @@
 
 pub mod analytic;
 pub mod cli;
+pub mod compare;
 pub mod ephemeris;
 pub mod error;
+pub mod fit;
 pub mod illum;
 pub mod image;
 pub mod mesh;

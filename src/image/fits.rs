@@ -63,7 +63,17 @@ fn card(key: &str, value: &Value, comment: &str) -> String {
         Value::Integer(i) => format!("{i:>20}"),
         Value::Number(x) if x.is_finite() => format!("{x:>20.12E}"),
         Value::Number(_) => format!("{:<20}", "'NaN'"),
-        Value::Text(s) => format!("{:<20}", format!("'{:<8}'", s.replace('\'', "''"))),
+        // A card holds at most 68 characters between the quotes.
+        Value::Text(s) => {
+            let mut quoted = s.replace('\'', "''");
+            while quoted.len() > 68 {
+                quoted.pop();
+                if quoted.ends_with('\'') && !quoted.ends_with("''") {
+                    quoted.pop();
+                }
+            }
+            format!("{:<20}", format!("'{quoted:<8}'"))
+        }
     };
     let ascii = |s: &str| -> String { s.chars().filter(|c| (' '..='~').contains(c)).collect() };
     let mut line = format!("{:<8}= {}", ascii(key), ascii(&value));

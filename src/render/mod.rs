@@ -21,6 +21,7 @@
 //! sunlight is rendered (no light scattered between facets).
 
 pub mod camera;
+pub mod job;
 
 use crate::ephemeris::EpochState;
 use crate::error::{Error, Result};
