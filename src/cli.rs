@@ -3,7 +3,8 @@
 //! `slim run SCENE.toml [-o DIR] [--threads N] [--quiet]` runs a scene; `slim info MESH`
 //! loads a mesh and prints its inspection report; `slim report RUN_DIR` draws a finished
 //! run's figures and HTML page (`slim run --report` does so right after the run);
-//! `slim render SCENE.toml` writes simulated camera images; `slim compare A B` compares two images' histograms with a χ² test;
+//! `slim render SCENE.toml` writes simulated camera images; `slim fit SCENE.toml IMAGES`
+//! fits reflectance parameters to observed images; `slim compare A B` compares two images' histograms with a χ² test;
 //! `slim photometry MODEL ...` prints a reflectance model's r and I/F at one geometry. Errors are printed as one line and the
 //! exit code is non-zero.
 
@@ -13,7 +14,7 @@ use crate::image::read_image;
 use crate::mesh::{inspect::inspect, read_mesh, LengthUnit, Mesh, MeshFormat};
 use crate::photometry::hapke::HFunction;
 use crate::photometry::{i_over_f, Angles, Material, Reflectance};
-use crate::render::job::render_scene;
+use crate::render::job::{fit_scene, render_scene};
 use crate::report::colormap::Colormap;
 use crate::report::select::{FacetRef, LatLon};
 use crate::report::{write_report, ReportOptions};
@@ -84,6 +85,23 @@ enum Command {
         /// Worker threads (default: all cores).
         #[arg(long)]
         threads: Option<usize>,
+    },
+    /// Fit reflectance parameters of one body to observed images (FITS with STEP, BAND).
+    Fit {
+        /// The scene file (TOML) with [camera] and materials (the starting values).
+        scene: PathBuf,
+        /// Observed images (FITS or PNG) with STEP (and BAND) header keywords.
+        #[arg(required = true)]
+        images: Vec<PathBuf>,
+        /// Parameters to fit, comma-separated (e.g. w,xi,theta_bar_deg).
+        #[arg(long, value_delimiter = ',', required = true)]
+        params: Vec<String>,
+        /// The body whose material is fitted (default: the first).
+        #[arg(long)]
+        body: Option<String>,
+        /// Folder for the residual images (default: results/<scene name>/fit).
+        #[arg(short, long)]
+        output: Option<PathBuf>,
     },
     /// Compare two images' value distributions (IPDF) with a two-sample χ² test.
     Compare {
@@ -315,6 +333,34 @@ fn execute(cli: Cli) -> Result<()> {
                 output.unwrap_or_else(|| PathBuf::from("results").join(&scene.name).join("images"));
             let files = render_scene(&scene, &out)?;
             eprintln!("wrote {} files to {}", files.len(), out.display());
+            Ok(())
+        }
+        Command::Fit {
+            scene,
+            images,
+            params,
+            body,
+            output,
+        } => {
+            let scene = Scene::load(&scene)?;
+            let out =
+                output.unwrap_or_else(|| PathBuf::from("results").join(&scene.name).join("fit"));
+            let (r, files) = fit_scene(&scene, &images, &params, body.as_deref(), &out)?;
+            println!(
+                "fitted {} pixels in {} iterations; residual RMS {:.6e}",
+                r.pixels, r.iterations, r.rms
+            );
+            for (j, name) in r.names.iter().enumerate() {
+                let bound = if r.at_bound[j] { "  (at a bound)" } else { "" };
+                println!("{name} = {:.6} ± {:.6}{bound}", r.values[j], r.sigmas[j]);
+            }
+            println!("correlations:");
+            for (name, row) in r.names.iter().zip(&r.correlation) {
+                let cells: Vec<String> = row.iter().map(|c| format!("{c:+.3}")).collect();
+                println!("  {name:>14} {}", cells.join(" "));
+            }
+            println!("{}", r.material.describe());
+            eprintln!("wrote {} residual images to {}", files.len(), out.display());
             Ok(())
         }
         Command::Compare {

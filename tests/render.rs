@@ -319,3 +319,189 @@ fn png_round_trip_within_half_a_step() {
     assert!(png::write(&dir.join("bad.png"), &image, 8, flat).is_err());
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+const SCENE: &str = r#"
+[ephemeris]
+mode = "fixed"
+solar_constant_w_m2 = 1361.0
+
+[[ephemeris.sun]]
+direction = [0.342, -0.940, 0.0]
+distance_au = 2.2
+
+[[ephemeris.sun]]
+direction = [0.985, -0.174, 0.0]
+distance_au = 2.2
+
+[camera]
+width = 64
+height = 64
+fov_deg = 8.0
+position_km = [0.0, -20.0, 0.0]
+png_bits = 16
+
+[[band]]
+name = "blue"
+solar_constant_w_m2 = 300.0
+
+[[band]]
+name = "red"
+solar_constant_w_m2 = 500.0
+
+[[body]]
+name = "ball"
+ellipsoid = { radii_km = [1.0, 1.0, 0.8], levels = 3 }
+
+[body.material]
+model = "hapke"
+w = 0.4
+xi = -0.25
+b0 = 1.0
+h = 0.06
+bands = { red = { w = 0.6 } }
+"#;
+
+fn slim(args: &[&str]) -> (bool, String, String) {
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_slim"))
+        .args(args)
+        .output()
+        .unwrap();
+    (
+        out.status.success(),
+        String::from_utf8_lossy(&out.stdout).into_owned(),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
+}
+
+#[test]
+fn render_compare_and_fit_from_the_command_line() {
+    let dir = std::env::temp_dir().join(format!("slim-cli-render-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let scene = dir.join("ball.toml");
+    std::fs::write(&scene, SCENE).unwrap();
+    let out = dir.join("images");
+    let (ok, _, err) = slim(&[
+        "render",
+        scene.to_str().unwrap(),
+        "-o",
+        out.to_str().unwrap(),
+    ]);
+    assert!(ok, "{err}");
+    let file = |name: &str| out.join(name).to_str().unwrap().to_string();
+    // Per band: radiance, I/F (FITS) and I/F (PNG); the summed radiance per step.
+    let blue = fits::read(std::path::Path::new(&file("ball_s0000_blue_radiance.fits"))).unwrap();
+    let red = fits::read(std::path::Path::new(&file("ball_s0000_red_radiance.fits"))).unwrap();
+    let total = fits::read(std::path::Path::new(&file(
+        "ball_s0000_total_radiance.fits",
+    )))
+    .unwrap();
+    assert!(std::path::Path::new(&file("ball_s0001_red_iof.png")).exists());
+    for ((b, r), t) in blue.pixels.iter().zip(&red.pixels).zip(&total.pixels) {
+        assert!(
+            (b + r - t).abs() <= 1e-5 * t.abs().max(1e-3),
+            "{b} + {r} vs {t}"
+        );
+    }
+    assert_eq!(blue.text("BAND"), Some("blue"));
+    assert!((blue.number("FLUXFRAC").unwrap() - 300.0 / 1361.0).abs() < 1e-12);
+    assert!(blue.text("MAT0").unwrap().contains("w=0.4"));
+    assert!(red.text("MAT0").unwrap().contains("w=0.6"));
+    assert!(blue.max() > 0.0);
+    // An image against itself: χ² = 0, p = 1. Against another phase angle: p ≈ 0.
+    let (ok, text, err) = slim(&[
+        "compare",
+        &file("ball_s0000_red_radiance.fits"),
+        &file("ball_s0000_red_radiance.fits"),
+        "--bin-width",
+        "0.5",
+        "--above",
+        "0",
+    ]);
+    assert!(ok, "{err}");
+    assert!(
+        text.contains("chi2 = 0.000000e0") && text.contains("p = 1.000000e0"),
+        "{text}"
+    );
+    let (ok, text, _) = slim(&[
+        "compare",
+        &file("ball_s0000_red_radiance.fits"),
+        &file("ball_s0001_red_radiance.fits"),
+        "--bin-width",
+        "0.5",
+        "--above",
+        "0",
+    ]);
+    assert!(ok);
+    let p: f64 = text
+        .split("p = ")
+        .nth(1)
+        .unwrap()
+        .split_whitespace()
+        .next()
+        .unwrap()
+        .parse()
+        .unwrap();
+    assert!(p < 1e-10, "{text}");
+    // Fit w of the red band back from both red images, starting elsewhere.
+    let start = SCENE.replace(
+        "bands = { red = { w = 0.6 } }",
+        "bands = { red = { w = 0.3 } }",
+    );
+    let scene2 = dir.join("start.toml");
+    std::fs::write(&scene2, start).unwrap();
+    let (ok, text, err) = slim(&[
+        "fit",
+        scene2.to_str().unwrap(),
+        &file("ball_s0000_red_radiance.fits"),
+        &file("ball_s0001_red_radiance.fits"),
+        "--params",
+        "w",
+        "-o",
+        dir.join("fit").to_str().unwrap(),
+    ]);
+    assert!(ok, "{err}");
+    let w: f64 = text
+        .split("w = ")
+        .nth(1)
+        .unwrap()
+        .split_whitespace()
+        .next()
+        .unwrap()
+        .parse()
+        .unwrap();
+    // float32 FITS storage is the only noise: relative 6e-8.
+    assert!((w - 0.6).abs() < 1e-4, "{text}");
+    assert!(dir.join("fit/start_residual_1.fits").exists());
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn scene_errors_name_the_key() {
+    let dir = std::env::temp_dir().join(format!("slim-scene-render-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    for (from, to, key) in [
+        (
+            "xi = -0.25",
+            "xi = -0.25\nalbedo = 0.3",
+            "body[0].material.albedo",
+        ),
+        ("w = 0.6 }", "w = 1.6 }", "body[0].material.bands.red.w"),
+        ("red = {", "green = {", "body[0].material.bands.green"),
+        (
+            "model = \"hapke\"",
+            "model = \"phong\"",
+            "body[0].material.model",
+        ),
+        ("png_bits = 16", "png_bits = 12", "camera.png_bits"),
+        ("png_bits = 16", "png_bits = 16\nzoom = 2", "camera"),
+        ("width = 64", "preset = \"hubble\"", "camera"),
+    ] {
+        let text = SCENE.replace(from, to);
+        assert_ne!(text, SCENE);
+        let path = dir.join("bad.toml");
+        std::fs::write(&path, text).unwrap();
+        let e = slim::scene::Scene::load(&path).unwrap_err().to_string();
+        assert!(e.contains(key), "{key}: {e}");
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
+}
