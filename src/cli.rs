@@ -2,11 +2,19 @@
 //!
 //! `slim run SCENE.toml [-o DIR] [--threads N] [--quiet]` runs a scene; `slim info MESH`
 //! loads a mesh and prints its inspection report; `slim report RUN_DIR` draws a finished
-//! run's figures and HTML page (`slim run --report` does so right after the run). Errors are printed as one line and the
+//! run's figures and HTML page (`slim run --report` does so right after the run);
+//! `slim render SCENE.toml` writes simulated camera images; `slim fit SCENE.toml IMAGES`
+//! fits reflectance parameters to observed images; `slim compare A B` compares two images' histograms with a χ² test;
+//! `slim photometry MODEL ...` prints a reflectance model's r and I/F at one geometry. Errors are printed as one line and the
 //! exit code is non-zero.
 
+use crate::compare::{compare_images, Bins};
 use crate::error::{Error, Result};
+use crate::image::read_image;
 use crate::mesh::{inspect::inspect, read_mesh, LengthUnit, Mesh, MeshFormat};
+use crate::photometry::hapke::HFunction;
+use crate::photometry::{i_over_f, Angles, Material, Reflectance};
+use crate::render::job::{fit_scene, render_scene};
 use crate::report::colormap::Colormap;
 use crate::report::select::{FacetRef, LatLon};
 use crate::report::{write_report, ReportOptions};
@@ -67,6 +75,125 @@ enum Command {
         #[arg(long, value_enum)]
         format: Option<Format>,
     },
+    /// Render a scene's [camera] view: radiance and I/F images (FITS, PNG) per step and band.
+    Render {
+        /// The scene file (TOML) with a [camera] section and a material per body.
+        scene: PathBuf,
+        /// Output folder (default: results/<scene name>/images).
+        #[arg(short, long)]
+        output: Option<PathBuf>,
+        /// Worker threads (default: all cores).
+        #[arg(long)]
+        threads: Option<usize>,
+    },
+    /// Fit reflectance parameters of one body to observed images (FITS with STEP, BAND).
+    Fit {
+        /// The scene file (TOML) with [camera] and materials (the starting values).
+        scene: PathBuf,
+        /// Observed images (FITS or PNG) with STEP (and BAND) header keywords.
+        #[arg(required = true)]
+        images: Vec<PathBuf>,
+        /// Parameters to fit, comma-separated (e.g. w,xi,theta_bar_deg).
+        #[arg(long, value_delimiter = ',', required = true)]
+        params: Vec<String>,
+        /// The body whose material is fitted (default: the first).
+        #[arg(long)]
+        body: Option<String>,
+        /// Folder for the residual images (default: results/<scene name>/fit).
+        #[arg(short, long)]
+        output: Option<PathBuf>,
+    },
+    /// Compare two images' value distributions (IPDF) with a two-sample χ² test.
+    Compare {
+        /// First image (FITS or PNG).
+        a: PathBuf,
+        /// Second image (FITS or PNG).
+        b: PathBuf,
+        /// Bin width, in the images' unit (the paper: 10 W/m²).
+        #[arg(long, default_value_t = 10.0)]
+        bin_width: f64,
+        /// Lower edge of the first bin.
+        #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
+        start: f64,
+        /// Upper end of the bins (default: the larger image maximum).
+        #[arg(long)]
+        end: Option<f64>,
+        /// Leave out pixels at or below this value (e.g. 0 for black sky).
+        #[arg(long, allow_hyphen_values = true)]
+        above: Option<f64>,
+    },
+    /// Print a reflectance model's r (sr⁻¹) and I/F at one geometry (angles in degrees).
+    Photometry {
+        /// Model: lambert, lommel_seeliger or hapke.
+        model: String,
+        #[command(flatten)]
+        params: MaterialArgs,
+        /// Incidence angle i from the normal to the Sun, degrees.
+        #[arg(long)]
+        incidence: f64,
+        /// Emission angle e from the normal to the observer, degrees.
+        #[arg(long)]
+        emission: f64,
+        /// Phase angle g between Sun and observer, degrees.
+        #[arg(long)]
+        phase: f64,
+    },
+}
+
+/// Reflectance-model parameters on the command line (each model takes its own subset).
+#[derive(clap::Args, Debug)]
+struct MaterialArgs {
+    /// Lambert albedo.
+    #[arg(long)]
+    albedo: Option<f64>,
+    /// Single scattering albedo (lommel_seeliger, hapke).
+    #[arg(long)]
+    w: Option<f64>,
+    /// Hapke opposition surge amplitude B0.
+    #[arg(long)]
+    b0: Option<f64>,
+    /// Hapke opposition surge width h.
+    #[arg(long)]
+    h: Option<f64>,
+    /// Hapke one-lobe Henyey–Greenstein asymmetry (negative: back-scattering).
+    #[arg(long, allow_hyphen_values = true)]
+    xi: Option<f64>,
+    /// Hapke two-lobe Henyey–Greenstein lobe width b.
+    #[arg(long)]
+    b: Option<f64>,
+    /// Hapke two-lobe Henyey–Greenstein back-scattering weight c.
+    #[arg(long, allow_hyphen_values = true)]
+    c: Option<f64>,
+    /// Hapke macroscopic roughness (mean slope angle), degrees.
+    #[arg(long)]
+    theta_bar: Option<f64>,
+    /// Hapke H-function approximation: 1981 or 2002.
+    #[arg(long, value_parser = ["1981", "2002"])]
+    h_function: Option<String>,
+}
+
+impl MaterialArgs {
+    fn material(&self, model: &str) -> Result<Material> {
+        let named = [
+            ("albedo", self.albedo),
+            ("w", self.w),
+            ("b0", self.b0),
+            ("h", self.h),
+            ("xi", self.xi),
+            ("b", self.b),
+            ("c", self.c),
+            ("theta_bar_deg", self.theta_bar),
+        ];
+        let params: Vec<(String, f64)> = named
+            .iter()
+            .filter_map(|(n, v)| v.map(|v| (n.to_string(), v)))
+            .collect();
+        let h_function = self.h_function.as_deref().map(|f| match f {
+            "1981" => HFunction::Hapke1981,
+            _ => HFunction::Hapke2002,
+        });
+        Material::from_params(model, &params, h_function)
+    }
 }
 
 /// What the report draws.
@@ -191,6 +318,90 @@ fn execute(cli: Cli) -> Result<()> {
             let report = inspect(&Mesh::from_raw(raw, unit));
             println!("{}", mesh.display());
             println!("{report}");
+            Ok(())
+        }
+        Command::Render {
+            scene,
+            output,
+            threads,
+        } => {
+            if let Some(n) = threads {
+                set_threads(n)?;
+            }
+            let scene = Scene::load(&scene)?;
+            let out =
+                output.unwrap_or_else(|| PathBuf::from("results").join(&scene.name).join("images"));
+            let files = render_scene(&scene, &out)?;
+            eprintln!("wrote {} files to {}", files.len(), out.display());
+            Ok(())
+        }
+        Command::Fit {
+            scene,
+            images,
+            params,
+            body,
+            output,
+        } => {
+            let scene = Scene::load(&scene)?;
+            let out =
+                output.unwrap_or_else(|| PathBuf::from("results").join(&scene.name).join("fit"));
+            let (r, files) = fit_scene(&scene, &images, &params, body.as_deref(), &out)?;
+            println!(
+                "fitted {} pixels in {} iterations; residual RMS {:.6e}",
+                r.pixels, r.iterations, r.rms
+            );
+            for (j, name) in r.names.iter().enumerate() {
+                let bound = if r.at_bound[j] { "  (at a bound)" } else { "" };
+                println!("{name} = {:.6} ± {:.6}{bound}", r.values[j], r.sigmas[j]);
+            }
+            println!("correlations:");
+            for (name, row) in r.names.iter().zip(&r.correlation) {
+                let cells: Vec<String> = row.iter().map(|c| format!("{c:+.3}")).collect();
+                println!("  {name:>14} {}", cells.join(" "));
+            }
+            println!("{}", r.material.describe());
+            eprintln!("wrote {} residual images to {}", files.len(), out.display());
+            Ok(())
+        }
+        Command::Compare {
+            a,
+            b,
+            bin_width,
+            start,
+            end,
+            above,
+        } => {
+            let (ia, ib) = (read_image(&a)?, read_image(&b)?);
+            let end = end.unwrap_or_else(|| ia.max().max(ib.max()));
+            let bins = Bins::covering(start, end.max(start), bin_width)?;
+            let c = compare_images(&ia, &ib, bins, above)?;
+            println!("bin_start,bin_end,count_a,count_b");
+            for (k, (x, y)) in c.counts_a.iter().zip(&c.counts_b).enumerate() {
+                let lo = bins.start + k as f64 * bins.width;
+                println!("{lo},{},{x},{y}", lo + bins.width);
+            }
+            let t = c.chi_square;
+            println!(
+                "chi2 = {:.6e}, dof = {}, p = {:.6e}  (H0: both histograms come from the same \
+                 distribution; p < 0.05 rejects it)",
+                t.statistic, t.dof, t.p_value
+            );
+            Ok(())
+        }
+        Command::Photometry {
+            model,
+            params,
+            incidence,
+            emission,
+            phase,
+        } => {
+            let material = params.material(&model)?;
+            let angles = Angles::from_degrees(incidence, emission, phase)?;
+            let r = material.reflectance(&angles);
+            println!("{}", material.describe());
+            println!("i={incidence} e={emission} g={phase} (degrees)");
+            println!("r = {r:.9e} sr^-1");
+            println!("I/F = {:.9e}", i_over_f(r));
             Ok(())
         }
     }

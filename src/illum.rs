@@ -174,7 +174,7 @@ fn checked_sun(body: &Body, state: &EpochState, b: usize) -> Result<DVec3> {
 }
 
 /// Per facet, the least height above its plane at which a hit counts as a shadow.
-fn min_blocker_heights(body: &Body) -> Vec<f64> {
+pub(crate) fn min_blocker_heights(body: &Body) -> Vec<f64> {
     let rounding = 256.0 * f64::EPSILON * body.bounding_radius_m;
     (0..body.mesh.len())
         .map(|i| {

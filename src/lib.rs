@@ -22,12 +22,17 @@
 
 pub mod analytic;
 pub mod cli;
+pub mod compare;
 pub mod ephemeris;
 pub mod error;
+pub mod fit;
 pub mod illum;
+pub mod image;
 pub mod mesh;
 pub mod output;
+pub mod photometry;
 pub mod plan;
+pub mod render;
 pub mod report;
 pub mod run;
 pub mod scene;

@@ -8,6 +8,8 @@
 use crate::error::{Error, Result};
 use crate::mesh::projection::Pole;
 use crate::mesh::{LengthUnit, MeshFormat};
+use crate::photometry::hapke::HFunction;
+use crate::photometry::Material;
 use crate::trace::TracerKind;
 use hifitime::Epoch;
 use serde::Deserialize;
@@ -32,6 +34,50 @@ pub struct Scene {
     pub start: Epoch,
     /// Epoch the run stops before (SPICE mode with `stop`).
     pub stop: Option<Epoch>,
+    /// `[camera]`: what `slim render` and `slim fit` see.
+    pub camera: Option<CameraSection>,
+    /// `[[band]]`: spectral bands (none: one band with the whole solar flux).
+    pub bands: Vec<BandSection>,
+}
+
+/// `[camera]`: a pinhole camera placed in the scene frame.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CameraSection {
+    /// A named camera: "dawn_fc" (1024 × 1024, 5.46°); or give width, height and fov_deg.
+    pub preset: Option<String>,
+    /// Image width, pixels.
+    pub width: Option<usize>,
+    /// Image height, pixels.
+    pub height: Option<usize>,
+    /// Field of view across the width, degrees.
+    pub fov_deg: Option<f64>,
+    /// Camera position in the scene frame, km.
+    pub position_km: [f64; 3],
+    /// Body whose centre the camera points at (default: the first body).
+    pub target: Option<String>,
+    /// A point to look at instead of a body centre, scene frame, km.
+    pub look_at_km: Option<[f64; 3]>,
+    /// Scene-frame direction shown "up" in the image (default +z).
+    #[serde(default = "z_axis")]
+    pub up: [f64; 3],
+    /// Ephemeris steps to render (default: every step).
+    pub steps: Option<Vec<usize>>,
+    /// PNG depth: 8 or 16 bits.
+    #[serde(default = "eight")]
+    pub png_bits: u8,
+    /// I/F shown white in the PNGs (default: each image's maximum).
+    pub png_white_i_over_f: Option<f64>,
+}
+
+/// One `[[band]]`: a spectral band and the solar flux in it.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct BandSection {
+    /// Band name (used in file names and in `material.bands`).
+    pub name: String,
+    /// Solar irradiance in the band at 1 AU, W/m² (a share of the scene's solar constant).
+    pub solar_constant_w_m2: f64,
 }
 
 /// `[run]`: how to compute.
@@ -274,6 +320,9 @@ pub struct BodySection {
     /// Rotation angle about the spin axis at the first step, degrees.
     #[serde(default)]
     pub initial_rotation_deg: f64,
+    /// Reflectance model (`slim render`, `slim fit`): `model = "hapke"` and its
+    /// parameters, optionally `bands.NAME = { ... }` overriding them per band.
+    pub material: Option<toml::Table>,
 }
 
 impl BodySection {
@@ -307,6 +356,9 @@ struct SceneFile {
     /// Read in a second pass, by `mode`, so errors inside keep their key paths.
     ephemeris: toml::Table,
     body: Vec<BodySection>,
+    camera: Option<CameraSection>,
+    #[serde(default)]
+    band: Vec<BandSection>,
 }
 
 fn default_solar_constant() -> f64 {
@@ -314,6 +366,12 @@ fn default_solar_constant() -> f64 {
 }
 fn default_aberration() -> String {
     "LT+S".into()
+}
+fn z_axis() -> [f64; 3] {
+    [0.0, 0.0, 1.0]
+}
+fn eight() -> u8 {
+    8
 }
 fn default_levels() -> u32 {
     4
@@ -375,6 +433,8 @@ impl Scene {
             bodies,
             start,
             stop,
+            camera: file.camera,
+            bands: file.band,
         };
         scene.validate()?;
         Ok(scene)
@@ -419,12 +479,191 @@ impl Scene {
         }
         for (i, b) in self.bodies.iter().enumerate() {
             self.validate_shape(i, b)?;
+            if b.material.is_some() {
+                self.material(i, None)?;
+                for band in &self.bands {
+                    self.material(i, Some(&band.name))?;
+                }
+            }
+        }
+        self.validate_bands()?;
+        if let Some(c) = &self.camera {
+            self.validate_camera(c)?;
         }
         match &self.ephemeris {
             EphemerisSection::Spin(s) => self.validate_spin(s),
             EphemerisSection::Fixed(f) => self.validate_fixed(f),
             EphemerisSection::Spice(s) => self.validate_spice(s),
         }
+    }
+
+    /// The scene's solar constant (W/m² at 1 AU).
+    pub fn solar_constant_w_m2(&self) -> f64 {
+        match &self.ephemeris {
+            EphemerisSection::Spin(s) => s.solar_constant_w_m2,
+            EphemerisSection::Fixed(f) => f.solar_constant_w_m2,
+            EphemerisSection::Spice(s) => s.solar_constant_w_m2,
+        }
+    }
+
+    /// Body `i`'s material in `band` (None: the base parameters): its `[body.material]`
+    /// table with the band's overrides applied. Errors name the key.
+    pub fn material(&self, i: usize, band: Option<&str>) -> Result<Material> {
+        let key = format!("body[{i}].material");
+        let table = self.bodies[i]
+            .material
+            .as_ref()
+            .ok_or_else(|| self.err(&key, "missing: give the body a reflectance model"))?;
+        let mut merged = table.clone();
+        let overrides = match merged.remove("bands") {
+            Some(toml::Value::Table(t)) => t,
+            Some(_) => return Err(self.err(format!("{key}.bands"), "must be a table of bands")),
+            None => toml::Table::new(),
+        };
+        for name in overrides.keys() {
+            if !self.bands.iter().any(|b| &b.name == name) {
+                return Err(self.err(format!("{key}.bands.{name}"), "no [[band]] has this name"));
+            }
+        }
+        // Each entry keeps the key path it came from, for error messages.
+        let mut entries: Vec<(String, toml::Value, String)> = merged
+            .into_iter()
+            .map(|(k, v)| (k, v, key.clone()))
+            .collect();
+        if let Some(name) = band {
+            let band_key = format!("{key}.bands.{name}");
+            let band_table = match overrides.get(name) {
+                Some(toml::Value::Table(t)) => t.clone(),
+                Some(_) => return Err(self.err(band_key, "must be a table of parameters")),
+                None => toml::Table::new(),
+            };
+            for (k, v) in band_table {
+                if k == "model" || k == "bands" {
+                    return Err(self.err(
+                        format!("{band_key}.{k}"),
+                        "a band may change parameters, not the model",
+                    ));
+                }
+                entries.retain(|e| e.0 != k);
+                entries.push((k, v, band_key.clone()));
+            }
+        }
+        self.material_from_entries(&key, entries)
+    }
+
+    /// A material from `model`, `h_function` and numeric parameter entries.
+    fn material_from_entries(
+        &self,
+        key: &str,
+        entries: Vec<(String, toml::Value, String)>,
+    ) -> Result<Material> {
+        let mut model = None;
+        let mut h_function = None;
+        let mut params = Vec::new();
+        for (k, v, from) in entries {
+            let at = format!("{from}.{k}");
+            match (k.as_str(), v) {
+                ("model", toml::Value::String(m)) => model = Some(m),
+                ("h_function", toml::Value::String(f)) => {
+                    h_function = Some(match f.as_str() {
+                        "1981" => HFunction::Hapke1981,
+                        "2002" => HFunction::Hapke2002,
+                        other => {
+                            return Err(self.err(at, format!("'{other}': use \"1981\" or \"2002\"")))
+                        }
+                    })
+                }
+                (_, toml::Value::Float(x)) => params.push((k, x, at)),
+                (_, toml::Value::Integer(x)) => params.push((k, x as f64, at)),
+                (_, other) => {
+                    return Err(
+                        self.err(at, format!("must be a number, not a {}", other.type_str()))
+                    )
+                }
+            }
+        }
+        let model = model.ok_or_else(|| {
+            self.err(
+                format!("{key}.model"),
+                format!("missing: one of {}", Material::MODELS.join(", ")),
+            )
+        })?;
+        let named: Vec<(String, f64)> = params.iter().map(|(k, x, _)| (k.clone(), *x)).collect();
+        Material::from_params(&model, &named, h_function).map_err(|e| {
+            // Point at the parameter the message names, else at the material.
+            let at = params
+                .iter()
+                .find(|(k, _, _)| {
+                    e.to_string().contains(&format!("'{k}'"))
+                        || e.to_string().contains(&format!(" {k} ="))
+                })
+                .map_or(format!("{key}.model"), |(_, _, at)| at.clone());
+            self.err(at, e.to_string())
+        })
+    }
+
+    fn validate_bands(&self) -> Result<()> {
+        for (i, band) in self.bands.iter().enumerate() {
+            check_name(self, &format!("band[{i}].name"), &band.name)?;
+            if self.bands[..i].iter().any(|o| o.name == band.name) {
+                return Err(self.err(
+                    format!("band[{i}].name"),
+                    format!("'{}' is used twice", band.name),
+                ));
+            }
+            positive(
+                self,
+                &format!("band[{i}].solar_constant_w_m2"),
+                band.solar_constant_w_m2,
+            )?;
+        }
+        Ok(())
+    }
+
+    fn validate_camera(&self, c: &CameraSection) -> Result<()> {
+        match (&c.preset, c.width, c.height, c.fov_deg) {
+            (Some(p), None, None, None) if p == "dawn_fc" => {}
+            (Some(p), None, None, None) => {
+                return Err(self.err(
+                    "camera.preset",
+                    format!("unknown preset '{p}': the presets are \"dawn_fc\""),
+                ))
+            }
+            (None, Some(w), Some(h), Some(fov)) => {
+                crate::render::camera::Camera::with_fov(w, h, fov)
+                    .map_err(|e| self.err("camera", e.to_string()))?;
+            }
+            _ => {
+                return Err(self.err(
+                    "camera",
+                    "give either preset = \"dawn_fc\", or width, height and fov_deg",
+                ))
+            }
+        }
+        let vectors = [("position_km", Some(c.position_km)), ("up", Some(c.up))];
+        for (k, v) in vectors.into_iter().chain([("look_at_km", c.look_at_km)]) {
+            if v.is_some_and(|v| v.iter().any(|x| !x.is_finite())) {
+                return Err(self.err(format!("camera.{k}"), "must be finite numbers"));
+            }
+        }
+        if let Some(t) = &c.target {
+            if c.look_at_km.is_some() {
+                return Err(self.err("camera", "give either target or look_at_km, not both"));
+            }
+            if !self.bodies.iter().any(|b| &b.name == t) {
+                return Err(self.err("camera.target", format!("no body is named '{t}'")));
+            }
+        }
+        if !matches!(c.png_bits, 8 | 16) {
+            return Err(self.err("camera.png_bits", "must be 8 or 16"));
+        }
+        if let Some(w) = c.png_white_i_over_f {
+            positive(self, "camera.png_white_i_over_f", w)?;
+        }
+        if c.steps.as_ref().is_some_and(|s| s.is_empty()) {
+            return Err(self.err("camera.steps", "list at least one step (or leave it out)"));
+        }
+        Ok(())
     }
 
     fn validate_shape(&self, i: usize, b: &BodySection) -> Result<()> {
