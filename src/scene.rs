@@ -52,8 +52,11 @@ pub struct CameraSection {
     pub height: Option<usize>,
     /// Field of view across the width, degrees.
     pub fov_deg: Option<f64>,
-    /// Camera position in the scene frame, km.
-    pub position_km: [f64; 3],
+    /// Camera position in the scene frame, km (or give `observer_naif_id`).
+    pub position_km: Option<[f64; 3]>,
+    /// SPICE mode: the camera sits at this NAIF body or spacecraft (e.g. -203 for Dawn),
+    /// placed by the loaded SPKs (geometric position relative to the first body).
+    pub observer_naif_id: Option<i32>,
     /// Body whose centre the camera points at (default: the first body).
     pub target: Option<String>,
     /// A point to look at instead of a body centre, scene frame, km.
@@ -640,7 +643,25 @@ impl Scene {
                 ))
             }
         }
-        let vectors = [("position_km", Some(c.position_km)), ("up", Some(c.up))];
+        match (c.position_km, c.observer_naif_id) {
+            (Some(_), Some(_)) => {
+                return Err(self.err(
+                    "camera",
+                    "give either position_km or observer_naif_id, not both",
+                ))
+            }
+            (None, None) => {
+                return Err(self.err(
+                    "camera.position_km",
+                    "missing: give the camera's position, or observer_naif_id in spice mode",
+                ))
+            }
+            (None, Some(_)) if !matches!(self.ephemeris, EphemerisSection::Spice(_)) => {
+                return Err(self.err("camera.observer_naif_id", "only in spice mode"))
+            }
+            _ => {}
+        }
+        let vectors = [("position_km", c.position_km), ("up", Some(c.up))];
         for (k, v) in vectors.into_iter().chain([("look_at_km", c.look_at_km)]) {
             if v.is_some_and(|v| v.iter().any(|x| !x.is_finite())) {
                 return Err(self.err(format!("camera.{k}"), "must be finite numbers"));

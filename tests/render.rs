@@ -16,6 +16,7 @@ use slim::render::camera::Camera;
 use slim::render::Renderer;
 use slim::trace::TracerKind;
 use slim::world::{Body, Pose, World};
+use std::path::Path;
 
 const LEVELS: u32 = 4;
 
@@ -495,6 +496,17 @@ fn scene_errors_name_the_key() {
         ("png_bits = 16", "png_bits = 12", "camera.png_bits"),
         ("png_bits = 16", "png_bits = 16\nzoom = 2", "camera"),
         ("width = 64", "preset = \"hubble\"", "camera"),
+        (
+            "position_km = [0.0, -20.0, 0.0]",
+            "observer_naif_id = -203",
+            "camera.observer_naif_id",
+        ),
+        (
+            "position_km = [0.0, -20.0, 0.0]",
+            "position_km = [0.0, -20.0, 0.0]\nobserver_naif_id = -203",
+            "not both",
+        ),
+        ("position_km = [0.0, -20.0, 0.0]", "", "camera.position_km"),
     ] {
         let text = SCENE.replace(from, to);
         assert_ne!(text, SCENE);
@@ -504,4 +516,62 @@ fn scene_errors_name_the_key() {
         assert!(e.contains(key), "{key}: {e}");
     }
     std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// A camera placed by SPICE: Phobos seen from Deimos (NAIF 402), both from the MAR085
+/// subset. The camera sits where the ephemeris puts Deimos and looks at Phobos's centre.
+#[test]
+fn a_spice_observer_places_the_camera() {
+    let kernels: Vec<String> = [
+        "lsk/naif0012.tls",
+        "pck/pck00011.tpc",
+        "spk/mar085_subset_2018-06/mar085.bsp",
+        "spk/mar085_subset_2018-06/de430.bsp",
+    ]
+    .iter()
+    .map(|k| {
+        format!(
+            "{:?}",
+            Path::new(env!("CARGO_MANIFEST_DIR"))
+                .join("data/kernels")
+                .join(k)
+        )
+    })
+    .collect();
+    let text = format!(
+        "[ephemeris]\nmode = \"spice\"\nkernels = [{}]\n\
+         start = \"2018-06-10T00:00:00 UTC\"\nstop = \"2018-06-10T02:00:00 UTC\"\nstep_s = 3600\n\
+         [camera]\nwidth = 32\nheight = 32\nfov_deg = 1.0\nobserver_naif_id = 402\ntarget = \"phobos\"\n\
+         [[body]]\nname = \"phobos\"\nnaif_id = 401\nellipsoid = {{ levels = 1 }}\n\
+         [[body]]\nname = \"deimos\"\nnaif_id = 402\nellipsoid = {{ levels = 1 }}\n",
+        kernels.join(", ")
+    );
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/in-memory-scene.toml");
+    let scene = slim::scene::Scene::parse(&path, &text, text.as_bytes().to_vec()).unwrap();
+    let view = slim::render::job::View::load(&scene).unwrap();
+    let section = slim::render::job::camera_section(&scene).unwrap();
+    for step in 0..2 {
+        let state = view.state(&scene, step).unwrap();
+        let camera = slim::render::job::camera(&scene, section, &view, &state).unwrap();
+        let deimos = state.bodies[1].pose.position_m;
+        assert!((camera.pose.position_m - deimos).length() < 1e-3);
+        // Phobos and Deimos orbit at 9,376 and 23,458 km from Mars.
+        let d_km = deimos.length() / 1000.0;
+        assert!((14_000.0..33_000.0).contains(&d_km), "{d_km} km");
+        let to_phobos = -deimos.normalize();
+        assert!(camera.boresight().dot(to_phobos) > 1.0 - 1e-12);
+    }
+    let moved = edit_scene(&text, "observer_naif_id = 402", "observer_naif_id = -203");
+    let scene = slim::scene::Scene::parse(&path, &moved, moved.as_bytes().to_vec()).unwrap();
+    let view = slim::render::job::View::load(&scene).unwrap();
+    let state = view.state(&scene, 0).unwrap();
+    let e = slim::render::job::camera(&scene, section, &view, &state)
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("-203") && e.contains("provide"), "{e}");
+}
+
+fn edit_scene(text: &str, from: &str, to: &str) -> String {
+    assert!(text.contains(from));
+    text.replacen(from, to, 1)
 }

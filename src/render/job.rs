@@ -14,6 +14,7 @@
 
 use super::camera::Camera;
 use super::{GeometryImage, Renderer};
+use crate::ephemeris::spice::Kernels;
 use crate::ephemeris::{Ephemeris, EpochState};
 use crate::error::{Error, Result};
 use crate::fit::{fit, FitResult, Observation};
@@ -60,11 +61,24 @@ pub fn materials(scene: &Scene, band: &Band) -> Result<Vec<Material>> {
         .collect()
 }
 
-/// The loaded geometry of a scene: bodies and ephemeris.
+/// The loaded geometry of a scene: bodies, ephemeris, and where the camera is.
 pub struct View {
     pub world: World,
     pub ephemeris: Box<dyn Ephemeris>,
     pub warnings: Vec<String>,
+    camera_site: CameraSite,
+}
+
+/// Where the camera is.
+enum CameraSite {
+    /// A fixed position, scene frame, metres.
+    Fixed(DVec3),
+    /// A NAIF body or spacecraft placed by the kernels, relative to the first body.
+    Spice {
+        kernels: Box<Kernels>,
+        observer: i32,
+        first_body: i32,
+    },
 }
 
 impl View {
@@ -72,12 +86,61 @@ impl View {
     pub fn load(scene: &Scene) -> Result<View> {
         let kernels = load_kernels(scene)?;
         let (world, _, warnings) = build_world(scene, kernels.as_ref())?;
+        let camera_site = match scene.camera.as_ref().and_then(|c| c.observer_naif_id) {
+            Some(observer) => CameraSite::Spice {
+                // The ephemeris keeps its own copy of the kernels.
+                kernels: Box::new(load_kernels(scene)?.ok_or_else(|| {
+                    Error::Usage("camera.observer_naif_id needs spice mode".into())
+                })?),
+                observer,
+                first_body: scene.bodies[0].naif_id.unwrap_or_default(),
+            },
+            None => CameraSite::Fixed(
+                DVec3::from_array(
+                    scene
+                        .camera
+                        .as_ref()
+                        .and_then(|c| c.position_km)
+                        .unwrap_or_default(),
+                ) * 1000.0,
+            ),
+        };
         let ephemeris = build_ephemeris(scene, kernels)?;
         Ok(View {
             world,
             ephemeris,
             warnings,
+            camera_site,
         })
+    }
+
+    /// The camera's position at `state`, scene frame, metres.
+    pub fn camera_position_m(&self, scene: &Scene, state: &EpochState) -> Result<DVec3> {
+        match &self.camera_site {
+            CameraSite::Fixed(p) => Ok(*p),
+            CameraSite::Spice {
+                kernels,
+                observer,
+                first_body,
+            } => kernels
+                .vector_km(*observer, *first_body, state.epoch, None)
+                .map(|v| v * 1000.0)
+                .map_err(|msg| Error::Spice {
+                    body: format!("camera observer of {}", scene.bodies[0].name),
+                    naif_id: *observer,
+                    frame: "J2000".into(),
+                    epoch: format!("{} ({} TDB s)", state.epoch, state.epoch.to_tdb_seconds()),
+                    msg: format!(
+                        "camera position relative to NAIF {first_body}: {msg}; the loaded SPKs provide: {}",
+                        kernels
+                            .ephemeris_coverage()
+                            .iter()
+                            .map(|c| c.0.to_string())
+                            .collect::<Vec<_>>()
+                            .join(", ")
+                    ),
+                }),
+        }
     }
 
     /// The state at `step`, checked against the number of steps.
@@ -104,7 +167,12 @@ pub fn camera_section(scene: &Scene) -> Result<&CameraSection> {
 }
 
 /// The camera of `section` at `state` (it follows its target body).
-pub fn camera(scene: &Scene, section: &CameraSection, state: &EpochState) -> Result<Camera> {
+pub fn camera(
+    scene: &Scene,
+    section: &CameraSection,
+    view: &View,
+    state: &EpochState,
+) -> Result<Camera> {
     let optics = match (section.width, section.height, section.fov_deg) {
         (Some(w), Some(h), Some(fov)) => Camera::with_fov(w, h, fov)?,
         _ => Camera::dawn_fc(),
@@ -124,7 +192,7 @@ pub fn camera(scene: &Scene, section: &CameraSection, state: &EpochState) -> Res
     };
     optics
         .looking_at(
-            km(section.position_km),
+            view.camera_position_m(scene, state)?,
             target,
             DVec3::from_array(section.up),
         )
@@ -157,7 +225,7 @@ pub fn render_scene(scene: &Scene, out_dir: &Path) -> Result<Vec<PathBuf>> {
     let mut files = Vec::new();
     for step in steps(section, &view) {
         let state = view.state(scene, step)?;
-        let camera = camera(scene, section, &state)?;
+        let camera = camera(scene, section, &view, &state)?;
         let geometry = renderer.geometry(&state, &camera)?;
         let mut total: Option<Image> = None;
         for (band, mats) in bands.iter().zip(&materials) {
@@ -351,7 +419,7 @@ pub fn fit_scene(
             })?
             .clone();
         let state = view.state(scene, step)?;
-        let camera = camera(scene, section, &state)?;
+        let camera = camera(scene, section, &view, &state)?;
         geometries.push(renderer.geometry(&state, &camera)?);
         setups.push((band.flux_scale, materials(scene, &band)?));
         observed.push(image);

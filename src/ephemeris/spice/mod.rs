@@ -138,8 +138,9 @@ impl Kernels {
         cover
     }
 
-    /// Vector from `observer` to `target` (km, J2000) at `epoch`.
-    fn vector_km(
+    /// Vector from `observer` to `target` (km, J2000) at `epoch`, with aberration
+    /// correction `ab`; the error is anise's message.
+    pub fn vector_km(
         &self,
         target: i32,
         observer: i32,
