@@ -30,6 +30,7 @@ pub mod output;
 pub mod plan;
 pub mod report;
 pub mod run;
+pub mod scatter;
 pub mod scene;
 pub mod stats;
 pub mod trace;
