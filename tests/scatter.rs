@@ -8,17 +8,15 @@
 use glam::{DMat3, DVec3};
 use hifitime::Epoch;
 use slim::ephemeris::{BodyState, EpochState};
-use slim::illum::Direct;
 use slim::mesh::generate::icosphere;
 use slim::mesh::{LengthUnit, Mesh, RawMesh};
-use slim::scatter::bowl::{bowl_mesh, scattered_irradiance};
+use slim::scatter::bowl::{bowl_mesh, scattered_irradiance, BowlCase};
 use slim::scatter::csr::Csr;
 use slim::scatter::form_factor::NearField;
 use slim::scatter::solve::SolverKind;
 use slim::scatter::visibility::own_block;
 use slim::scatter::{Lambertian, Scatter, Settings};
 use slim::trace::bvh::Bvh;
-use slim::trace::TracerKind;
 use slim::world::{Body, Pose, World};
 use std::f64::consts::PI;
 
@@ -183,10 +181,18 @@ fn sphere_interior_rows_sum_to_one_and_reciprocity_is_exact() {
         assert!(f <= 1.0 + 1e-4, "row {i} sums to {f}");
     }
     assert!(worst < 1e-4, "worst row-sum error {worst}");
-    for i in 0..mesh.len() {
-        for (j, v) in block.row(i) {
-            let back = block.row(j as usize).find(|&(k, _)| k as usize == i);
-            assert_eq!(back, Some((i as u32, v)), "reciprocity of ({i}, {j})");
+    // Reciprocity: (G e_j)_i = (G e_i)_j exactly, G_ij = A_i F_ij.
+    let unit = |k: usize| {
+        let mut e = vec![0.0; mesh.len()];
+        e[k] = 1.0;
+        let mut y = vec![0.0; mesh.len()];
+        block.mul_add(&e, &mut y);
+        y
+    };
+    for i in (0..mesh.len()).step_by(97) {
+        let gi = unit(i);
+        for j in (0..mesh.len()).step_by(13) {
+            assert_eq!(unit(j)[i], gi[j], "reciprocity of ({i}, {j})");
         }
     }
 }
@@ -306,55 +312,33 @@ fn jacobi_iterate_k_holds_orders_up_to_k() {
 }
 
 /// Mean relative error of the scattered irradiance over the shadowed facets of a bowl of
-/// `rings` rings, with the given solver.
+/// `rings` rings (Ingersoll's closed form), with the given solver.
 fn ingersoll_error(rings: u32, solver: SolverKind) -> f64 {
-    let beta = 40f64.to_radians();
-    let elevation = 20f64.to_radians();
-    let rho = 0.3;
-    let flux = 1000.0;
-    let mesh = Mesh::from_raw(bowl_mesh(100.0, beta, rings), LengthUnit::M);
-    let n = mesh.len();
-    let world = World {
-        bodies: vec![Body::new("bowl", mesh, false)],
-    };
-    let sun = DVec3::new(elevation.cos(), 0.0, elevation.sin());
-    let st = state(vec![(sun, Pose::IDENTITY)], flux);
-    let mut direct = vec![0.0; n];
-    Direct::new(&world, TracerKind::Sunview)
-        .compute(&st, &mut direct)
-        .unwrap();
-    let mut stage = Scatter::new(
-        &world,
-        settings(vec![rho; n], solver, 1e-8),
-        Box::new(Lambertian),
-    );
-    let mut s = vec![0.0; n];
-    stage.step(&st, &direct, &mut s);
-    let exact = scattered_irradiance(flux, elevation, rho, beta);
-    let shadowed: Vec<f64> = (0..n)
-        .filter(|&i| direct[i] == 0.0)
-        .map(|i| (s[i] / exact - 1.0).abs())
-        .collect();
-    assert!(
-        shadowed.len() > n / 10,
-        "the Sun is low enough to shadow part of the floor"
-    );
-    shadowed.iter().sum::<f64>() / shadowed.len() as f64
+    let r = BowlCase {
+        rings,
+        solver,
+        tolerance: 1e-8,
+    }
+    .run()
+    .unwrap();
+    // The Sun 20° above the rim of a 40° bowl shadows a good part of the floor.
+    assert!(r.mean_error.is_finite() && r.report.converged);
+    r.mean_error
 }
 
 #[test]
 fn ingersoll_bowl_error_falls_with_refinement() {
-    // 600, 2,400 facets. The error falls about as h (shadow-edge facets lit or not as a
-    // whole) or faster; require it to halve when the facet size halves, and to be small.
+    // 600 and 2,400 facets: measured 1.67 % and 0.72 % (rate about h^1.2: shadow-edge
+    // facets are lit or dark as a whole). Require a clear fall and the fine error small.
     let coarse = ingersoll_error(10, SolverKind::Jacobi);
     let fine = ingersoll_error(20, SolverKind::Cg);
     eprintln!("Ingersoll mean error: 600 facets {coarse:.4}, 2400 facets {fine:.4}");
     assert!(fine < 0.6 * coarse, "{coarse} → {fine}");
-    assert!(fine < 0.02, "{fine}");
+    assert!(fine < 0.01, "{fine}");
 }
 
 #[test]
-#[ignore = "about a minute in a debug-free test build: run with --ignored"]
+#[ignore = "about a minute: run with cargo test --release --test scatter -- --ignored"]
 fn ingersoll_bowl_below_one_percent_at_ten_thousand_facets() {
     // 6·41² = 10,086 facets.
     let e = ingersoll_error(41, SolverKind::Cg);

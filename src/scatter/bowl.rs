@@ -11,11 +11,20 @@
 //!
 //! The mesh is a disc of `rings` concentric rings (ring k holds 6k vertices) mapped onto
 //! the cap by the equal-area map `1 − cos θ = (k/rings)² (1 − cos β)`, so facets are near
-//! equilateral and of near equal area: 6·rings² facets.
+//! equilateral and of near equal area: 6·rings² facets. [`BowlCase`] runs the whole
+//! validation (direct light, form factors, solve) and reports the error against the
+//! closed form; the tests and the error table (`examples/scatter_error.rs`) use it.
 
-use super::super::mesh::RawMesh;
+use super::solve::{SolveReport, SolverKind};
+use super::{form_factor::NearField, Lambertian, Scatter, Settings};
+use crate::ephemeris::{BodyState, EpochState};
+use crate::illum::Direct;
+use crate::mesh::{LengthUnit, Mesh, RawMesh};
+use crate::trace::TracerKind;
+use crate::world::{Body, Pose, World};
 use glam::DVec3;
 use std::f64::consts::PI;
+use std::time::Instant;
 
 /// The cap mesh (see the module doc).
 pub fn bowl_mesh(radius_m: f64, beta_rad: f64, rings: u32) -> RawMesh {
@@ -65,10 +74,83 @@ pub fn scattered_irradiance(flux_w_m2: f64, elevation_rad: f64, albedo: f64, bet
     flux_w_m2 * elevation_rad.sin() * albedo * f * (1.0 - f) / (1.0 - albedo * f)
 }
 
+/// Ingersoll's validation case: a bowl of R = 100 m, β = 40°, albedo 0.3, the Sun 20°
+/// above the rim plane at 1000 W/m², direct light from the sunview tracer.
+#[derive(Debug, Clone, Copy)]
+pub struct BowlCase {
+    pub rings: u32,
+    pub solver: SolverKind,
+    pub tolerance: f64,
+}
+
+/// What a [`BowlCase`] gave.
+#[derive(Debug, Clone, Copy)]
+pub struct BowlResult {
+    pub facets: usize,
+    /// Mean and largest |S/S_exact − 1| over the shadowed facets.
+    pub mean_error: f64,
+    pub max_error: f64,
+    /// Form factors (with visibility) and the solve, seconds.
+    pub form_factor_s: f64,
+    pub solve_s: f64,
+    pub report: SolveReport,
+}
+
+impl BowlCase {
+    /// Runs the case.
+    pub fn run(&self) -> crate::error::Result<BowlResult> {
+        let (beta, elevation, albedo, flux) = (40f64.to_radians(), 20f64.to_radians(), 0.3, 1000.0);
+        let mesh = Mesh::from_raw(bowl_mesh(100.0, beta, self.rings), LengthUnit::M);
+        let n = mesh.len();
+        let world = World {
+            bodies: vec![Body::new("bowl", mesh, false)],
+        };
+        let state = EpochState {
+            step: 0,
+            epoch: hifitime::Epoch::from_tai_seconds(0.0),
+            bodies: vec![BodyState {
+                sun_dir: DVec3::new(elevation.cos(), 0.0, elevation.sin()),
+                sun_distance_m: crate::AU_M,
+                flux_w_m2: flux,
+                pose: Pose::IDENTITY,
+            }],
+        };
+        let mut direct = vec![0.0; n];
+        Direct::new(&world, TracerKind::Sunview).compute(&state, &mut direct)?;
+        let settings = Settings {
+            albedo: vec![albedo; n],
+            solver: self.solver,
+            max_orders: 10_000,
+            tolerance: self.tolerance,
+            inter_body_tolerance: 0.0,
+            near_field: NearField::default(),
+        };
+        let t0 = Instant::now();
+        let mut stage = Scatter::new(&world, settings, Box::new(Lambertian));
+        let form_factor_s = t0.elapsed().as_secs_f64();
+        let mut scattered = vec![0.0; n];
+        let t1 = Instant::now();
+        let report = stage.step(&state, &direct, &mut scattered);
+        let solve_s = t1.elapsed().as_secs_f64();
+        let exact = scattered_irradiance(flux, elevation, albedo, beta);
+        let errors: Vec<f64> = (0..n)
+            .filter(|&i| direct[i] == 0.0)
+            .map(|i| (scattered[i] / exact - 1.0).abs())
+            .collect();
+        Ok(BowlResult {
+            facets: n,
+            mean_error: errors.iter().sum::<f64>() / errors.len().max(1) as f64,
+            max_error: errors.iter().copied().fold(0.0, f64::max),
+            form_factor_s,
+            solve_s,
+            report,
+        })
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::mesh::{LengthUnit, Mesh};
 
     #[test]
     fn bowl_has_the_cap_area_and_faces_the_centre() {

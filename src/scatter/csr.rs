@@ -1,19 +1,28 @@
 //! Compressed sparse rows: the storage of exchange areas.
 //!
-//! In: per-row lists of (column, value) pairs — for a body's own block only the upper
-//! triangle, mirrored here. Out: [`Csr`] with `u32` column indices and `f32` values (8
-//! bytes per stored entry) and a parallel product `y += M x`. `f32` keeps 7 significant
-//! digits, well inside the accuracy of any form factor, and halves the memory of the
-//! largest structure of a run; products are accumulated in `f64`. A mirrored entry is the
-//! same `f32` in both places, so reciprocity `A_i F_ij = A_j F_ji` holds exactly.
+//! In: per-row lists of (column, value) pairs — for a body's own block only the strict
+//! upper triangle of the symmetric matrix. Out: [`Csr`] with `u32` column indices and
+//! `f32` values (8 bytes per stored entry) and a product `y += M x`. A symmetric block
+//! stores each pair once, so reciprocity `A_i F_ij = A_j F_ji` holds exactly and memory
+//! and the bytes read per product are halved. `f32` keeps 7 significant digits, well
+//! inside the accuracy of any form factor; products are accumulated in `f64`.
+//!
+//! The symmetric product splits the rows into a fixed number of parts (not one per
+//! thread), each adding into its own vector, summed in part order: results do not depend
+//! on the number of threads.
 
 use rayon::prelude::*;
+
+/// Row parts of the symmetric product.
+const PARTS: usize = 8;
 
 /// A sparse matrix in compressed rows.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct Csr {
     /// Number of columns.
     pub cols: usize,
+    /// Only the strict upper triangle of a symmetric matrix is stored.
+    pub symmetric: bool,
     /// Row r's entries are `start[r]..start[r + 1]`.
     start: Vec<u64>,
     index: Vec<u32>,
@@ -22,42 +31,11 @@ pub struct Csr {
 
 impl Csr {
     /// The symmetric matrix whose strict upper triangle is given row by row
-    /// (`upper[i]` holds (j, value) with j > i, increasing j); the diagonal is zero.
+    /// (`upper[i]` holds (j, value) with j > i); the diagonal is zero.
     pub fn symmetric_from_upper(upper: &[Vec<(u32, f32)>]) -> Csr {
-        let n = upper.len();
-        let mut count = vec![0u64; n + 1];
-        for (i, row) in upper.iter().enumerate() {
-            count[i + 1] += row.len() as u64;
-            for &(j, _) in row {
-                count[j as usize + 1] += 1;
-            }
-        }
-        let start = prefix_sums(count);
-        let nnz = start[n] as usize;
-        let mut fill: Vec<u64> = start[..n].to_vec();
-        let mut index = vec![0u32; nnz];
-        let mut value = vec![0f32; nnz];
-        // Row j receives its lower entries (from rows i < j) in increasing i before its
-        // own upper entries, so every row ends up sorted by column.
-        for (i, row) in upper.iter().enumerate() {
-            for &(j, v) in row {
-                let at = fill[j as usize] as usize;
-                index[at] = i as u32;
-                value[at] = v;
-                fill[j as usize] += 1;
-            }
-            let at = fill[i] as usize;
-            for (k, &(j, v)) in row.iter().enumerate() {
-                index[at + k] = j;
-                value[at + k] = v;
-            }
-            fill[i] += row.len() as u64;
-        }
         Csr {
-            cols: n,
-            start,
-            index,
-            value,
+            symmetric: true,
+            ..Csr::from_rows(upper, upper.len())
         }
     }
 
@@ -70,6 +48,7 @@ impl Csr {
         );
         Csr {
             cols,
+            symmetric: false,
             start,
             index: rows.iter().flatten().map(|&(j, _)| j).collect(),
             value: rows.iter().flatten().map(|&(_, v)| v).collect(),
@@ -78,6 +57,9 @@ impl Csr {
 
     /// The transpose.
     pub fn transpose(&self) -> Csr {
+        if self.symmetric {
+            return self.clone();
+        }
         let mut rows: Vec<Vec<(u32, f32)>> = vec![Vec::new(); self.cols];
         for r in 0..self.rows() {
             for (j, v) in self.row(r) {
@@ -102,7 +84,8 @@ impl Csr {
         self.start.len() * 8 + self.index.len() * 4 + self.value.len() * 4
     }
 
-    /// The entries of row `r` as (column, value).
+    /// The stored entries of row `r` as (column, value) (for a symmetric matrix, those
+    /// right of the diagonal).
     pub fn row(&self, r: usize) -> impl Iterator<Item = (u32, f32)> + '_ {
         let range = self.start[r] as usize..self.start[r + 1] as usize;
         self.index[range.clone()]
@@ -111,12 +94,11 @@ impl Csr {
             .zip(self.value[range].iter().copied())
     }
 
-    /// The sum of each row.
+    /// The sum of each row (of the whole matrix).
     pub fn row_sums(&self) -> Vec<f64> {
-        (0..self.rows())
-            .into_par_iter()
-            .map(|r| self.row(r).map(|(_, v)| v as f64).sum())
-            .collect()
+        let mut sums = vec![0.0; self.rows()];
+        self.mul_add(&vec![1.0; self.cols], &mut sums);
+        sums
     }
 
     /// Multiplies every entry (i, j) by `scale(i, j)`.
@@ -140,6 +122,9 @@ impl Csr {
 
     /// `y[r] += Σ_j M[r][j] · x[j]` for every row.
     pub fn mul_add(&self, x: &[f64], y: &mut [f64]) {
+        if self.symmetric {
+            return self.symmetric_mul_add(x, y);
+        }
         y.par_chunks_mut(256).enumerate().for_each(|(chunk, ys)| {
             for (k, yr) in ys.iter_mut().enumerate() {
                 *yr += self
@@ -147,6 +132,40 @@ impl Csr {
                     .map(|(j, v)| v as f64 * x[j as usize])
                     .sum::<f64>();
             }
+        });
+    }
+}
+
+impl Csr {
+    /// The symmetric product from the upper triangle: every stored (i, j) adds to row i
+    /// and to row j. Rows are split into [`PARTS`] runs of about equal entry counts.
+    fn symmetric_mul_add(&self, x: &[f64], y: &mut [f64]) {
+        let n = self.rows();
+        let nnz = self.nnz() as u64;
+        let bounds: Vec<usize> = (0..=PARTS)
+            .map(|p| {
+                self.start
+                    .partition_point(|&s| s < nnz * p as u64 / PARTS as u64)
+                    .min(n)
+            })
+            .collect();
+        let partials: Vec<Vec<f64>> = (0..PARTS)
+            .into_par_iter()
+            .map(|p| {
+                let mut acc = vec![0.0; n];
+                for r in bounds[p]..bounds[p + 1] {
+                    let mut own = 0.0;
+                    for (j, v) in self.row(r) {
+                        own += v as f64 * x[j as usize];
+                        acc[j as usize] += v as f64 * x[r];
+                    }
+                    acc[r] += own;
+                }
+                acc
+            })
+            .collect();
+        y.par_iter_mut().enumerate().for_each(|(i, yi)| {
+            *yi += partials.iter().map(|acc| acc[i]).sum::<f64>();
         });
     }
 }
@@ -166,18 +185,19 @@ mod tests {
     fn mirrored_upper_triangle_and_products() {
         let upper = vec![vec![(1, 2.0), (3, 1.0)], vec![(2, 5.0)], vec![], vec![]];
         let m = Csr::symmetric_from_upper(&upper);
-        assert_eq!(m.nnz(), 6);
-        let rows: Vec<Vec<(u32, f32)>> = (0..4).map(|r| m.row(r).collect()).collect();
-        assert_eq!(rows[0], vec![(1, 2.0), (3, 1.0)]);
-        assert_eq!(rows[1], vec![(0, 2.0), (2, 5.0)]);
-        assert_eq!(rows[2], vec![(1, 5.0)]);
-        assert_eq!(rows[3], vec![(0, 1.0)]);
+        assert_eq!(m.nnz(), 3);
         let mut y = vec![1.0; 4];
         m.mul_add(&[1.0, 10.0, 100.0, 1000.0], &mut y);
         assert_eq!(y, vec![1021.0, 503.0, 51.0, 2.0]);
-        assert_eq!(m.transpose(), m);
+        assert_eq!(m.row_sums(), vec![3.0, 7.0, 5.0, 1.0]);
         let mut s = m.clone();
         s.scale_entries(|i, j| (i + j) as f64);
-        assert_eq!(s.row(3).collect::<Vec<_>>(), vec![(0, 3.0)]);
+        assert_eq!(s.row(0).collect::<Vec<_>>(), vec![(1, 2.0), (3, 3.0)]);
+        // The rectangular transpose.
+        let r = Csr::from_rows(&[vec![(2, 1.0)], vec![(0, 4.0)]], 3);
+        let t = r.transpose();
+        assert_eq!((t.rows(), t.cols), (3, 2));
+        assert_eq!(t.row(0).collect::<Vec<_>>(), vec![(1, 4.0)]);
+        assert_eq!(t.row(2).collect::<Vec<_>>(), vec![(0, 1.0)]);
     }
 }
