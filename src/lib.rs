@@ -15,6 +15,8 @@
 //!                                  ▼
 //!                    illum (direct irradiance per facet per epoch)
 //!                                  ▼
+//!                    scatter (optional: light scattered between facets, all orders)
+//!                                  ▼
 //!                    stats (streaming, mergeable) ─► output (Parquet, CSV, PLY, run.json)
 //! ```
 //!
