@@ -15,6 +15,8 @@
 //!                                  ▼
 //!                    illum (direct irradiance per facet per epoch)
 //!                                  ▼
+//!                    scatter (optional: light scattered between facets, all orders)
+//!                                  ▼
 //!                    stats (streaming, mergeable) ─► output (Parquet, CSV, PLY, run.json)
 //! ```
 //!
@@ -35,6 +37,7 @@ pub mod plan;
 pub mod render;
 pub mod report;
 pub mod run;
+pub mod scatter;
 pub mod scene;
 pub mod stats;
 pub mod trace;

@@ -76,7 +76,11 @@ impl Plan {
         decisions.push(Decision {
             stage: "scattered light".into(),
             runs: false,
-            reason: "not modelled in this version: direct sunlight only".into(),
+            reason: if scene.scatter.as_ref().is_some_and(|s| !s.enabled) {
+                "switched off ([scatter] enabled = false): direct sunlight only".into()
+            } else {
+                "not asked for (no [scatter] section): direct sunlight only".into()
+            },
         });
         decisions.push(Decision {
             stage: "history output".into(),
@@ -96,6 +100,19 @@ impl Plan {
             tracer: format!("{:?}", scene.run.tracer).to_lowercase(),
             decisions,
         }
+    }
+}
+
+impl Plan {
+    /// Replaces the scattered-light decision by the scattering stage's own decisions.
+    pub fn set_scatter(&mut self, decisions: Vec<Decision>) {
+        let at = self
+            .decisions
+            .iter()
+            .position(|d| d.stage == "scattered light")
+            .unwrap_or(self.decisions.len());
+        self.decisions
+            .splice(at..(at + 1).min(self.decisions.len()), decisions);
     }
 }
 

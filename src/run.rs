@@ -19,6 +19,7 @@ use crate::mesh::{read_mesh, Mesh};
 use crate::output::record::{input_file, BodyRecord, InputFile, RunRecord};
 use crate::output::{self, HistoryWriter};
 use crate::plan::Plan;
+use crate::scatter::{Lambertian, Scatter, ScatterRecord, Settings as ScatterSettings};
 use crate::scene::{
     BodySection, EphemerisSection, FixedSection, Orient, Scene, Shape, SpiceSection, SpinSection,
 };
@@ -349,8 +350,28 @@ pub fn epoch_states(ephemeris: &dyn Ephemeris) -> Result<Vec<EpochState>> {
 
 /// The result of stepping through time: statistics and counters.
 pub struct Simulation {
+    /// Statistics of the total irradiance (direct plus scattered).
     pub stats: FacetStats,
     pub counts: StepCounts,
+    /// With scattering: statistics of the direct and the scattered parts, and what the
+    /// scattered-light stage did.
+    pub parts: Option<Parts>,
+}
+
+/// Direct and scattered statistics of a run with scattered light.
+pub struct Parts {
+    pub direct: FacetStats,
+    pub scattered: FacetStats,
+    pub record: ScatterRecord,
+}
+
+/// One step's irradiance (W/m², global facet order).
+#[derive(Debug, Clone, Copy)]
+pub struct StepIrradiance<'a> {
+    /// Direct plus scattered.
+    pub total: &'a [f64],
+    /// With scattering: (direct, scattered).
+    pub parts: Option<(&'a [f64], &'a [f64])>,
 }
 
 /// Computes direct irradiance at every step and accumulates statistics. `on_step` sees
@@ -364,21 +385,94 @@ pub fn simulate(
     progress: &dyn Progress,
     mut on_step: impl FnMut(&EpochState, &[f64]) -> Result<()>,
 ) -> Result<Simulation> {
+    simulate_with_scatter(
+        world,
+        states,
+        tracer,
+        None,
+        bins,
+        timings,
+        progress,
+        |s, e| on_step(s, e.total),
+    )
+}
+
+/// [`simulate`] with scattered light when `scatter` is given: after the direct
+/// irradiance of each step, the scattered-light solve; statistics of the total and of
+/// both parts.
+#[allow(clippy::too_many_arguments)]
+pub fn simulate_with_scatter(
+    world: &World,
+    states: &[EpochState],
+    tracer: TracerKind,
+    scatter: Option<ScatterSettings>,
+    bins: Bins,
+    timings: &mut Timings,
+    progress: &dyn Progress,
+    mut on_step: impl FnMut(&EpochState, StepIrradiance) -> Result<()>,
+) -> Result<Simulation> {
     let direct = timings.time("trace build", || Direct::new(world, tracer));
-    let mut stats = FacetStats::new(world.facet_count(), bins);
-    let mut irradiance = vec![0.0; world.facet_count()];
+    let mut scatter = scatter.map(|settings| {
+        timings.time("form factors", || {
+            Scatter::new(world, settings, Box::new(Lambertian))
+        })
+    });
+    let n = world.facet_count();
+    let mut stats = FacetStats::new(n, bins);
+    let mut part_stats = scatter
+        .as_ref()
+        .map(|_| (FacetStats::new(n, bins), FacetStats::new(n, bins)));
+    let mut irradiance = vec![0.0; n];
+    let mut scattered = vec![0.0; n];
+    let mut total = vec![0.0; n];
     let mut counts = StepCounts::default();
     progress.begin_steps(states.len() as u64);
     for state in states {
         counts += timings.time("direct irradiance", || {
             direct.compute(state, &mut irradiance)
         })?;
-        timings.time("statistics", || stats.add_step(&irradiance));
-        timings.time("history", || on_step(state, &irradiance))?;
+        let step = match (scatter.as_mut(), part_stats.as_mut()) {
+            (Some(stage), Some((direct_stats, scattered_stats))) => {
+                timings.time("scattered light", || {
+                    stage.step(state, &irradiance, &mut scattered)
+                });
+                timings.time("statistics", || {
+                    total
+                        .iter_mut()
+                        .zip(irradiance.iter().zip(&scattered))
+                        .for_each(|(t, (d, s))| *t = d + s);
+                    stats.add_step(&total);
+                    direct_stats.add_step(&irradiance);
+                    scattered_stats.add_step(&scattered);
+                });
+                StepIrradiance {
+                    total: &total,
+                    parts: Some((&irradiance, &scattered)),
+                }
+            }
+            _ => {
+                timings.time("statistics", || stats.add_step(&irradiance));
+                StepIrradiance {
+                    total: &irradiance,
+                    parts: None,
+                }
+            }
+        };
+        timings.time("history", || on_step(state, step))?;
         progress.step_done();
     }
     progress.end_steps();
-    Ok(Simulation { stats, counts })
+    Ok(Simulation {
+        stats,
+        counts,
+        parts: scatter
+            .zip(part_stats)
+            .map(|(stage, (direct, scattered))| Parts {
+                direct,
+                scattered,
+                record: stage.record,
+            }),
+    })
 }
 
 /// [`simulate`] without timings, progress or per-step output: the statistics alone.
@@ -428,7 +522,11 @@ pub fn run_scene(scene: &Scene, out_dir: &Path, progress: &dyn Progress) -> Resu
     }
     let ephemeris = build_ephemeris(scene, kernels)?;
     let states = timings.time("ephemeris", || epoch_states(ephemeris.as_ref()))?;
-    let plan = Plan::new(scene, &world, states.len());
+    let scatter = ScatterSettings::from_scene(scene, &world)?;
+    let mut plan = Plan::new(scene, &world, states.len());
+    if let Some(settings) = &scatter {
+        plan.set_scatter(settings.decisions(&world, &states));
+    }
     progress.note(&plan.to_string());
     let bins = bins_for(scene, &states);
     let csv = scene.output.csv;
@@ -436,18 +534,20 @@ pub fn run_scene(scene: &Scene, out_dir: &Path, progress: &dyn Progress) -> Resu
         .output
         .history
         .then(|| HistoryWriter::new(out_dir, csv, &world));
-    let sim = simulate(
+    let sim = simulate_with_scatter(
         &world,
         &states,
         scene.run.tracer,
+        scatter,
         bins,
         &mut timings,
         progress,
         |s, e| history.as_mut().map_or(Ok(()), |h| h.write_step(s, e)),
     )?;
+    let parts = sim.parts.as_ref().map(|p| (&p.direct, &p.scattered));
     let mut outputs = timings.time("output", || -> Result<Vec<_>> {
-        let mut files = output::write_summary(out_dir, csv, &world, &sim.stats)?;
-        files.extend(output::write_cdf(out_dir, csv, &world, &sim.stats)?);
+        let mut files = output::write_summary(out_dir, csv, &world, &sim.stats, parts)?;
+        files.extend(output::write_cdf(out_dir, csv, &world, &sim.stats, parts)?);
         files.extend(output::write_geometry(out_dir, csv, &world, &states)?);
         if let Some(h) = history.take() {
             files.extend(h.finish()?);
@@ -474,6 +574,7 @@ pub fn run_scene(scene: &Scene, out_dir: &Path, progress: &dyn Progress) -> Resu
         bodies,
         plan,
         counts: sim.counts,
+        scatter: sim.parts.map(|p| p.record),
         bins_w_m2: bins,
         duration_s: ephemeris.duration_s(),
         threads: rayon::current_num_threads(),

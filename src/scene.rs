@@ -27,6 +27,8 @@ pub struct Scene {
     pub name: String,
     pub run: RunSection,
     pub output: OutputSection,
+    /// `[scatter]`: scattered light (none: direct sunlight only).
+    pub scatter: Option<ScatterSection>,
     pub ephemeris: EphemerisSection,
     /// Bodies with mesh paths resolved.
     pub bodies: Vec<BodySection>,
@@ -125,6 +127,33 @@ impl Default for OutputSection {
             history: false,
         }
     }
+}
+
+/// `[scatter]`: sunlight scattered between facets (Lambertian, all orders). Present and
+/// not `enabled = false`: on.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ScatterSection {
+    /// Set false to keep the section but switch scattering off.
+    #[serde(default = "yes")]
+    pub enabled: bool,
+    /// Albedo of bodies that set none themselves.
+    pub albedo: Option<f64>,
+    /// "auto" (default), "jacobi" (iterate = scattering order) or "cg".
+    #[serde(default)]
+    pub solver: crate::scatter::solve::SolverKind,
+    /// Jacobi: most scattering orders; CG: most iterations.
+    #[serde(default = "default_max_orders")]
+    pub max_orders: u32,
+    /// Relative tolerance of each step's solve.
+    #[serde(default = "default_scatter_tolerance")]
+    pub tolerance: f64,
+    /// Leave out light between two bodies when its bound is below this share of the flux.
+    #[serde(default = "default_inter_body_tolerance")]
+    pub inter_body_tolerance: f64,
+    /// Facet pairs closer than this many facet sizes get the exact near-field integral.
+    #[serde(default = "default_near_field_ratio")]
+    pub near_field_ratio: f64,
 }
 
 /// `[ephemeris]`: where the Sun is at each step, chosen by its `mode` key.
@@ -326,6 +355,11 @@ pub struct BodySection {
     /// Reflectance model (`slim render`, `slim fit`): `model = "hapke"` and its
     /// parameters, optionally `bands.NAME = { ... }` overriding them per band.
     pub material: Option<toml::Table>,
+    /// Lambertian albedo of every facet (with `[scatter]`).
+    pub albedo: Option<f64>,
+    /// Per-facet albedo: a text file with one value per line in facet order (`#` starts a
+    /// comment), relative to the scene file.
+    pub albedo_file: Option<PathBuf>,
 }
 
 impl BodySection {
@@ -356,6 +390,7 @@ struct SceneFile {
     run: RunSection,
     #[serde(default)]
     output: OutputSection,
+    scatter: Option<ScatterSection>,
     /// Read in a second pass, by `mode`, so errors inside keep their key paths.
     ephemeris: toml::Table,
     body: Vec<BodySection>,
@@ -364,6 +399,21 @@ struct SceneFile {
     band: Vec<BandSection>,
 }
 
+fn yes() -> bool {
+    true
+}
+fn default_max_orders() -> u32 {
+    1000
+}
+fn default_scatter_tolerance() -> f64 {
+    1e-6
+}
+fn default_inter_body_tolerance() -> f64 {
+    1e-4
+}
+fn default_near_field_ratio() -> f64 {
+    crate::scatter::form_factor::NearField::default().far_ratio
+}
 fn default_solar_constant() -> f64 {
     crate::SOLAR_CONSTANT_W_M2
 }
@@ -407,6 +457,7 @@ impl Scene {
         let mut bodies = file.body;
         for b in &mut bodies {
             b.mesh = b.mesh.as_ref().map(|m| folder.join(m));
+            b.albedo_file = b.albedo_file.as_ref().map(|m| folder.join(m));
         }
         let mut ephemeris = ephemeris;
         if let EphemerisSection::Spice(s) = &mut ephemeris {
@@ -432,6 +483,7 @@ impl Scene {
             name,
             run: file.run,
             output: file.output,
+            scatter: file.scatter,
             ephemeris,
             bodies,
             start,
@@ -493,6 +545,7 @@ impl Scene {
         if let Some(c) = &self.camera {
             self.validate_camera(c)?;
         }
+        self.validate_scatter()?;
         match &self.ephemeris {
             EphemerisSection::Spin(s) => self.validate_spin(s),
             EphemerisSection::Fixed(f) => self.validate_fixed(f),
@@ -773,6 +826,53 @@ impl Scene {
                  period_h, ... }, or a fixed position_km relative to the first body",
             )),
         }
+    }
+
+    fn validate_scatter(&self) -> Result<()> {
+        let albedo = |key: &str, a: Option<f64>| {
+            match a {
+            Some(a) if !(a.is_finite() && (0.0..1.0).contains(&a)) => Err(self.err(
+                key,
+                format!("must be at least 0 and below 1 (1 reflects everything and never converges), not {a}"),
+            )),
+            _ => Ok(()),
+        }
+        };
+        for (i, b) in self.bodies.iter().enumerate() {
+            albedo(&format!("body[{i}].albedo"), b.albedo)?;
+            if b.albedo.is_some() && b.albedo_file.is_some() {
+                return Err(self.err(
+                    format!("body[{i}]"),
+                    "give either albedo or albedo_file, not both",
+                ));
+            }
+        }
+        let Some(s) = self.scatter.as_ref().filter(|s| s.enabled) else {
+            return Ok(());
+        };
+        albedo("scatter.albedo", s.albedo)?;
+        positive(self, "scatter.tolerance", s.tolerance)?;
+        positive(self, "scatter.near_field_ratio", s.near_field_ratio)?;
+        if !(s.inter_body_tolerance.is_finite() && s.inter_body_tolerance >= 0.0) {
+            return Err(self.err(
+                "scatter.inter_body_tolerance",
+                "must be a finite number ≥ 0",
+            ));
+        }
+        if s.max_orders == 0 {
+            return Err(self.err("scatter.max_orders", "must be at least 1"));
+        }
+        if let Some(i) = self
+            .bodies
+            .iter()
+            .position(|b| b.albedo.is_none() && b.albedo_file.is_none() && s.albedo.is_none())
+        {
+            return Err(self.err(
+                format!("body[{i}].albedo"),
+                "missing: scattering needs an albedo for every body (here, in albedo_file, or in [scatter])",
+            ));
+        }
+        Ok(())
     }
 
     fn validate_spice(&self, s: &SpiceSection) -> Result<()> {

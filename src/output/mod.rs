@@ -21,6 +21,7 @@ pub mod table;
 
 use crate::ephemeris::EpochState;
 use crate::error::Result;
+use crate::run::StepIrradiance;
 use crate::stats::FacetStats;
 use crate::world::World;
 use std::path::{Path, PathBuf};
@@ -29,12 +30,47 @@ use table::{Table, TableWriter, Values};
 /// Rows per batch when writing the per-facet tables.
 const FACETS_PER_BATCH: usize = 1 << 14;
 
-/// Writes `summary` (one row per facet).
+/// Statistics of the direct and scattered parts, when the run has scattered light.
+pub type Parts<'a> = Option<(&'a FacetStats, &'a FacetStats)>;
+
+/// Names of the summary columns of one part: min, max, mean, std.
+const DIRECT_COLUMNS: [&str; 4] = [
+    "direct_min_w_m2",
+    "direct_max_w_m2",
+    "direct_mean_w_m2",
+    "direct_std_w_m2",
+];
+const SCATTERED_COLUMNS: [&str; 4] = [
+    "scattered_min_w_m2",
+    "scattered_max_w_m2",
+    "scattered_mean_w_m2",
+    "scattered_std_w_m2",
+];
+
+/// Adds min, max, mean and std of `stats` for facets `global` as `names`.
+fn with_part_columns(
+    batch: Table,
+    names: [&'static str; 4],
+    stats: &FacetStats,
+    global: impl Iterator<Item = usize> + Clone,
+) -> Table {
+    let column = |f: &dyn Fn(usize) -> f64| Values::F64(global.clone().map(f).collect());
+    batch
+        .with(names[0], column(&|g| stats.min(g)))
+        .with(names[1], column(&|g| stats.max(g)))
+        .with(names[2], column(&|g| stats.mean(g)))
+        .with(names[3], column(&|g| stats.std(g)))
+}
+
+/// Writes `summary` (one row per facet). The min/max/mean/std/lit columns are of the
+/// total irradiance; with `parts`, the same statistics of the direct and the scattered
+/// irradiance follow as `direct_*` and `scattered_*` columns.
 pub fn write_summary(
     dir: &Path,
     csv: bool,
     world: &World,
     stats: &FacetStats,
+    parts: Parts,
 ) -> Result<Vec<PathBuf>> {
     let mut writer = TableWriter::new(dir, "summary", csv);
     for_facet_batches(world, |body, range, offset| {
@@ -77,13 +113,27 @@ pub fn write_summary(
                 "lit_fraction",
                 Values::F64(global().map(|g| stats.lit_fraction(g)).collect()),
             );
+        let batch = match parts {
+            Some((direct, scattered)) => {
+                let batch = with_part_columns(batch, DIRECT_COLUMNS, direct, global());
+                with_part_columns(batch, SCATTERED_COLUMNS, scattered, global())
+            }
+            None => batch,
+        };
         writer.write(&batch)
     })?;
     writer.finish()
 }
 
-/// Writes `cdf` (one row per facet and threshold).
-pub fn write_cdf(dir: &Path, csv: bool, world: &World, stats: &FacetStats) -> Result<Vec<PathBuf>> {
+/// Writes `cdf` (one row per facet and threshold): `cdf` of the total irradiance; with
+/// `parts`, also `cdf_direct` and `cdf_scattered` at the same thresholds.
+pub fn write_cdf(
+    dir: &Path,
+    csv: bool,
+    world: &World,
+    stats: &FacetStats,
+    parts: Parts,
+) -> Result<Vec<PathBuf>> {
     let mut writer = TableWriter::new(dir, "cdf", csv);
     let bins = stats.bins();
     for_facet_batches(world, |body, range, offset| {
@@ -106,6 +156,14 @@ pub fn write_cdf(dir: &Path, csv: bool, world: &World, stats: &FacetStats) -> Re
             .with("facet", Values::U32(facet))
             .with("irradiance_w_m2", Values::F64(threshold))
             .with("cdf", Values::F64(cdf));
+        let all_cdfs =
+            |s: &FacetStats| Values::F64(range.clone().flat_map(|i| s.cdf(offset + i)).collect());
+        let batch = match parts {
+            Some((direct, scattered)) => batch
+                .with("cdf_direct", all_cdfs(direct))
+                .with("cdf_scattered", all_cdfs(scattered)),
+            None => batch,
+        };
         writer.write(&batch)
     })?;
     writer.finish()
@@ -225,15 +283,22 @@ impl HistoryWriter {
         }
     }
 
-    /// Appends one step's irradiance (global facet order).
-    pub fn write_step(&mut self, state: &EpochState, irradiance: &[f64]) -> Result<()> {
-        let n = irradiance.len();
+    /// Appends one step's irradiance (global facet order): `irradiance_w_m2` is the total;
+    /// with scattering, `direct_w_m2` and `scattered_w_m2` follow.
+    pub fn write_step(&mut self, state: &EpochState, step: StepIrradiance) -> Result<()> {
+        let n = step.total.len();
         let batch = Table::default()
             .with("step", Values::U64(vec![state.step as u64; n]))
             .with("et_tdb_s", Values::F64(vec![et_tdb_s(state); n]))
             .with("body", self.body.clone())
             .with("facet", self.facet.clone())
-            .with("irradiance_w_m2", Values::F64(irradiance.to_vec()));
+            .with("irradiance_w_m2", Values::F64(step.total.to_vec()));
+        let batch = match step.parts {
+            Some((direct, scattered)) => batch
+                .with("direct_w_m2", Values::F64(direct.to_vec()))
+                .with("scattered_w_m2", Values::F64(scattered.to_vec())),
+            None => batch,
+        };
         self.writer.write(&batch)
     }
 

@@ -39,6 +39,10 @@ pub struct RunRecord {
     pub bodies: Vec<BodyRecord>,
     pub plan: Plan,
     pub counts: StepCounts,
+    /// The scattered-light stage: form factors per body and the solver's report over all
+    /// steps (absent without scattering).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub scatter: Option<crate::scatter::ScatterRecord>,
     pub bins_w_m2: crate::stats::Bins,
     pub duration_s: f64,
     pub threads: usize,

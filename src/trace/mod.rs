@@ -16,6 +16,7 @@
 //! frame that depends only on the ray direction, so they classify every ray identically;
 //! they differ only in which facets they test.
 
+pub mod bvh;
 pub mod grid;
 pub mod ray;
 pub mod sunview;

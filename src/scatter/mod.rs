@@ -1,0 +1,571 @@
+//! Scatter: sunlight scattered between facets, to all orders (SLIM paper, section 6.2).
+//!
+//! In: the [`World`], each facet's albedo ρ (Lambertian), and per step the direct
+//! irradiance `D` (W/m², global facet ids) with the step's poses. Out: the scattered
+//! irradiance `S` (W/m²) arriving at every facet — light that reached it after one or
+//! more diffuse reflections — and a [`solve::SolveReport`]. With radiosity `B = ρ (D + S)`
+//! and form factors `F_ij`, `S_i = Σ_j F_ij B_j`, i.e. `S = S1 + F ρ S` with the first
+//! order `S1 = F ρ D` (the [`FirstScatter`] seam: a non-Lambertian first bounce replaces
+//! it, higher orders stay Lambertian).
+//!
+//! Stages, one file each:
+//! - [`form_factor`]: exchange area `A_i F_ij` of two facets, exact near field;
+//! - [`visibility`]: which pairs see each other (the tracer's exact predicate on a
+//!   [`Bvh`]), assembled into blocks;
+//! - [`csr`]: compact storage (u32 columns, f32 values);
+//! - [`solve`]: Jacobi (iterate = scattering order) and conjugate gradients.
+//!
+//! A body's own block is computed once (bodies are rigid). A block between two bodies is
+//! recomputed only when their relative pose changes, and left out for the whole step when
+//! a bound on its effect is below the scene's tolerance: light from body b reaching any
+//! point of body a is at most `ρ_b/(1−ρ_b) · (R_b/(d − R_a))²` of the solar flux (b's
+//! bounding sphere of radius R_b seen from at least d − R_a, d the centre distance).
+//!
+//! Row sums of `F` are capped at 1 (rows above 1 by quadrature or visibility error are
+//! scaled symmetrically, `G_ij ← G_ij · min(c_i, c_j)`), which keeps the iteration
+//! contractive and the CG matrix positive definite for every ρ < 1.
+
+pub mod albedo;
+pub mod bowl;
+pub mod csr;
+pub mod form_factor;
+pub mod solve;
+pub mod visibility;
+
+use crate::ephemeris::EpochState;
+use crate::error::Result;
+use crate::plan::Decision;
+use crate::scene::Scene;
+use crate::trace::bvh::Bvh;
+use crate::world::{FrameTransform, World};
+use csr::Csr;
+use form_factor::NearField;
+use rayon::prelude::*;
+use serde::Serialize;
+use solve::{Exchange, SolveReport, SolverKind, Stopping};
+use std::time::Instant;
+use visibility::{cross_block, facets, own_block, Occluder, SAME_FRAME};
+
+/// How scattered light is computed.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Settings {
+    /// Albedo of every facet (global ids), in [0, 1).
+    pub albedo: Vec<f64>,
+    pub solver: SolverKind,
+    /// Jacobi: most scattering orders; CG: most iterations.
+    pub max_orders: u32,
+    /// Relative tolerance of the solve.
+    pub tolerance: f64,
+    /// Inter-body blocks whose bound on scattered light is below this share of the solar
+    /// flux are left out.
+    pub inter_body_tolerance: f64,
+    pub near_field: NearField,
+}
+
+impl Settings {
+    /// The scene's settings, or `None` when it asks for no scattering.
+    pub fn from_scene(scene: &Scene, world: &World) -> Result<Option<Settings>> {
+        let (Some(section), Some(albedo)) = (&scene.scatter, albedo::facet_albedo(scene, world)?)
+        else {
+            return Ok(None);
+        };
+        Ok(Some(Settings {
+            albedo,
+            solver: section.solver,
+            max_orders: section.max_orders,
+            tolerance: section.tolerance,
+            inter_body_tolerance: section.inter_body_tolerance,
+            near_field: NearField {
+                far_ratio: section.near_field_ratio,
+                ..NearField::default()
+            },
+        }))
+    }
+
+    /// The plan's decisions: whether scattering runs, and for every pair of bodies whether
+    /// their block is needed at some step and how often it is recomputed.
+    pub fn decisions(&self, world: &World, states: &[EpochState]) -> Vec<Decision> {
+        let max_albedo = self.albedo.iter().copied().fold(0.0, f64::max);
+        if max_albedo == 0.0 {
+            return vec![Decision {
+                stage: "scattered light".into(),
+                runs: false,
+                reason: "albedo 0 everywhere: nothing is reflected".into(),
+            }];
+        }
+        let method = solve::resolve(self.solver, max_albedo);
+        let mut out = vec![Decision {
+            stage: "scattered light".into(),
+            runs: true,
+            reason: format!(
+                "Lambertian, all orders: S = F ρ (D + S) solved each step by {} to {:e} \
+                 relative (at most {} iterations); form factors with visibility computed once \
+                 per body, exact near field within {} facet sizes",
+                match method {
+                    SolverKind::Cg => "conjugate gradients (albedo above 0.5)",
+                    _ => "Jacobi (iteration k = scattering orders ≤ k)",
+                },
+                self.tolerance,
+                self.max_orders,
+                self.near_field.far_ratio
+            ),
+        }];
+        let offsets = world.offsets();
+        let n = world.bodies.len();
+        for a in 0..n {
+            for b in a + 1..n {
+                let needed = states
+                    .iter()
+                    .filter(|s| {
+                        inter_body_bound(world, &self.albedo, &offsets, s, a, b)
+                            >= self.inter_body_tolerance
+                    })
+                    .collect::<Vec<_>>();
+                let moves = needed
+                    .windows(2)
+                    .filter(|w| relative_pose(w[0], a, b) != relative_pose(w[1], a, b))
+                    .count();
+                let stage = format!(
+                    "scattered light between '{}' and '{}'",
+                    world.bodies[a].name, world.bodies[b].name
+                );
+                out.push(Decision {
+                    stage,
+                    runs: !needed.is_empty(),
+                    reason: if needed.is_empty() {
+                        format!(
+                            "left out: at every step its bound ρ/(1−ρ)·(R/(d−R'))² is below the \
+                             tolerance {:e} of the solar flux",
+                            self.inter_body_tolerance
+                        )
+                    } else {
+                        format!(
+                            "needed at {} of {} steps (bound ≥ {:e} of the flux); the block is \
+                             computed {} time(s): again only when the bodies move relative to \
+                             each other",
+                            needed.len(),
+                            states.len(),
+                            self.inter_body_tolerance,
+                            1 + moves
+                        )
+                    },
+                });
+            }
+        }
+        out
+    }
+}
+
+fn relative_pose(state: &EpochState, a: usize, b: usize) -> FrameTransform {
+    state.bodies[b].pose.relative_to(&state.bodies[a].pose)
+}
+
+/// The bound of the module doc, both ways, for bodies a and b at `state`.
+fn inter_body_bound(
+    world: &World,
+    albedo: &[f64],
+    offsets: &[usize],
+    state: &EpochState,
+    a: usize,
+    b: usize,
+) -> f64 {
+    let bodies = &world.bodies;
+    let d = (state.bodies[a].pose.position_m - state.bodies[b].pose.position_m).length();
+    let bound = |from: usize, to: usize| {
+        let range = offsets[from]..offsets[from] + bodies[from].mesh.len();
+        let rho = albedo[range].iter().copied().fold(0.0, f64::max);
+        let r_from = bodies[from].bounding_radius_m;
+        let gap = d - bodies[to].bounding_radius_m;
+        if gap <= r_from {
+            return f64::INFINITY;
+        }
+        rho / (1.0 - rho) * (r_from / gap).powi(2)
+    };
+    bound(a, b).max(bound(b, a))
+}
+
+/// The first bounce: irradiance scattered once, from the direct irradiance.
+///
+/// This is the seam for non-Lambertian scattering: an implementation may weight each pair
+/// (i, j) of `exchange` by a reflectance depending on the Sun direction at j and the
+/// direction j → i. Higher orders are always Lambertian.
+pub trait FirstScatter: Sync {
+    /// First-order scattered irradiance at every facet, W/m², into `out`.
+    fn first_order(&self, input: &FirstOrderInput, out: &mut [f64]);
+}
+
+/// What a first bounce may use.
+pub struct FirstOrderInput<'a> {
+    pub world: &'a World,
+    pub state: &'a EpochState,
+    /// Direct irradiance, W/m², global ids.
+    pub direct: &'a [f64],
+    pub albedo: &'a [f64],
+    /// The exchange areas `A_i F_ij` of this step.
+    pub exchange: &'a Blocks<'a>,
+}
+
+/// Lambertian reflection: `S1 = F ρ D`.
+pub struct Lambertian;
+
+impl FirstScatter for Lambertian {
+    fn first_order(&self, input: &FirstOrderInput, out: &mut [f64]) {
+        let emitted: Vec<f64> = input
+            .direct
+            .iter()
+            .zip(input.albedo)
+            .map(|(d, r)| d * r)
+            .collect();
+        input.exchange.apply(&emitted, out);
+        let areas = input.exchange.areas();
+        out.iter_mut()
+            .zip(areas)
+            .for_each(|(s, a)| *s = if *a > 0.0 { *s / a } else { 0.0 });
+    }
+}
+
+/// One block of the global exchange matrix.
+#[derive(Debug, Clone, Copy)]
+pub struct Block<'a> {
+    pub row_offset: usize,
+    pub col_offset: usize,
+    pub matrix: &'a Csr,
+}
+
+/// The global exchange-area matrix `G` (m²) as blocks, with the facet areas (m²).
+#[derive(Debug, Clone, Default)]
+pub struct Blocks<'a> {
+    pub blocks: Vec<Block<'a>>,
+    pub areas: &'a [f64],
+}
+
+impl Exchange for Blocks<'_> {
+    fn apply(&self, x: &[f64], y: &mut [f64]) {
+        y.fill(0.0);
+        for b in &self.blocks {
+            let rows = b.row_offset..b.row_offset + b.matrix.rows();
+            let cols = b.col_offset..b.col_offset + b.matrix.cols;
+            b.matrix.mul_add(&x[cols], &mut y[rows]);
+        }
+    }
+
+    fn areas(&self) -> &[f64] {
+        self.areas
+    }
+}
+
+/// A body's own form factors, as built.
+#[derive(Debug, Clone, Serialize)]
+pub struct FormFactorReport {
+    pub body: String,
+    pub facets: usize,
+    /// Stored entries (both triangles).
+    pub entries: usize,
+    pub bytes: usize,
+    pub build_s: f64,
+    /// Largest row sum Σ_j F_ij before capping (≤ 1 up to quadrature and visibility error).
+    pub max_row_sum: f64,
+    /// Rows whose sum exceeded 1 and were scaled down.
+    pub rows_capped: usize,
+}
+
+/// What the stage did over a run (stored in `run.json`).
+#[derive(Debug, Clone, Serialize, Default)]
+pub struct ScatterRecord {
+    pub form_factors: Vec<FormFactorReport>,
+    /// Solves done (steps).
+    pub solves: u64,
+    /// Method of the last solve.
+    pub method: &'static str,
+    pub iterations_total: u64,
+    pub iterations_max: u32,
+    pub residual_max: f64,
+    /// Solves that hit the iteration cap before the tolerance.
+    pub not_converged: u64,
+    /// Inter-body blocks computed, reused (pose unchanged) and left out (below tolerance).
+    pub inter_body_computed: u64,
+    pub inter_body_reused: u64,
+    pub inter_body_skipped: u64,
+}
+
+/// An inter-body block as last computed.
+struct Cached {
+    pose: FrameTransform,
+    forward: Csr,
+    backward: Csr,
+}
+
+/// The scattered-light stage.
+pub struct Scatter<'w> {
+    world: &'w World,
+    settings: Settings,
+    method: SolverKind,
+    bvhs: Vec<Bvh<'w>>,
+    offsets: Vec<usize>,
+    own: Vec<Csr>,
+    own_row_sums: Vec<f64>,
+    areas: Vec<f64>,
+    cache: Vec<Option<Cached>>,
+    first: Box<dyn FirstScatter + 'w>,
+    pub record: ScatterRecord,
+}
+
+impl<'w> Scatter<'w> {
+    /// Builds every body's own form factors (the expensive part, done once).
+    pub fn new(
+        world: &'w World,
+        settings: Settings,
+        first: Box<dyn FirstScatter + 'w>,
+    ) -> Scatter<'w> {
+        let bvhs: Vec<Bvh> = world.bodies.iter().map(|b| Bvh::build(&b.mesh)).collect();
+        let areas = all_areas(world);
+        let mut record = ScatterRecord::default();
+        let mut own = Vec::new();
+        for (b, body) in world.bodies.iter().enumerate() {
+            let t0 = Instant::now();
+            let mut block = own_block(&body.mesh, &bvhs[b], &settings.near_field);
+            let (max_row_sum, rows_capped) = cap_rows(&mut block, &body.mesh.areas);
+            record.form_factors.push(FormFactorReport {
+                body: body.name.clone(),
+                facets: body.mesh.len(),
+                entries: block.nnz(),
+                bytes: block.bytes(),
+                build_s: t0.elapsed().as_secs_f64(),
+                max_row_sum,
+                rows_capped,
+            });
+            own.push(block);
+        }
+        let offsets = world.offsets();
+        let mut own_row_sums = vec![0.0; areas.len()];
+        for (b, block) in own.iter().enumerate() {
+            let range = offsets[b]..offsets[b] + block.rows();
+            own_row_sums[range.clone()].copy_from_slice(&block.row_sums());
+            own_row_sums[range]
+                .iter_mut()
+                .zip(&world.bodies[b].mesh.areas)
+                .for_each(|(s, a)| *s = if *a > 0.0 { *s / a } else { 0.0 });
+        }
+        let max_albedo = settings.albedo.iter().copied().fold(0.0, f64::max);
+        let n = world.bodies.len();
+        Scatter {
+            world,
+            method: solve::resolve(settings.solver, max_albedo),
+            settings,
+            bvhs,
+            offsets,
+            own,
+            own_row_sums,
+            areas,
+            cache: (0..n * n).map(|_| None).collect(),
+            first,
+            record,
+        }
+    }
+
+    /// Changes the albedo of every facet (global ids), keeping the form factors: for
+    /// sweeps over albedo. Inter-body blocks are recomputed (their caps depend on it).
+    pub fn set_albedo(&mut self, albedo: Vec<f64>) {
+        let max_albedo = albedo.iter().copied().fold(0.0, f64::max);
+        self.method = solve::resolve(self.settings.solver, max_albedo);
+        self.settings.albedo = albedo;
+        self.cache.iter_mut().for_each(|c| *c = None);
+    }
+
+    /// The method `Auto` resolved to.
+    pub fn method(&self) -> SolverKind {
+        self.method
+    }
+
+    /// Scattered irradiance (W/m², global ids) at `state` from the direct irradiance.
+    pub fn step(
+        &mut self,
+        state: &EpochState,
+        direct: &[f64],
+        scattered: &mut [f64],
+    ) -> SolveReport {
+        let active = self.refresh_inter_blocks(state);
+        let exchange = self.blocks(&active);
+        let mut s1 = vec![0.0; direct.len()];
+        self.first.first_order(
+            &FirstOrderInput {
+                world: self.world,
+                state,
+                direct,
+                albedo: &self.settings.albedo,
+                exchange: &exchange,
+            },
+            &mut s1,
+        );
+        let stop = Stopping {
+            tolerance: self.settings.tolerance,
+            max_iterations: self.settings.max_orders,
+        };
+        let report = solve::solve(
+            &exchange,
+            &self.settings.albedo,
+            &s1,
+            self.method,
+            stop,
+            scattered,
+        );
+        drop(exchange);
+        let r = &mut self.record;
+        r.solves += 1;
+        r.method = report.method;
+        r.iterations_total += report.iterations as u64;
+        r.iterations_max = r.iterations_max.max(report.iterations);
+        r.residual_max = r.residual_max.max(report.residual);
+        r.not_converged += !report.converged as u64;
+        report
+    }
+
+    /// Brings the inter-body blocks up to date for this step: recomputed if their bodies
+    /// moved relative to each other. Returns the pairs that take part.
+    fn refresh_inter_blocks(&mut self, state: &EpochState) -> Vec<(usize, usize)> {
+        let n = self.world.bodies.len();
+        let mut active = Vec::new();
+        for a in 0..n {
+            for b in a + 1..n {
+                if self.negligible(state, a, b) {
+                    self.record.inter_body_skipped += 1;
+                    continue;
+                }
+                let pose = state.bodies[b].pose.relative_to(&state.bodies[a].pose);
+                if self.cache[a * n + b]
+                    .as_ref()
+                    .is_some_and(|c| c.pose == pose)
+                {
+                    self.record.inter_body_reused += 1;
+                } else {
+                    self.cache[a * n + b] = Some(self.inter_block(state, a, b, pose));
+                    self.record.inter_body_computed += 1;
+                }
+                active.push((a, b));
+            }
+        }
+        active
+    }
+
+    /// The global exchange matrix: own blocks plus the `active` inter-body blocks.
+    fn blocks(&self, active: &[(usize, usize)]) -> Blocks<'_> {
+        let n = self.world.bodies.len();
+        let own = self.own.iter().enumerate().map(|(b, m)| Block {
+            row_offset: self.offsets[b],
+            col_offset: self.offsets[b],
+            matrix: m,
+        });
+        let inter = active.iter().flat_map(|&(a, b)| {
+            let c = self.cache[a * n + b].as_ref().expect("refreshed");
+            [
+                Block {
+                    row_offset: self.offsets[a],
+                    col_offset: self.offsets[b],
+                    matrix: &c.forward,
+                },
+                Block {
+                    row_offset: self.offsets[b],
+                    col_offset: self.offsets[a],
+                    matrix: &c.backward,
+                },
+            ]
+        });
+        Blocks {
+            blocks: own.chain(inter).collect(),
+            areas: &self.areas,
+        }
+    }
+
+    /// The bound of the module doc is below the tolerance both ways.
+    fn negligible(&self, state: &EpochState, a: usize, b: usize) -> bool {
+        let bound = inter_body_bound(
+            self.world,
+            &self.settings.albedo,
+            &self.offsets,
+            state,
+            a,
+            b,
+        );
+        bound < self.settings.inter_body_tolerance
+    }
+
+    /// The block between bodies a (rows) and b (columns), computed in a's frame with every
+    /// body as an occluder, row sums capped so that own plus inter-body sums stay ≤ 1.
+    fn inter_block(
+        &self,
+        state: &EpochState,
+        a: usize,
+        b: usize,
+        b_to_a: FrameTransform,
+    ) -> Cached {
+        let world = self.world;
+        let rows = facets(&world.bodies[a].mesh, &SAME_FRAME);
+        let cols = facets(&world.bodies[b].mesh, &b_to_a);
+        let occluders: Vec<Occluder> = (0..world.bodies.len())
+            .map(|c| Occluder {
+                bvh: &self.bvhs[c],
+                to_own: state.bodies[a].pose.relative_to(&state.bodies[c].pose),
+                holds_rows: c == a,
+                holds_cols: c == b,
+            })
+            .collect();
+        let mut forward = cross_block(&rows, &cols, &occluders, &self.settings.near_field);
+        let (ra, rb) = (self.offsets[a], self.offsets[b]);
+        let allowance = |offset: usize, sums: Vec<f64>, areas: &[f64]| -> Vec<f64> {
+            sums.iter()
+                .enumerate()
+                .map(|(i, s)| {
+                    let f = if areas[i] > 0.0 { s / areas[i] } else { 0.0 };
+                    let room = (1.0 - self.own_row_sums[offset + i]).max(0.0);
+                    if f > room {
+                        room / f
+                    } else {
+                        1.0
+                    }
+                })
+                .collect()
+        };
+        let ca = allowance(ra, forward.row_sums(), &world.bodies[a].mesh.areas);
+        let cb = allowance(
+            rb,
+            forward.transpose().row_sums(),
+            &world.bodies[b].mesh.areas,
+        );
+        forward.scale_entries(|i, j| ca[i].min(cb[j]));
+        let backward = forward.transpose();
+        Cached {
+            pose: b_to_a,
+            forward,
+            backward,
+        }
+    }
+}
+
+fn all_areas(world: &World) -> Vec<f64> {
+    world
+        .bodies
+        .iter()
+        .flat_map(|b| b.mesh.areas.iter().copied())
+        .collect()
+}
+
+/// Caps the row sums of a symmetric block at the facet areas; returns the largest row
+/// sum of F before capping and how many rows were above 1.
+fn cap_rows(block: &mut Csr, areas: &[f64]) -> (f64, usize) {
+    let f: Vec<f64> = block
+        .row_sums()
+        .par_iter()
+        .zip(areas)
+        .map(|(s, a)| if *a > 0.0 { s / a } else { 0.0 })
+        .collect();
+    let max = f.iter().copied().fold(0.0, f64::max);
+    let capped = f.iter().filter(|&&s| s > 1.0).count();
+    if capped > 0 {
+        let c: Vec<f64> = f
+            .iter()
+            .map(|&s| if s > 1.0 { 1.0 / s } else { 1.0 })
+            .collect();
+        block.scale_entries(|i, j| c[i].min(c[j]));
+    }
+    (max, capped)
+}

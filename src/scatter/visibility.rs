@@ -1,0 +1,144 @@
+//! Which facets see each other, and the exchange-area blocks built from them.
+//!
+//! In: the facets of one body (its own block) or of two bodies with the transform between
+//! their frames (an inter-body block), and every body's [`Bvh`] as occluders. Out: [`Csr`]
+//! blocks of exchange areas `G_ij = A_i F_ij` (m²).
+//!
+//! A pair is a candidate when each centroid lies strictly in front of the other facet's
+//! plane. It is visible when the segment between the two centroids crosses no other
+//! facet of any body (the shared exact ray predicate; the two end facets are skipped and
+//! hits closer than a rounding margin to either end are ignored). Visibility is thus
+//! all-or-nothing per pair, decided at the centroids: a pair half hidden behind a third
+//! facet counts fully or not at all, an error that shrinks with the facet size. Each
+//! unordered pair is evaluated once, so a body's block is symmetric by construction.
+
+use super::csr::Csr;
+use super::form_factor::{exchange_area, Facet, NearField};
+use crate::mesh::Mesh;
+use crate::trace::bvh::Bvh;
+use crate::world::FrameTransform;
+use glam::{DMat3, DVec3};
+use rayon::prelude::*;
+
+/// A body that can hide one facet from another: its tree and the transform from the
+/// frame the pairs are computed in to its own frame.
+pub struct Occluder<'a> {
+    pub bvh: &'a Bvh<'a>,
+    pub to_own: FrameTransform,
+    /// This body holds the pair's row facet (skipped as an occluder of its own pair).
+    pub holds_rows: bool,
+    /// This body holds the pair's column facet.
+    pub holds_cols: bool,
+}
+
+/// The facets of a mesh, mapped by `transform` into the frame of the computation.
+pub fn facets(mesh: &Mesh, transform: &FrameTransform) -> Vec<Facet> {
+    (0..mesh.len())
+        .map(|i| Facet::new(mesh.corners(i).map(|p| transform.point(p))))
+        .collect()
+}
+
+/// The identity transform.
+pub const SAME_FRAME: FrameTransform = FrameTransform {
+    rotation: DMat3::IDENTITY,
+    offset_m: DVec3::ZERO,
+};
+
+/// A body's own block: symmetric, zero diagonal.
+pub fn own_block(mesh: &Mesh, bvh: &Bvh, near: &NearField) -> Csr {
+    let f = facets(mesh, &SAME_FRAME);
+    let occluders = [Occluder {
+        bvh,
+        to_own: SAME_FRAME,
+        holds_rows: true,
+        holds_cols: true,
+    }];
+    let margin = rounding_margin(&f);
+    let upper: Vec<Vec<(u32, f32)>> = (0..f.len())
+        .into_par_iter()
+        .map(|i| visible_row(&f[i], i, &f[i + 1..], i + 1, &occluders, margin, near))
+        .collect();
+    Csr::symmetric_from_upper(&upper)
+}
+
+/// The block between body `rows` (facets in the computation frame) and body `cols`
+/// (facets already mapped into the same frame).
+pub fn cross_block(
+    rows: &[Facet],
+    cols: &[Facet],
+    occluders: &[Occluder],
+    near: &NearField,
+) -> Csr {
+    let margin = rounding_margin(rows).max(rounding_margin(cols));
+    let lists: Vec<Vec<(u32, f32)>> = (0..rows.len())
+        .into_par_iter()
+        .map(|i| visible_row(&rows[i], i, cols, 0, occluders, margin, near))
+        .collect();
+    Csr::from_rows(&lists, cols.len())
+}
+
+/// The visible partners of facet `a` (id `ia` in the row body) among `others` (ids from
+/// `first` in the column body), with their exchange areas.
+fn visible_row(
+    a: &Facet,
+    ia: usize,
+    others: &[Facet],
+    first: usize,
+    occluders: &[Occluder],
+    margin: f64,
+    near: &NearField,
+) -> Vec<(u32, f32)> {
+    if a.area <= 0.0 {
+        return Vec::new();
+    }
+    let front = a.normal.dot(a.centroid);
+    let mut row = Vec::new();
+    for (k, b) in others.iter().enumerate() {
+        let facing =
+            a.normal.dot(b.centroid) > front && b.normal.dot(a.centroid) > b.normal.dot(b.centroid);
+        if !facing || b.area <= 0.0 {
+            continue;
+        }
+        let ib = first + k;
+        if occluders
+            .iter()
+            .any(|o| hides(o, a.centroid, b.centroid, [ia, ib], margin))
+        {
+            continue;
+        }
+        let g = exchange_area(a, b, near);
+        if g > 0.0 {
+            row.push((ib as u32, g as f32));
+        }
+    }
+    row
+}
+
+fn hides(o: &Occluder, a: DVec3, b: DVec3, ends: [usize; 2], margin: f64) -> bool {
+    let skip = [
+        if o.holds_rows {
+            ends[0] as u32
+        } else {
+            u32::MAX
+        },
+        if o.holds_cols {
+            ends[1] as u32
+        } else {
+            u32::MAX
+        },
+    ];
+    o.bvh
+        .segment_blocked(o.to_own.point(a), o.to_own.point(b), skip, margin)
+}
+
+/// Hits closer than this to a segment's ends are the end facets' own neighbours meeting
+/// them at a shared edge, not occluders: `1e-9 ×` the largest facet plus the rounding of
+/// coordinates of the facets' magnitude.
+fn rounding_margin(facets: &[Facet]) -> f64 {
+    let size = facets.iter().map(|f| f.size).fold(0.0, f64::max);
+    let extent = facets
+        .iter()
+        .map(|f| f.centroid.abs().max_element())
+        .fold(0.0, f64::max);
+    1e-9 * size + 256.0 * f64::EPSILON * extent
+}
