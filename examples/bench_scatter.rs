@@ -16,7 +16,7 @@ use slim::mesh::{generate::subdivide, read_mesh, LengthUnit, Mesh};
 use slim::run::epoch_states;
 use slim::scatter::form_factor::NearField;
 use slim::scatter::solve::SolverKind;
-use slim::scatter::{Lambertian, Scatter, Settings};
+use slim::scatter::{FirstBounce, Lambertian, Scatter, Settings};
 use slim::trace::TracerKind;
 use slim::world::{Body, World};
 use std::path::PathBuf;
@@ -114,6 +114,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         tolerance: 1e-6,
         inter_body_tolerance: 1e-4,
         near_field: NearField::default(),
+        first_bounce: FirstBounce::Lambertian,
     };
     let t0 = Instant::now();
     let mut stage = Scatter::new(&world, settings, Box::new(Lambertian));

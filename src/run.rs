@@ -19,7 +19,7 @@ use crate::mesh::{read_mesh, Mesh};
 use crate::output::record::{input_file, BodyRecord, InputFile, RunRecord};
 use crate::output::{self, HistoryWriter};
 use crate::plan::Plan;
-use crate::scatter::{Lambertian, Scatter, ScatterRecord, Settings as ScatterSettings};
+use crate::scatter::{Scatter, ScatterRecord, Settings as ScatterSettings};
 use crate::scene::{
     BodySection, EphemerisSection, FixedSection, Orient, Scene, Shape, SpiceSection, SpinSection,
 };
@@ -414,7 +414,8 @@ pub fn simulate_with_scatter(
     let direct = timings.time("trace build", || Direct::new(world, tracer));
     let mut scatter = scatter.map(|settings| {
         timings.time("form factors", || {
-            Scatter::new(world, settings, Box::new(Lambertian))
+            let first = settings.first_bounce.scatterer();
+            Scatter::new(world, settings, first)
         })
     });
     let n = world.facet_count();

@@ -154,6 +154,19 @@ pub struct ScatterSection {
     /// Facet pairs closer than this many facet sizes get the exact near-field integral.
     #[serde(default = "default_near_field_ratio")]
     pub near_field_ratio: f64,
+    /// The first bounce: "lambert" (default) or "material" (each body's
+    /// `[body.material]` reflectance model; higher orders stay Lambertian).
+    #[serde(default)]
+    pub first_bounce: FirstBounceKind,
+}
+
+/// `[scatter] first_bounce`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum FirstBounceKind {
+    #[default]
+    Lambert,
+    Material,
 }
 
 /// `[ephemeris]`: where the Sun is at each step, chosen by its `mode` key.

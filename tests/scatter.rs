@@ -15,7 +15,7 @@ use slim::scatter::csr::Csr;
 use slim::scatter::form_factor::NearField;
 use slim::scatter::solve::SolverKind;
 use slim::scatter::visibility::own_block;
-use slim::scatter::{Lambertian, Scatter, Settings};
+use slim::scatter::{FirstBounce, Lambertian, Scatter, Settings};
 use slim::trace::bvh::Bvh;
 use slim::world::{Body, Pose, World};
 use std::f64::consts::PI;
@@ -124,6 +124,7 @@ fn settings(albedo: Vec<f64>, solver: SolverKind, tolerance: f64) -> Settings {
         tolerance,
         inter_body_tolerance: 0.0,
         near_field: NearField::default(),
+        first_bounce: FirstBounce::Lambertian,
     }
 }
 
@@ -602,4 +603,123 @@ fn without_a_scatter_section_outputs_are_unchanged() {
         .iter()
         .any(|c| c.starts_with("direct") || c.starts_with("scattered")));
     assert!(record.plan.to_string().contains("skip scattered light"));
+}
+
+// ---------------------------------------------------------------------------------------
+// The first bounce with reflectance models (issue 5's non-Lambertian first order)
+
+use slim::photometry::lambert::Lambert;
+use slim::photometry::lommel_seeliger::LommelSeeliger;
+use slim::photometry::Material;
+use slim::scatter::photometric::Photometric;
+use slim::scatter::{Block, Blocks, FirstOrderInput, FirstScatter};
+
+/// First-order scattered irradiance of `first` on a one-body world.
+fn first_order(
+    first: &dyn FirstScatter,
+    mesh: Mesh,
+    sun: DVec3,
+    flux: f64,
+    albedo: f64,
+) -> (Vec<f64>, Mesh) {
+    let block = block_of(&mesh);
+    let direct: Vec<f64> = mesh
+        .normals
+        .iter()
+        .map(|n| flux * n.dot(sun).max(0.0))
+        .collect();
+    let world = World {
+        bodies: vec![Body::new("b", mesh.clone(), false)],
+    };
+    let st = state(vec![(sun, at(DVec3::ZERO))], flux);
+    let blocks = Blocks {
+        blocks: vec![Block {
+            row_offset: 0,
+            col_offset: 0,
+            matrix: &block,
+        }],
+        areas: &mesh.areas,
+    };
+    let albedo = vec![albedo; mesh.len()];
+    let input = FirstOrderInput {
+        world: &world,
+        state: &st,
+        direct: &direct,
+        albedo: &albedo,
+        exchange: &blocks,
+    };
+    let mut out = vec![0.0; mesh.len()];
+    first.first_order(&input, &mut out);
+    (out, mesh)
+}
+
+#[test]
+fn a_lambert_material_first_bounce_is_the_lambertian_one() {
+    let mesh = Mesh::from_raw(bowl_mesh(10.0, 1.2, 8), LengthUnit::M);
+    let sun = DVec3::new(0.5, 0.0, 0.3).normalize();
+    let photometric = Photometric {
+        materials: vec![Material::Lambert(Lambert { albedo: 0.3 })],
+    };
+    let (lambertian, _) = first_order(&Lambertian, mesh.clone(), sun, 1000.0, 0.3);
+    let (modelled, _) = first_order(&photometric, mesh, sun, 1000.0, 0.3);
+    let scale = lambertian.iter().copied().fold(0.0, f64::max);
+    assert!(scale > 1.0, "the bowl scatters: {scale}");
+    for (a, b) in lambertian.iter().zip(&modelled) {
+        assert!((a - b).abs() <= 1e-12 * scale, "{a} vs {b}");
+    }
+}
+
+/// A small Lommel–Seeliger facet lit at 30° sends light to a facet 50 sizes away at 40°
+/// from its normal: S = F π J r with the point form factor and the closed-form
+/// r = (w/4π) μ₀/(μ₀ + μ).
+#[test]
+fn a_lommel_seeliger_first_bounce_matches_the_closed_form() {
+    let d = 50.0;
+    let alpha = 40f64.to_radians();
+    let towards = DVec3::new(alpha.sin(), 0.0, alpha.cos());
+    let centre = towards * d;
+    // The receiver faces the emitter: its normal is −towards.
+    let (u, v) = (DVec3::Y, towards.cross(DVec3::Y));
+    let mut raw = RawMesh {
+        vertices: vec![
+            DVec3::new(-0.5, -0.5, 0.0),
+            DVec3::new(0.5, -0.5, 0.0),
+            DVec3::new(0.0, 0.5, 0.0),
+            centre - 0.5 * u - 0.5 * v,
+            centre + 0.5 * u - 0.5 * v,
+            centre + 0.5 * v,
+        ],
+        triangles: vec![[0, 1, 2], [3, 4, 5]],
+    };
+    let probe = Mesh::from_raw(raw.clone(), LengthUnit::M);
+    if probe.normals[1].dot(towards) > 0.0 {
+        raw.triangles[1] = [3, 5, 4];
+    }
+    let i0 = 30f64.to_radians();
+    let sun = DVec3::new(i0.sin(), 0.0, i0.cos());
+    let w = 0.8;
+    let photometric = Photometric {
+        materials: vec![Material::LommelSeeliger(LommelSeeliger { w })],
+    };
+    let flux = 1361.0;
+    let (s, mesh) = first_order(
+        &photometric,
+        Mesh::from_raw(raw, LengthUnit::M),
+        sun,
+        flux,
+        0.1,
+    );
+    let (mu0, mu) = (i0.cos(), alpha.cos());
+    let r = w / (4.0 * PI) * mu0 / (mu0 + mu);
+    let form_factor = mu * mesh.areas[0] / (PI * d * d);
+    let expected = form_factor * PI * flux * r;
+    assert!(
+        (s[1] - expected).abs() < 2e-3 * expected,
+        "{} vs {expected}",
+        s[1]
+    );
+    assert_eq!(
+        s[0], 0.0,
+        "the receiver faces away from the Sun and sends nothing"
+    );
 }

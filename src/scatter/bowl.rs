@@ -16,7 +16,7 @@
 //! closed form; the tests and the error table (`examples/scatter_error.rs`) use it.
 
 use super::solve::{SolveReport, SolverKind};
-use super::{form_factor::NearField, Lambertian, Scatter, Settings};
+use super::{form_factor::NearField, FirstBounce, Lambertian, Scatter, Settings};
 use crate::ephemeris::{BodyState, EpochState};
 use crate::illum::Direct;
 use crate::mesh::{LengthUnit, Mesh, RawMesh};
@@ -124,6 +124,7 @@ impl BowlCase {
             tolerance: self.tolerance,
             inter_body_tolerance: 0.0,
             near_field: NearField::default(),
+            first_bounce: FirstBounce::Lambertian,
         };
         let t0 = Instant::now();
         let mut stage = Scatter::new(&world, settings, Box::new(Lambertian));

@@ -29,13 +29,14 @@ pub mod albedo;
 pub mod bowl;
 pub mod csr;
 pub mod form_factor;
+pub mod photometric;
 pub mod solve;
 pub mod visibility;
 
 use crate::ephemeris::EpochState;
 use crate::error::Result;
 use crate::plan::Decision;
-use crate::scene::Scene;
+use crate::scene::{FirstBounceKind, Scene};
 use crate::trace::bvh::Bvh;
 use crate::world::{FrameTransform, World};
 use csr::Csr;
@@ -60,6 +61,38 @@ pub struct Settings {
     /// flux are left out.
     pub inter_body_tolerance: f64,
     pub near_field: NearField,
+    /// The first bounce: Lambertian, or each body's reflectance model.
+    pub first_bounce: FirstBounce,
+}
+
+/// How the first bounce reflects sunlight.
+#[derive(Debug, Clone, PartialEq)]
+pub enum FirstBounce {
+    /// Lambert's law with the albedo.
+    Lambertian,
+    /// Each body's reflectance model (one per body, world order).
+    Materials(Vec<crate::photometry::Material>),
+}
+
+impl FirstBounce {
+    /// The first-bounce stage for these settings.
+    pub fn scatterer(&self) -> Box<dyn FirstScatter> {
+        match self {
+            FirstBounce::Lambertian => Box::new(Lambertian),
+            FirstBounce::Materials(m) => Box::new(photometric::Photometric {
+                materials: m.clone(),
+            }),
+        }
+    }
+
+    fn describe(&self) -> &'static str {
+        match self {
+            FirstBounce::Lambertian => "Lambertian, all orders",
+            FirstBounce::Materials(_) => {
+                "first bounce with each body's reflectance model, higher orders Lambertian"
+            }
+        }
+    }
 }
 
 impl Settings {
@@ -78,6 +111,14 @@ impl Settings {
             near_field: NearField {
                 far_ratio: section.near_field_ratio,
                 ..NearField::default()
+            },
+            first_bounce: match section.first_bounce {
+                FirstBounceKind::Lambert => FirstBounce::Lambertian,
+                FirstBounceKind::Material => FirstBounce::Materials(
+                    (0..scene.bodies.len())
+                        .map(|i| scene.material(i, None))
+                        .collect::<Result<_>>()?,
+                ),
             },
         }))
     }
@@ -98,9 +139,10 @@ impl Settings {
             stage: "scattered light".into(),
             runs: true,
             reason: format!(
-                "Lambertian, all orders: S = F ρ (D + S) solved each step by {} to {:e} \
+                "{}: S = F ρ (D + S) solved each step by {} to {:e} \
                  relative (at most {} iterations); form factors with visibility computed once \
                  per body, exact near field within {} facet sizes",
+                self.first_bounce.describe(),
                 match method {
                     SolverKind::Cg => "conjugate gradients (albedo above 0.5)",
                     _ => "Jacobi (iteration k = scattering orders ≤ k)",
