@@ -31,6 +31,7 @@ pub mod plan;
 pub mod report;
 pub mod run;
 pub mod scene;
+pub mod serve;
 pub mod stats;
 pub mod trace;
 pub mod world;

@@ -219,7 +219,7 @@ impl RunData {
 }
 
 /// All record batches of a Parquet file.
-fn read_batches(path: &Path) -> Result<Vec<RecordBatch>> {
+pub(crate) fn read_batches(path: &Path) -> Result<Vec<RecordBatch>> {
     let file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
     let reader = ParquetRecordBatchReaderBuilder::try_new(file)
         .and_then(|b| b.build())
@@ -230,7 +230,7 @@ fn read_batches(path: &Path) -> Result<Vec<RecordBatch>> {
 }
 
 /// A typed column of a batch, or an error naming the file and column.
-fn column<'a, T: Array + 'static>(
+pub(crate) fn column<'a, T: Array + 'static>(
     batch: &'a RecordBatch,
     name: &str,
     path: &Path,
