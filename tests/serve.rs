@@ -911,3 +911,52 @@ fn the_token_guards_mutating_endpoints_and_optionally_reads() {
     );
     assert_eq!(status, 200);
 }
+
+// ---------------------------------------------------------------------------------------
+// OpenAPI
+
+#[test]
+fn openapi_matches_the_route_table() {
+    use slim::serve::routes::{table, Access};
+    use std::collections::BTreeSet;
+    let text =
+        std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/api/openapi.json")).unwrap();
+    let spec: serde_json::Value = serde_json::from_str(&text).unwrap();
+    assert_eq!(spec["openapi"], "3.1.0");
+    let methods = [
+        "get", "put", "post", "delete", "patch", "head", "options", "trace",
+    ];
+    let mut documented = BTreeSet::new();
+    for (path, item) in spec["paths"].as_object().unwrap() {
+        for (method, op) in item.as_object().unwrap() {
+            if methods.contains(&method.as_str()) {
+                documented.insert((
+                    method.to_uppercase(),
+                    path.clone(),
+                    op.get("security").is_some(),
+                ));
+            }
+        }
+    }
+    let routed: BTreeSet<(String, String, bool)> = table()
+        .into_iter()
+        .map(|r| {
+            (
+                r.method.to_string(),
+                r.path.to_string(),
+                r.access == Access::Write,
+            )
+        })
+        .collect();
+    assert_eq!(
+        documented, routed,
+        "api/openapi.json and the route table differ (method, path, needs token)"
+    );
+    // Every $ref names a schema that exists.
+    let schemas = spec["components"]["schemas"].as_object().unwrap();
+    for reference in text.match_indices("#/components/schemas/") {
+        let rest = &text[reference.0 + reference.1.len()..];
+        let name = &rest[..rest.find('"').unwrap()];
+        assert!(schemas.contains_key(name), "$ref to missing schema {name}");
+    }
+}
