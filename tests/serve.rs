@@ -372,16 +372,6 @@ fn history_of(dir: &Path, facet: u32) -> Vec<f64> {
     rows.into_iter().map(|r| r.1).collect()
 }
 
-/// Equal up to the last bit or two: serde_json's default float parser (used here to read
-/// the answer) is not correctly rounded, so a value can come back one unit in the last
-/// place off; the service's own numbers are bit-identical (unit test in serve::points).
-fn assert_close(got: &[f64], expected: &[f64]) {
-    assert_eq!(got.len(), expected.len());
-    for (g, e) in got.iter().zip(expected) {
-        assert!((g - e).abs() <= 4.0 * f64::EPSILON * e.abs(), "{g} vs {e}");
-    }
-}
-
 #[test]
 fn facet_window_and_point_queries_agree_with_the_files() {
     let data = DataDir::new("queries");
@@ -496,7 +486,7 @@ fn facet_window_and_point_queries_agree_with_the_files() {
         let got: Vec<f64> =
             serde_json::from_value(series["series"][k]["irradiance_w_m2"].clone()).unwrap();
         assert_eq!(series["series"][k]["facet"], facet);
-        assert_close(&got, &history_of(&result, facet as u32));
+        assert_eq!(got, history_of(&result, facet as u32), "target {k}");
     }
     // A window of steps, asked twice (the second time from the cached engine).
     let window =
@@ -506,7 +496,7 @@ fn facet_window_and_point_queries_agree_with_the_files() {
         assert_eq!(status, 200, "{part}");
         let got: Vec<f64> =
             serde_json::from_value(part["series"][0]["irradiance_w_m2"].clone()).unwrap();
-        assert_close(&got, &history_of(&result, partly as u32)[10..20]);
+        assert_eq!(got, history_of(&result, partly as u32)[10..20]);
     }
 }
 
@@ -583,7 +573,13 @@ fn deleting_jobs_removes_them_running_or_finished() {
     let (_, slow) = post_toml(&server, &slow_scene());
     let slow = slow["id"].as_str().unwrap().to_string();
     wait_running(&server, &slow);
-    for id in [&done, &slow] {
+    let (_, queued) = post_toml(&server, &scene("shapes/itokawa_8.obj", 8));
+    let queued = queued["id"].as_str().unwrap().to_string();
+    assert_eq!(
+        get(&server, &format!("/v1/jobs/{queued}")).1["state"],
+        "queued"
+    );
+    for id in [&queued, &done, &slow] {
         let r = agent()
             .delete(&server.url(&format!("/v1/jobs/{id}")))
             .call()
@@ -600,6 +596,7 @@ fn deleting_jobs_removes_them_running_or_finished() {
         std::thread::sleep(Duration::from_millis(20));
     }
     assert!(!data.path().join("jobs").join(&done).exists());
+    assert!(!data.path().join("jobs").join(&queued).exists());
     assert_error(
         json(
             agent()

@@ -75,7 +75,8 @@ fn scene_path(dir: &Path, id: &str) -> PathBuf {
 /// Creates a job's folder with its scene and first record.
 pub fn create(dir: &Path, record: &JobRecord, scene_toml: &str) -> Result<()> {
     let folder = job_dir(dir, &record.id);
-    std::fs::create_dir_all(&folder).map_err(|e| Error::io(&folder, e))?;
+    // Not create_dir_all: an existing folder (an id drawn twice) must not be reused.
+    std::fs::create_dir(&folder).map_err(|e| Error::io(&folder, e))?;
     write_atomic(&scene_path(dir, &record.id), scene_toml.as_bytes())?;
     save(dir, record)
 }

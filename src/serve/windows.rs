@@ -10,7 +10,7 @@
 //! its last sample's step and its energy is Σ E·Δt.
 
 use super::reply::{ApiError, ApiResult};
-use crate::report::read::{column, read_batches};
+use crate::report::read::{batches, column};
 use arrow::array::{Float64Array, StringArray, UInt32Array};
 use hifitime::{Epoch, TimeScale};
 use serde::{Deserialize, Serialize};
@@ -121,7 +121,8 @@ fn utc(tdb_s: f64) -> String {
 pub fn facet_history(dir: &Path, body: &str, facet: u32) -> crate::Result<Vec<(f64, f64)>> {
     let path = dir.join("history.parquet");
     let mut samples = Vec::new();
-    for batch in read_batches(&path)? {
+    for batch in batches(&path)? {
+        let batch = batch?;
         let bodies = column::<StringArray>(&batch, "body", &path)?;
         let facets = column::<UInt32Array>(&batch, "facet", &path)?;
         let epochs = column::<Float64Array>(&batch, "et_tdb_s", &path)?;
