@@ -4,7 +4,8 @@
 //! In: nothing (a temporary data folder with the shipped Itokawa meshes; the service runs
 //! in this process on a free loopback port). Out: for each phase the number of queries,
 //! throughput (queries/s) and latency percentiles p50/p99 (ms), printed as a Markdown
-//! table. Bounded: each phase stops after `QUERIES` queries or `SECONDS` seconds.
+//! table; then the time of on-demand irradiance requests (3 places × 1,000 steps).
+//! Bounded: each phase stops after `QUERIES` queries or `SECONDS` seconds.
 //!
 //! Run: `cargo run --release --example load_serve [-- CLIENTS]` (default 8 client threads,
 //! each with its own keep-alive connection).
@@ -53,8 +54,10 @@ fn main() {
     let busy = load(clients, &url);
     let job = get(&base, &format!("/v1/jobs/{big}"));
     report("job computing", clients, &busy);
+    println!();
+    on_demand(&base, &big);
     println!(
-        "\nthe job was still {} at the end ({} of {} steps); cores: {}",
+        "the job was still {} at the end ({} of {} steps); cores: {}",
         job["state"],
         job["progress"]["steps_done"],
         job["progress"]["steps_total"],
@@ -67,6 +70,30 @@ fn main() {
         std::thread::sleep(Duration::from_millis(20));
     }
     let _ = std::fs::remove_dir_all(&data);
+}
+
+/// Times on-demand irradiance for 3 places × 1,000 steps of the running job's scene:
+/// the first request builds the meshes and shadow grids, the later ones reuse them.
+fn on_demand(base: &str, id: &str) {
+    let request = r#"{"targets": [{"lat_deg": 0, "lon_deg": 0}, {"lat_deg": 45, "lon_deg": 90},
+        {"lat_deg": -60, "lon_deg": 200}], "from_step": 0, "to_step": 1000}"#;
+    let mut times = Vec::new();
+    for _ in 0..4 {
+        let t0 = Instant::now();
+        let mut r = ureq::post(&format!("{base}/v1/jobs/{id}/irradiance"))
+            .header("Content-Type", "application/json")
+            .send(request)
+            .expect("irradiance");
+        assert_eq!(r.status(), 200);
+        r.body_mut().read_to_string().unwrap();
+        times.push(format!("{:.1}", t0.elapsed().as_secs_f64() * 1e3));
+    }
+    println!(
+        "on-demand irradiance, 3 places × 1000 steps of itokawa_32 (while the job computes), ms: \
+         first {} (builds the grids), then {}",
+        times[0],
+        times[1..].join(", ")
+    );
 }
 
 /// Per query latency (s) and the phase's wall time (s).

@@ -488,15 +488,20 @@ fn facet_window_and_point_queries_agree_with_the_files() {
         assert_eq!(series["series"][k]["facet"], facet);
         assert_eq!(got, history_of(&result, facet as u32), "target {k}");
     }
-    // A window of steps, asked twice (the second time from the cached engine).
-    let window =
+    // A window of steps, asked twice (the second time from the cached engine), and the
+    // same window by epochs.
+    let epochs: Vec<f64> = serde_json::from_value(series["et_tdb_s"].clone()).unwrap();
+    let by_steps =
         serde_json::json!({"targets": [{"facet": partly}], "from_step": 10, "to_step": 20});
-    for _ in 0..2 {
-        let (status, part) = post_json(&server, &format!("/v1/jobs/{id}/irradiance"), &window);
+    let by_epochs = serde_json::json!({"targets": [{"facet": partly}],
+        "from_tdb_s": epochs[10] - 1.0, "to_tdb_s": epochs[20] - 1.0});
+    for window in [&by_steps, &by_steps, &by_epochs] {
+        let (status, part) = post_json(&server, &format!("/v1/jobs/{id}/irradiance"), window);
         assert_eq!(status, 200, "{part}");
         let got: Vec<f64> =
             serde_json::from_value(part["series"][0]["irradiance_w_m2"].clone()).unwrap();
         assert_eq!(got, history_of(&result, partly as u32)[10..20]);
+        assert_eq!(part["steps"][0], 10);
     }
 }
 

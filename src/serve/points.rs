@@ -22,6 +22,7 @@ use crate::trace::TracerKind;
 use crate::world::World;
 use serde::{Deserialize, Serialize};
 use std::collections::HashMap;
+use std::ops::Range;
 use std::path::{Path, PathBuf};
 use std::sync::mpsc;
 use std::sync::Mutex;
@@ -49,6 +50,10 @@ pub struct PointsRequest {
     pub from_step: usize,
     /// Step after the last (default: the scene's step count).
     pub to_step: Option<usize>,
+    /// Only steps at or after this epoch (TDB seconds past J2000).
+    pub from_tdb_s: Option<f64>,
+    /// Only steps before this epoch.
+    pub to_tdb_s: Option<f64>,
 }
 
 /// One target's time series.
@@ -182,7 +187,7 @@ fn answer(
         .iter()
         .map(|t| resolve(world, t))
         .collect::<ApiResult<Vec<_>>>()?;
-    let steps = step_range(request, ephemeris.steps())?;
+    let steps = step_range(request, ephemeris)?;
     let values = targets.len() * steps.len();
     if targets.is_empty() || values > ask.max_values {
         return Err(ApiError::unprocessable(
@@ -264,19 +269,59 @@ fn resolve(world: &World, t: &Target) -> ApiResult<(usize, usize)> {
     }
 }
 
-fn step_range(request: &PointsRequest, steps: usize) -> ApiResult<std::ops::Range<usize>> {
+/// The steps asked for: the step range, narrowed to the epoch window if one is given.
+fn step_range(request: &PointsRequest, ephemeris: &dyn Ephemeris) -> ApiResult<Range<usize>> {
+    let steps = ephemeris.steps();
     let to = request.to_step.unwrap_or(steps);
+    let bad = |msg: String| ApiError::bad_request("bad_steps", msg);
     if request.from_step >= to || to > steps {
-        return Err(ApiError::bad_request(
-            "bad_steps",
-            format!(
-                "from_step {} to_step {to}: the scene has steps 0 to {} (to_step is exclusive)",
-                request.from_step,
-                steps.saturating_sub(1)
-            ),
+        return Err(bad(format!(
+            "from_step {} to_step {to}: the scene has steps 0 to {} (to_step is exclusive)",
+            request.from_step,
+            steps.saturating_sub(1)
+        )));
+    }
+    let mut range = request.from_step..to;
+    if let Some(t) = request.from_tdb_s {
+        range.start = first_step_at(ephemeris, range.clone(), t)?;
+    }
+    if let Some(t) = request.to_tdb_s {
+        range.end = first_step_at(ephemeris, range.clone(), t)?;
+    }
+    if range.is_empty() {
+        return Err(bad(
+            "no step of the scene lies in the asked window (from_tdb_s inclusive, to_tdb_s \
+             exclusive)"
+                .into(),
         ));
     }
-    Ok(request.from_step..to)
+    Ok(range)
+}
+
+/// The first step of `range` whose epoch is at or after `tdb_s` (`range.end` if none), by
+/// bisection: epochs grow with the step.
+fn first_step_at(ephemeris: &dyn Ephemeris, range: Range<usize>, tdb_s: f64) -> ApiResult<usize> {
+    if !tdb_s.is_finite() {
+        return Err(ApiError::bad_request(
+            "bad_steps",
+            "from_tdb_s and to_tdb_s must be finite",
+        ));
+    }
+    let (mut lo, mut hi) = (range.start, range.end);
+    while lo < hi {
+        let mid = lo + (hi - lo) / 2;
+        let epoch = ephemeris
+            .state(mid)
+            .map_err(|e| ApiError::unprocessable("bad_scene", e.to_string()))?
+            .epoch
+            .to_tdb_seconds();
+        if epoch < tdb_s {
+            lo = mid + 1;
+        } else {
+            hi = mid;
+        }
+    }
+    Ok(lo)
 }
 
 #[cfg(test)]
