@@ -645,6 +645,18 @@ fn every_bad_request_gets_a_json_4xx() {
     let s = &server;
     let with_mesh = |mesh: &str| scene(mesh, 8);
 
+    // The catalogue lists neither the outward link nor anything through a looping link.
+    #[cfg(unix)]
+    std::os::unix::fs::symlink(data.path().join("shapes"), data.path().join("shapes/loop"))
+        .unwrap();
+    let (status, catalogue) = get(s, "/v1/catalogue");
+    assert_eq!(status, 200);
+    assert_eq!(
+        catalogue["shapes"].as_array().unwrap().len(),
+        1,
+        "{catalogue}"
+    );
+
     // Routes and jobs that do not exist.
     assert_error(get(s, "/v1/nothing"), 404, "unknown_route");
     assert_error(get(s, "/v1/jobs/0123456789abcdef"), 404, "unknown_job");

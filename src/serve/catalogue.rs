@@ -44,21 +44,28 @@ pub fn list(dir: &Path) -> Catalogue {
     }
 }
 
+/// Lists the files below `folder`. Linked folders are not entered (no loops); linked
+/// files are listed when their target lies inside `root`.
 fn walk(root: &Path, folder: &Path, out: &mut Vec<Entry>) {
     let Ok(entries) = std::fs::read_dir(folder) else {
         return;
     };
     for entry in entries.flatten() {
         let path = entry.path();
+        let Ok(kind) = entry.file_type() else {
+            continue;
+        };
+        if kind.is_dir() {
+            walk(root, &path, out);
+            continue;
+        }
         let Ok(real) = path.canonicalize() else {
             continue;
         };
-        if !real.starts_with(root) {
+        if !real.starts_with(root) || !real.is_file() {
             continue;
         }
-        if real.is_dir() {
-            walk(root, &path, out);
-        } else if let (Ok(rel), Ok(meta)) = (path.strip_prefix(root), real.metadata()) {
+        if let (Ok(rel), Ok(meta)) = (path.strip_prefix(root), real.metadata()) {
             out.push(Entry {
                 path: slash_path(rel),
                 bytes: meta.len(),

@@ -11,7 +11,7 @@
 use super::reply::{ApiError, ApiResult};
 use axum::body::{Body, Bytes, HttpBody};
 use axum::http::{header, HeaderMap, HeaderValue, StatusCode};
-use axum::response::Response;
+use axum::response::{IntoResponse, Response};
 use std::io::{Read, Seek, SeekFrom};
 use std::path::Path;
 use std::pin::Pin;
@@ -82,7 +82,7 @@ pub fn serve_file(
                 "range_not_satisfiable",
                 format!("the file has {len} bytes"),
             )
-            .into_response_parts();
+            .into_response();
             e.headers_mut().insert(
                 header::CONTENT_RANGE,
                 header_value(&format!("bytes */{len}")),
@@ -105,12 +105,6 @@ pub fn serve_file(
         );
     }
     Ok(response)
-}
-
-impl ApiError {
-    fn into_response_parts(self) -> Response {
-        axum::response::IntoResponse::into_response(self)
-    }
 }
 
 fn header_value(s: &str) -> HeaderValue {

@@ -305,10 +305,9 @@ impl Jobs {
             return Err(ApiError::conflict(
                 "job_not_finished",
                 format!(
-                    "job {id} is {:?}: results exist only for succeeded jobs",
-                    entry.record.state
-                )
-                .to_lowercase(),
+                    "job {id} is {}: results exist only for succeeded jobs",
+                    entry.record.state.name()
+                ),
             ));
         }
         Ok(store::result_dir(&self.shared.dir, id))

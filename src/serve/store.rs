@@ -29,6 +29,20 @@ pub enum State {
     Deleted,
 }
 
+impl State {
+    /// The name the API and the records use.
+    pub fn name(self) -> &'static str {
+        match self {
+            State::Queued => "queued",
+            State::Running => "running",
+            State::Succeeded => "succeeded",
+            State::Failed => "failed",
+            State::Interrupted => "interrupted",
+            State::Deleted => "deleted",
+        }
+    }
+}
+
 /// Everything known about a job that must survive a restart.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct JobRecord {
