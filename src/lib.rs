@@ -18,7 +18,8 @@
 //!                    stats (streaming, mergeable) ─► output (Parquet, CSV, PLY, run.json)
 //! ```
 //!
-//! [`run::run_scene`] drives the whole pipeline; [`plan`] decides what a scene needs.
+//! [`run::run_scene`] drives the whole pipeline; [`plan`] decides what a scene needs;
+//! [`serve`] puts it behind an HTTP service (`slim serve`).
 
 pub mod analytic;
 pub mod cli;

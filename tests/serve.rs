@@ -337,6 +337,11 @@ fn result_files_support_single_byte_ranges() {
     assert_eq!((status, body.as_slice()), (206, &whole[10..]));
     let ((status, content_range, _, _, _), _) = range(&format!("bytes={len}-"));
     assert_eq!((status, content_range), (416, format!("bytes */{len}")));
+    // HEAD (what remote readers send first) gives the size without the bytes.
+    let head = agent().head(&server.url(&path)).call().unwrap();
+    assert_eq!(head.status(), 200);
+    assert_eq!(head.headers()["content-length"], len.to_string().as_str());
+    assert_eq!(head.headers()["accept-ranges"], "bytes");
     let ((status, _, length, _, _), body) = range("bytes=0-1,4-5");
     assert_eq!((status, length, body), (200, len.to_string(), whole));
 }
