@@ -4,8 +4,10 @@
 //! loads a mesh and prints its inspection report; `slim report RUN_DIR` draws a finished
 //! run's figures and HTML page (`slim run --report` does so right after the run);
 //! `slim render SCENE.toml` writes simulated camera images; `slim fit SCENE.toml IMAGES`
-//! fits reflectance parameters to observed images; `slim compare A B` compares two images' histograms with a χ² test;
-//! `slim photometry MODEL ...` prints a reflectance model's r and I/F at one geometry. Errors are printed as one line and the
+//! fits reflectance parameters to observed images; `slim compare A B` compares two
+//! images' histograms with a χ² test; `slim photometry MODEL ...` prints a reflectance
+//! model's r and I/F at one geometry; `slim serve --data DIR` runs the HTTP service.
+//! Errors are printed as one line and the
 //! exit code is non-zero.
 
 use crate::compare::{compare_images, Bins};
@@ -20,6 +22,7 @@ use crate::report::select::{FacetRef, LatLon};
 use crate::report::{write_report, ReportOptions};
 use crate::run::{run_scene, Progress};
 use crate::scene::Scene;
+use crate::serve::{self, limits::Limits};
 use clap::{Parser, Subcommand, ValueEnum};
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use std::path::PathBuf;
@@ -64,6 +67,8 @@ enum Command {
         #[command(flatten)]
         options: ReportArgs,
     },
+    /// Serve jobs, result files and facet queries over HTTP (README: "Service").
+    Serve(ServeArgs),
     /// Load a mesh and report its size, topology and orientation.
     Info {
         /// The mesh file.
@@ -196,6 +201,77 @@ impl MaterialArgs {
     }
 }
 
+/// `slim serve` options.
+#[derive(clap::Args, Debug)]
+struct ServeArgs {
+    /// The data folder: the catalogue (shapes/, kernels/, scenes/) and the job store (jobs/).
+    #[arg(long)]
+    data: PathBuf,
+    /// Address to listen on (port 0: any free port; the bound address is printed).
+    #[arg(long, default_value = "127.0.0.1:8080")]
+    listen: std::net::SocketAddr,
+    /// File holding the API token required (as "Authorization: Bearer TOKEN") by the
+    /// endpoints that submit or delete jobs. Without it the service is open.
+    #[arg(long, value_name = "FILE")]
+    token_file: Option<PathBuf>,
+    /// Require the token for the read endpoints too.
+    #[arg(long, requires = "token_file")]
+    protect_reads: bool,
+    /// Jobs computed at the same time (others queue).
+    #[arg(long, default_value_t = 1)]
+    workers: usize,
+    /// Threads per job (default: all cores but one, at least one).
+    #[arg(long)]
+    job_threads: Option<usize>,
+    /// Largest request body, bytes.
+    #[arg(long, default_value_t = Limits::default().max_body_bytes)]
+    max_body_bytes: usize,
+    /// Most facets per job.
+    #[arg(long, default_value_t = Limits::default().max_facets)]
+    max_facets: usize,
+    /// Most time steps per job.
+    #[arg(long, default_value_t = Limits::default().max_steps)]
+    max_steps: usize,
+    /// Most facets or places per query.
+    #[arg(long, default_value_t = Limits::default().max_query_targets)]
+    max_query_targets: usize,
+    /// Most values (targets × steps) per on-demand irradiance query.
+    #[arg(long, default_value_t = Limits::default().max_query_values)]
+    max_query_values: usize,
+}
+
+impl ServeArgs {
+    fn config(self) -> Result<serve::Config> {
+        let token = match &self.token_file {
+            Some(path) => {
+                let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+                let token = text.trim().to_string();
+                if token.is_empty() {
+                    return Err(Error::file(path, "the token file is empty"));
+                }
+                Some(token)
+            }
+            None => None,
+        };
+        let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+        Ok(serve::Config {
+            data_dir: self.data,
+            listen: self.listen,
+            token,
+            protect_reads: self.protect_reads,
+            workers: self.workers.max(1),
+            job_threads: self.job_threads.unwrap_or(cores.saturating_sub(1)).max(1),
+            limits: Limits {
+                max_body_bytes: self.max_body_bytes,
+                max_facets: self.max_facets,
+                max_steps: self.max_steps,
+                max_query_targets: self.max_query_targets,
+                max_query_values: self.max_query_values,
+            },
+        })
+    }
+}
+
 /// What the report draws.
 #[derive(clap::Args, Debug)]
 struct ReportArgs {
@@ -299,6 +375,7 @@ fn execute(cli: Cli) -> Result<()> {
             );
             Ok(())
         }
+        Command::Serve(args) => serve::serve(args.config()?),
         Command::Info {
             mesh,
             units,

@@ -58,6 +58,9 @@ pub enum Error {
     /// A command-line argument is invalid.
     #[error("{0}")]
     Usage(String),
+    /// The run was stopped on request before it finished (a cancelled service job).
+    #[error("the run was cancelled")]
+    Cancelled,
 }
 
 impl Error {

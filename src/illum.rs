@@ -71,20 +71,41 @@ impl<'w> Direct<'w> {
     pub fn compute(&self, state: &EpochState, out: &mut [f64]) -> Result<StepCounts> {
         let mut counts = StepCounts::default();
         for (b, body) in self.world.bodies.iter().enumerate() {
-            let sun = checked_sun(body, state, b)?;
-            let own = (!body.convex).then(|| self.tracers[b].toward(sun));
-            let foreign = self.foreign_casters(b, state, sun);
+            let queries = self.sunlight(b, state)?;
             let range = self.offsets[b]..self.offsets[b] + body.mesh.len();
-            counts += self.illuminate_body(
-                b,
-                sun,
-                state.bodies[b].flux_w_m2,
-                own.as_deref(),
-                &foreign,
-                &mut out[range],
-            );
+            counts += self.illuminate_body(b, &queries, &mut out[range]);
         }
         Ok(counts)
+    }
+
+    /// Irradiance (W/m²) at `state` of a few facets, each given as (body index, local
+    /// facet id); only those facets are traced. Meant for the grid tracer, whose Sun
+    /// queries cost nothing to set up.
+    pub fn compute_facets(
+        &self,
+        state: &EpochState,
+        facets: &[(usize, usize)],
+    ) -> Result<Vec<f64>> {
+        let mut counts = StepCounts::default();
+        facets
+            .iter()
+            .map(|&(b, i)| {
+                let queries = self.sunlight(b, state)?;
+                Ok(self.facet_irradiance(b, i, &queries, &mut counts))
+            })
+            .collect()
+    }
+
+    /// Body `b`'s Sun, flux and shadow queries at this step.
+    fn sunlight(&self, b: usize, state: &EpochState) -> Result<Sunlight<'_>> {
+        let body = &self.world.bodies[b];
+        let sun = checked_sun(body, state, b)?;
+        Ok(Sunlight {
+            sun,
+            flux: state.bodies[b].flux_w_m2,
+            own: (!body.convex).then(|| self.tracers[b].toward(sun)),
+            foreign: self.foreign_casters(b, state, sun),
+        })
     }
 
     /// Bodies whose bounding spheres can reach into the receiver's shadow cylinder.
@@ -112,43 +133,14 @@ impl<'w> Direct<'w> {
             .collect()
     }
 
-    fn illuminate_body(
-        &self,
-        b: usize,
-        sun: DVec3,
-        flux: f64,
-        own: Option<&dyn ShadowQuery>,
-        foreign: &[ForeignCaster<'_>],
-        out: &mut [f64],
-    ) -> StepCounts {
-        let mesh = &self.world.bodies[b].mesh;
-        let min_height = &self.min_height_m[b];
+    fn illuminate_body(&self, b: usize, light: &Sunlight<'_>, out: &mut [f64]) -> StepCounts {
         const CHUNK: usize = 1024;
         out.par_chunks_mut(CHUNK)
             .enumerate()
             .map(|(chunk, values)| {
                 let mut counts = StepCounts::default();
                 for (k, e) in values.iter_mut().enumerate() {
-                    let i = chunk * CHUNK + k;
-                    let cos = mesh.normals[i].dot(sun);
-                    if cos <= 0.0 {
-                        counts.night += 1;
-                        *e = 0.0;
-                        continue;
-                    }
-                    let c = mesh.centroids[i];
-                    let t_min = min_height[i] / cos;
-                    let blocked_by_self = own.is_some_and(|q| {
-                        counts.rays += 1;
-                        q.blocked(c, t_min, Some(i as u32))
-                    });
-                    let blocked = blocked_by_self
-                        || foreign.iter().any(|f| {
-                            counts.rays += 1;
-                            f.query.blocked(f.to_caster.point(c), t_min, None)
-                        });
-                    counts.shadowed += blocked as u64;
-                    *e = if blocked { 0.0 } else { flux * cos };
+                    *e = self.facet_irradiance(b, chunk * CHUNK + k, light, &mut counts);
                 }
                 counts
             })
@@ -157,6 +149,48 @@ impl<'w> Direct<'w> {
                 a
             })
     }
+
+    /// Irradiance of facet `i` of body `b`: zero when it faces away from the Sun or the
+    /// ray from its centroid is blocked by its own body or another.
+    fn facet_irradiance(
+        &self,
+        b: usize,
+        i: usize,
+        light: &Sunlight<'_>,
+        counts: &mut StepCounts,
+    ) -> f64 {
+        let mesh = &self.world.bodies[b].mesh;
+        let cos = mesh.normals[i].dot(light.sun);
+        if cos <= 0.0 {
+            counts.night += 1;
+            return 0.0;
+        }
+        let c = mesh.centroids[i];
+        let t_min = self.min_height_m[b][i] / cos;
+        let blocked_by_self = light.own.as_deref().is_some_and(|q| {
+            counts.rays += 1;
+            q.blocked(c, t_min, Some(i as u32))
+        });
+        let blocked = blocked_by_self
+            || light.foreign.iter().any(|f| {
+                counts.rays += 1;
+                f.query.blocked(f.to_caster.point(c), t_min, None)
+            });
+        counts.shadowed += blocked as u64;
+        if blocked {
+            0.0
+        } else {
+            light.flux * cos
+        }
+    }
+}
+
+/// One body's Sun at one step with the shadow queries that serve it.
+struct Sunlight<'q> {
+    sun: DVec3,
+    flux: f64,
+    own: Option<Box<dyn ShadowQuery + 'q>>,
+    foreign: Vec<ForeignCaster<'q>>,
 }
 
 /// The body's Sun direction at this step, checked to be a finite unit vector.

@@ -20,7 +20,8 @@
 //!                    stats (streaming, mergeable) ─► output (Parquet, CSV, PLY, run.json)
 //! ```
 //!
-//! [`run::run_scene`] drives the whole pipeline; [`plan`] decides what a scene needs.
+//! [`run::run_scene`] drives the whole pipeline; [`plan`] decides what a scene needs;
+//! [`serve`] puts it behind an HTTP service (`slim serve`).
 
 pub mod analytic;
 pub mod cli;
@@ -39,6 +40,7 @@ pub mod report;
 pub mod run;
 pub mod scatter;
 pub mod scene;
+pub mod serve;
 pub mod stats;
 pub mod trace;
 pub mod world;

@@ -41,6 +41,11 @@ pub trait Progress: Sync {
     fn step_done(&self);
     /// The step loop is over.
     fn end_steps(&self);
+    /// True when the run should stop early (checked before each step); the run then
+    /// fails with [`Error::Cancelled`] and writes no result.
+    fn cancelled(&self) -> bool {
+        false
+    }
 }
 
 /// Progress that goes nowhere.
@@ -429,6 +434,9 @@ pub fn simulate_with_scatter(
     let mut counts = StepCounts::default();
     progress.begin_steps(states.len() as u64);
     for state in states {
+        if progress.cancelled() {
+            return Err(Error::Cancelled);
+        }
         counts += timings.time("direct irradiance", || {
             direct.compute(state, &mut irradiance)
         })?;

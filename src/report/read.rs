@@ -220,17 +220,20 @@ impl RunData {
 
 /// All record batches of a Parquet file.
 fn read_batches(path: &Path) -> Result<Vec<RecordBatch>> {
+    batches(path)?.collect()
+}
+
+/// The record batches of a Parquet file, read one at a time.
+pub(crate) fn batches(path: &Path) -> Result<impl Iterator<Item = Result<RecordBatch>> + '_> {
     let file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
     let reader = ParquetRecordBatchReaderBuilder::try_new(file)
         .and_then(|b| b.build())
         .map_err(|e| Error::file(path, e.to_string()))?;
-    reader
-        .map(|b| b.map_err(|e| Error::file(path, e.to_string())))
-        .collect()
+    Ok(reader.map(move |b| b.map_err(|e| Error::file(path, e.to_string()))))
 }
 
 /// A typed column of a batch, or an error naming the file and column.
-fn column<'a, T: Array + 'static>(
+pub(crate) fn column<'a, T: Array + 'static>(
     batch: &'a RecordBatch,
     name: &str,
     path: &Path,

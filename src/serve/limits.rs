@@ -1,0 +1,29 @@
+//! Limits: the bounds the service puts on requests and jobs, all configurable on the
+//! command line. Sizes in bytes, counts of facets, steps and targets.
+
+/// The bounds of one service.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Limits {
+    /// Largest request body, bytes.
+    pub max_body_bytes: usize,
+    /// Most facets (all bodies) a job may have.
+    pub max_facets: usize,
+    /// Most time steps a job may have.
+    pub max_steps: usize,
+    /// Most facets or locations one query may name.
+    pub max_query_targets: usize,
+    /// Most values (targets × steps) an on-demand irradiance query may compute.
+    pub max_query_values: usize,
+}
+
+impl Default for Limits {
+    fn default() -> Self {
+        Limits {
+            max_body_bytes: 1 << 20,
+            max_facets: 2_000_000,
+            max_steps: 100_000,
+            max_query_targets: 64,
+            max_query_values: 1_000_000,
+        }
+    }
+}

@@ -1,0 +1,198 @@
+//! Windows: charging windows of one facet from a finished job's irradiance history — the
+//! intervals in which the irradiance stays at or above a threshold for at least a given
+//! duration, the question a rover planner asks before parking.
+//!
+//! In: `history.parquet` (step, TDB seconds, body, facet, W/m²) of a job run with
+//! `[output] history = true`, the run's step length (duration / steps, seconds), a
+//! threshold (W/m²) and a least duration (s). Out: windows with start and end (TDB seconds
+//! past J2000, and UTC), duration (s) and energy (J/m²). Each sample stands for the step
+//! that starts at its epoch, so a window runs from its first sample's epoch to the end of
+//! its last sample's step and its energy is Σ E·Δt.
+
+use super::reply::{ApiError, ApiResult};
+use crate::report::read::{batches, column};
+use arrow::array::{Float64Array, StringArray, UInt32Array};
+use hifitime::{Epoch, TimeScale};
+use serde::{Deserialize, Serialize};
+use std::path::Path;
+
+/// `?body=NAME&facet=ID&threshold_w_m2=X&min_duration_s=Y[&from_tdb_s=..&to_tdb_s=..]`.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct WindowsQuery {
+    pub body: Option<String>,
+    pub facet: usize,
+    pub threshold_w_m2: f64,
+    #[serde(default)]
+    pub min_duration_s: f64,
+    /// Only samples at or after this epoch (TDB seconds past J2000).
+    pub from_tdb_s: Option<f64>,
+    /// Only samples before this epoch.
+    pub to_tdb_s: Option<f64>,
+}
+
+impl WindowsQuery {
+    /// Checks the numbers.
+    pub fn check(&self) -> ApiResult<()> {
+        let finite = [self.threshold_w_m2, self.min_duration_s]
+            .into_iter()
+            .chain(self.from_tdb_s)
+            .chain(self.to_tdb_s)
+            .all(f64::is_finite);
+        if !finite || self.min_duration_s < 0.0 {
+            return Err(ApiError::bad_request(
+                "bad_query",
+                "threshold_w_m2, min_duration_s (≥ 0), from_tdb_s and to_tdb_s must be finite",
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// One charging window.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Window {
+    pub start_tdb_s: f64,
+    pub end_tdb_s: f64,
+    pub start_utc: String,
+    pub end_utc: String,
+    pub duration_s: f64,
+    /// ∫ E dt over the window, J/m².
+    pub energy_j_m2: f64,
+    /// Least irradiance in the window, W/m².
+    pub min_w_m2: f64,
+}
+
+/// The windows of `samples` (epoch in TDB seconds, irradiance W/m², in time order), each
+/// sample standing for `step_s` seconds.
+pub fn charging_windows(
+    samples: &[(f64, f64)],
+    step_s: f64,
+    threshold_w_m2: f64,
+    min_duration_s: f64,
+) -> Vec<Window> {
+    let mut windows = Vec::new();
+    let mut run: Option<(f64, f64, f64, f64)> = None; // start, last epoch, energy, min
+    let mut close = |run: Option<(f64, f64, f64, f64)>| {
+        if let Some((start, last, energy, min)) = run {
+            let end = last + step_s;
+            if end - start >= min_duration_s {
+                windows.push(Window {
+                    start_tdb_s: start,
+                    end_tdb_s: end,
+                    start_utc: utc(start),
+                    end_utc: utc(end),
+                    duration_s: end - start,
+                    energy_j_m2: energy,
+                    min_w_m2: min,
+                });
+            }
+        }
+    };
+    for &(t, e) in samples {
+        // A gap in the samples (a filtered step) ends a window like a dark step does.
+        let contiguous = run.is_some_and(|(_, last, _, _)| t - last <= 1.5 * step_s);
+        if e >= threshold_w_m2 {
+            run = match run {
+                Some((start, _, energy, min)) if contiguous => {
+                    Some((start, t, energy + e * step_s, min.min(e)))
+                }
+                other => {
+                    close(other);
+                    Some((t, t, e * step_s, e))
+                }
+            };
+        } else {
+            close(run.take());
+        }
+    }
+    close(run);
+    windows
+}
+
+/// ISO-8601 UTC of a TDB epoch.
+fn utc(tdb_s: f64) -> String {
+    Epoch::from_tdb_seconds(tdb_s)
+        .to_time_scale(TimeScale::UTC)
+        .to_string()
+}
+
+/// The (TDB seconds, W/m²) samples of one facet from `history.parquet`, in time order.
+pub fn facet_history(dir: &Path, body: &str, facet: u32) -> crate::Result<Vec<(f64, f64)>> {
+    let path = dir.join("history.parquet");
+    let mut samples = Vec::new();
+    for batch in batches(&path)? {
+        let batch = batch?;
+        let bodies = column::<StringArray>(&batch, "body", &path)?;
+        let facets = column::<UInt32Array>(&batch, "facet", &path)?;
+        let epochs = column::<Float64Array>(&batch, "et_tdb_s", &path)?;
+        let values = column::<Float64Array>(&batch, "irradiance_w_m2", &path)?;
+        for r in 0..batch.num_rows() {
+            if facets.value(r) == facet && bodies.value(r) == body {
+                samples.push((epochs.value(r), values.value(r)));
+            }
+        }
+    }
+    samples.sort_by(|a, b| a.0.total_cmp(&b.0));
+    Ok(samples)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// E(t) = S·max(0, cos ωt) sampled every step over one period, centred on noon:
+    /// E ≥ S/2 exactly while |ωt| ≤ π/3, a window of P/3 with energy 2·S·sin(π/3)/ω.
+    #[test]
+    fn one_window_per_day_matches_the_closed_form() {
+        let (s, period, n) = (1000.0, 86_400.0, 3600);
+        let dt = period / n as f64;
+        let omega = std::f64::consts::TAU / period;
+        let samples: Vec<(f64, f64)> = (0..n)
+            .map(|k| {
+                let t = -period / 2.0 + k as f64 * dt;
+                (t, s * (omega * t).cos().max(0.0))
+            })
+            .collect();
+        let w = charging_windows(&samples, dt, s / 2.0, 0.0);
+        assert_eq!(w.len(), 1);
+        assert!(
+            (w[0].duration_s - period / 3.0).abs() <= 2.0 * dt,
+            "{:?}",
+            w[0]
+        );
+        let energy = 2.0 * s * (std::f64::consts::PI / 3.0).sin() / omega;
+        // Riemann sum of a smooth function, plus at most one partial step at each end.
+        assert!(
+            (w[0].energy_j_m2 - energy).abs() <= 2.0 * s * dt,
+            "{} vs {energy}",
+            w[0].energy_j_m2
+        );
+        assert!(w[0].min_w_m2 >= s / 2.0);
+        // The same day asked for windows of at least half a day: none.
+        assert!(charging_windows(&samples, dt, s / 2.0, period / 2.0).is_empty());
+    }
+
+    #[test]
+    fn dark_steps_and_gaps_split_windows() {
+        let samples = [
+            (0.0, 10.0),
+            (1.0, 10.0),
+            (2.0, 0.0),
+            (3.0, 10.0),
+            (4.0, 10.0),
+            (6.0, 10.0),
+        ];
+        let w = charging_windows(&samples, 1.0, 5.0, 0.0);
+        let spans: Vec<(f64, f64, f64)> = w
+            .iter()
+            .map(|w| (w.start_tdb_s, w.end_tdb_s, w.energy_j_m2))
+            .collect();
+        assert_eq!(
+            spans,
+            [(0.0, 2.0, 20.0), (3.0, 5.0, 20.0), (6.0, 7.0, 10.0)]
+        );
+        assert_eq!(charging_windows(&samples, 1.0, 5.0, 2.0).len(), 2);
+        assert!(charging_windows(&[], 1.0, 5.0, 0.0).is_empty());
+    }
+}

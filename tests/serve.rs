@@ -1,0 +1,981 @@
+//! The HTTP service (`slim serve`), started as the real binary on a loopback port and
+//! spoken to with a real HTTP client.
+//!
+//! In: a data folder per test holding the shipped Itokawa 8-level mesh (non-convex, so
+//! shadow rays are traced) and small spin scenes of a few dozen steps. Out: jobs that run
+//! and whose Parquet files are byte-identical to `slim run`'s, HTTP ranges, facet, window
+//! and on-demand queries that agree with the files, a JSON 4xx error for every bad input,
+//! tokens, limits, deletion, and jobs that survive a killed server.
+
+use slim::report::read::RunData;
+use std::io::{BufRead, BufReader};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+// ---------------------------------------------------------------------------------------
+// Helpers
+
+const ITOKAWA: &str = concat!(
+    env!("CARGO_MANIFEST_DIR"),
+    "/data/shapes/itokawa/itokawa_8.obj"
+);
+
+/// A data folder for one test, removed on drop: `shapes/itokawa_8.obj` and
+/// `scenes/ito.toml` (the scene below, with history).
+struct DataDir(PathBuf);
+
+impl DataDir {
+    fn new(test: &str) -> DataDir {
+        let dir =
+            std::env::temp_dir().join(format!("slim-serve-test-{}-{test}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(dir.join("shapes")).unwrap();
+        std::fs::create_dir_all(dir.join("scenes")).unwrap();
+        std::fs::copy(ITOKAWA, dir.join("shapes/itokawa_8.obj")).unwrap();
+        std::fs::write(
+            dir.join("scenes/ito.toml"),
+            scene("../shapes/itokawa_8.obj", 24),
+        )
+        .unwrap();
+        DataDir(dir)
+    }
+
+    fn path(&self) -> &Path {
+        &self.0
+    }
+}
+
+impl Drop for DataDir {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.0);
+    }
+}
+
+/// A spin scene of Itokawa with `steps` steps over one 12 h period, history kept.
+fn scene(mesh: &str, steps: usize) -> String {
+    format!(
+        r#"[run]
+name = "ito"
+
+[output]
+csv = false
+ply = false
+history = true
+
+[ephemeris]
+mode = "spin"
+distance_au = 1.0
+subsolar_latitude_deg = 20.0
+steps_per_period = {steps}
+
+[[body]]
+name = "itokawa"
+mesh = "{mesh}"
+units = "km"
+spin_period_h = 12.0
+"#
+    )
+}
+
+/// The same scene as JSON, paths relative to the data folder.
+fn scene_json(steps: usize) -> serde_json::Value {
+    serde_json::json!({
+        "run": {"name": "ito"},
+        "output": {"csv": false, "ply": false, "history": true},
+        "ephemeris": {"mode": "spin", "distance_au": 1.0, "subsolar_latitude_deg": 20.0,
+                      "steps_per_period": steps},
+        "body": [{"name": "itokawa", "mesh": "shapes/itokawa_8.obj", "units": "km",
+                  "spin_period_h": 12.0}]
+    })
+}
+
+/// A running `slim serve`, killed on drop.
+struct Server {
+    child: Child,
+    base: String,
+}
+
+impl Server {
+    fn start(dir: &Path, extra: &[&str]) -> Server {
+        let mut child = Command::new(env!("CARGO_BIN_EXE_slim"))
+            .args(["serve", "--data"])
+            .arg(dir)
+            .args(["--listen", "127.0.0.1:0", "--job-threads", "1"])
+            .args(extra)
+            .stderr(Stdio::piped())
+            .spawn()
+            .expect("start slim serve");
+        let mut lines = BufReader::new(child.stderr.take().unwrap()).lines();
+        let addr = loop {
+            let line = lines.next().expect("server exited").unwrap();
+            if let Some(addr) = line.strip_prefix("listening on ") {
+                break addr.to_string();
+            }
+        };
+        // Keep draining stderr so the server never blocks on a full pipe.
+        std::thread::spawn(move || for _ in lines {});
+        Server {
+            child,
+            base: format!("http://{addr}"),
+        }
+    }
+
+    fn url(&self, path: &str) -> String {
+        format!("{}{path}", self.base)
+    }
+
+    fn kill(mut self) {
+        self.child.kill().unwrap();
+        self.child.wait().unwrap();
+    }
+}
+
+impl Drop for Server {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+/// An HTTP agent that returns 4xx/5xx responses instead of failing on them.
+fn agent() -> ureq::Agent {
+    ureq::Agent::config_builder()
+        .http_status_as_error(false)
+        .timeout_global(Some(Duration::from_secs(60)))
+        .build()
+        .into()
+}
+
+/// Status and JSON body of a response.
+fn json(r: Result<ureq::http::Response<ureq::Body>, ureq::Error>) -> (u16, serde_json::Value) {
+    let mut r = r.expect("request");
+    let status = r.status().as_u16();
+    let text = r.body_mut().read_to_string().unwrap();
+    let value = serde_json::from_str(&text).unwrap_or_else(|e| panic!("not JSON ({e}): {text}"));
+    (status, value)
+}
+
+fn get(server: &Server, path: &str) -> (u16, serde_json::Value) {
+    json(agent().get(&server.url(path)).call())
+}
+
+fn post_toml(server: &Server, text: &str) -> (u16, serde_json::Value) {
+    json(
+        agent()
+            .post(&server.url("/v1/jobs"))
+            .header("Content-Type", "application/toml")
+            .send(text),
+    )
+}
+
+fn post_json(server: &Server, path: &str, body: &serde_json::Value) -> (u16, serde_json::Value) {
+    json(
+        agent()
+            .post(&server.url(path))
+            .header("Content-Type", "application/json")
+            .send(body.to_string()),
+    )
+}
+
+/// Polls a job until it leaves the queue and finishes; returns its final view.
+fn wait_done(server: &Server, id: &str) -> serde_json::Value {
+    let t0 = Instant::now();
+    loop {
+        let (status, job) = get(server, &format!("/v1/jobs/{id}"));
+        assert_eq!(status, 200, "{job}");
+        let state = job["state"].as_str().unwrap().to_string();
+        if !matches!(state.as_str(), "queued" | "running") {
+            return job;
+        }
+        assert!(
+            t0.elapsed() < Duration::from_secs(120),
+            "job {id} never finished"
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+}
+
+/// Submits a scene and waits for it to succeed; returns the id.
+fn run_job(server: &Server, submit: (u16, serde_json::Value)) -> String {
+    let (status, job) = submit;
+    assert_eq!(status, 202, "{job}");
+    let id = job["id"].as_str().unwrap().to_string();
+    let done = wait_done(server, &id);
+    assert_eq!(done["state"], "succeeded", "{done}");
+    id
+}
+
+fn bytes(server: &Server, path: &str) -> Vec<u8> {
+    let mut r = agent().get(&server.url(path)).call().unwrap();
+    assert_eq!(r.status(), 200, "{path}");
+    r.body_mut()
+        .with_config()
+        .limit(1 << 30)
+        .read_to_vec()
+        .unwrap()
+}
+
+/// Runs `slim run` on a scene file into `out`.
+fn cli_run(scene: &Path, out: &Path) {
+    let status = Command::new(env!("CARGO_BIN_EXE_slim"))
+        .args(["run", "--quiet", "--threads", "1", "-o"])
+        .arg(out)
+        .arg(scene)
+        .status()
+        .unwrap();
+    assert!(status.success());
+}
+
+fn assert_error(reply: (u16, serde_json::Value), status: u16, code: &str) {
+    let (got, body) = reply;
+    assert_eq!(got, status, "{body}");
+    assert_eq!(body["error"]["code"], code, "{body}");
+    assert_eq!(body["error"]["status"], status, "{body}");
+    assert!(!body["error"]["message"].as_str().unwrap().is_empty());
+}
+
+// ---------------------------------------------------------------------------------------
+// Jobs and results
+
+#[test]
+fn jobs_write_the_same_files_as_slim_run() {
+    let data = DataDir::new("same-files");
+    let server = Server::start(data.path(), &[]);
+    let (status, catalogue) = get(&server, "/v1/catalogue");
+    assert_eq!(status, 200);
+    assert_eq!(catalogue["shapes"][0]["path"], "shapes/itokawa_8.obj");
+    assert_eq!(catalogue["scenes"][0]["path"], "scenes/ito.toml");
+
+    let from_file = run_job(
+        &server,
+        post_json(
+            &server,
+            "/v1/jobs",
+            &serde_json::json!({"scene_file": "scenes/ito.toml"}),
+        ),
+    );
+    let from_json = run_job(&server, post_json(&server, "/v1/jobs", &scene_json(24)));
+    let from_toml = run_job(
+        &server,
+        post_toml(&server, &scene("shapes/itokawa_8.obj", 24)),
+    );
+
+    let cli = data.path().join("cli");
+    cli_run(&data.path().join("scenes/ito.toml"), &cli);
+    for file in [
+        "summary.parquet",
+        "cdf.parquet",
+        "geometry.parquet",
+        "history.parquet",
+    ] {
+        let expected = std::fs::read(cli.join(file)).unwrap();
+        for id in [&from_file, &from_json, &from_toml] {
+            assert!(
+                bytes(&server, &format!("/v1/jobs/{id}/{file}")) == expected,
+                "{file} of job {id} differs from slim run's"
+            );
+        }
+    }
+
+    let (status, job) = get(&server, &format!("/v1/jobs/{from_json}"));
+    assert_eq!(status, 200);
+    assert_eq!(job["progress"]["steps_done"], 24);
+    assert_eq!(job["progress"]["steps_total"], 24);
+    assert_eq!(job["plan"]["facets"], 768);
+    assert!(job["timings"]["run_s"].as_f64().unwrap() >= 0.0);
+    assert!(job["timings"]["stages_s"].as_array().unwrap().len() >= 3);
+    assert_eq!(job["results"].as_array().unwrap().len(), 4);
+    let (_, list) = get(&server, "/v1/jobs");
+    assert_eq!(list["jobs"].as_array().unwrap().len(), 3);
+}
+
+#[test]
+fn result_files_support_single_byte_ranges() {
+    let data = DataDir::new("ranges");
+    let server = Server::start(data.path(), &[]);
+    let id = run_job(
+        &server,
+        post_toml(&server, &scene("shapes/itokawa_8.obj", 8)),
+    );
+    let path = format!("/v1/jobs/{id}/summary.parquet");
+    let whole = bytes(&server, &path);
+    let len = whole.len();
+    let range = |spec: &str| {
+        let mut r = agent()
+            .get(&server.url(&path))
+            .header("Range", spec)
+            .call()
+            .unwrap();
+        let h = |name: &str| {
+            r.headers()
+                .get(name)
+                .map(|v| v.to_str().unwrap().to_string())
+                .unwrap_or_default()
+        };
+        let head = (
+            r.status().as_u16(),
+            h("content-range"),
+            h("content-length"),
+            h("accept-ranges"),
+            h("content-type"),
+        );
+        (head, r.body_mut().read_to_vec().unwrap())
+    };
+    let ((status, content_range, length, accept, kind), body) = range("bytes=0-3");
+    assert_eq!((status, body.as_slice()), (206, b"PAR1".as_slice()));
+    assert_eq!(content_range, format!("bytes 0-3/{len}"));
+    assert_eq!((length.as_str(), accept.as_str()), ("4", "bytes"));
+    assert_eq!(kind, "application/vnd.apache.parquet");
+    let ((status, content_range, _, _, _), body) = range("bytes=-8");
+    assert_eq!((status, body.as_slice()), (206, &whole[len - 8..]));
+    assert_eq!(
+        content_range,
+        format!("bytes {}-{}/{len}", len - 8, len - 1)
+    );
+    let ((status, _, _, _, _), body) = range(&format!("bytes=10-{}", len + 100));
+    assert_eq!((status, body.as_slice()), (206, &whole[10..]));
+    let ((status, content_range, _, _, _), _) = range(&format!("bytes={len}-"));
+    assert_eq!((status, content_range), (416, format!("bytes */{len}")));
+    // HEAD (what remote readers send first) gives the size without the bytes.
+    let head = agent().head(&server.url(&path)).call().unwrap();
+    assert_eq!(head.status(), 200);
+    assert_eq!(head.headers()["content-length"], len.to_string().as_str());
+    assert_eq!(head.headers()["accept-ranges"], "bytes");
+    let ((status, _, length, _, _), body) = range("bytes=0-1,4-5");
+    assert_eq!((status, length, body), (200, len.to_string(), whole));
+}
+
+// ---------------------------------------------------------------------------------------
+// Queries
+
+/// The history of one facet from a result folder: irradiance per step, W/m².
+fn history_of(dir: &Path, facet: u32) -> Vec<f64> {
+    use arrow::array::{Float64Array, UInt32Array, UInt64Array};
+    let file = std::fs::File::open(dir.join("history.parquet")).unwrap();
+    let reader = parquet::arrow::arrow_reader::ParquetRecordBatchReaderBuilder::try_new(file)
+        .unwrap()
+        .build()
+        .unwrap();
+    let mut rows = Vec::new();
+    for batch in reader {
+        let batch = batch.unwrap();
+        let col = |n: &str| batch.column_by_name(n).unwrap().clone();
+        let step = col("step");
+        let step = step.as_any().downcast_ref::<UInt64Array>().unwrap();
+        let f = col("facet");
+        let f = f.as_any().downcast_ref::<UInt32Array>().unwrap();
+        let e = col("irradiance_w_m2");
+        let e = e.as_any().downcast_ref::<Float64Array>().unwrap();
+        for r in 0..batch.num_rows() {
+            if f.value(r) == facet {
+                rows.push((step.value(r), e.value(r)));
+            }
+        }
+    }
+    rows.sort_by_key(|r| r.0);
+    rows.into_iter().map(|r| r.1).collect()
+}
+
+#[test]
+fn facet_window_and_point_queries_agree_with_the_files() {
+    let data = DataDir::new("queries");
+    let server = Server::start(data.path(), &[]);
+    let steps = 48;
+    let id = run_job(&server, post_json(&server, "/v1/jobs", &scene_json(steps)));
+    let result = data.path().join("jobs").join(&id).join("result");
+    let run = RunData::read(&result).unwrap();
+    let facets = &run.bodies[0].facets;
+    // The brightest and a partly shadowed facet (lit some of the time, not always).
+    let partly = (0..facets.len())
+        .find(|&k| facets.lit_fraction[k] > 0.2 && facets.lit_fraction[k] < 0.5)
+        .expect("a partly lit facet");
+
+    // Statistics and CDF.
+    let (status, answer) = get(
+        &server,
+        &format!("/v1/jobs/{id}/facets?body=itokawa&ids=0,{partly}&cdf=true"),
+    );
+    assert_eq!(status, 200, "{answer}");
+    let f = &answer["facets"][1];
+    assert_eq!(f["facet"], partly);
+    assert_eq!(f["mean_w_m2"].as_f64().unwrap(), facets.mean_w_m2[partly]);
+    assert_eq!(
+        f["lit_fraction"].as_f64().unwrap(),
+        facets.lit_fraction[partly]
+    );
+    let cdf: Vec<f64> = serde_json::from_value(f["cdf"].clone()).unwrap();
+    assert_eq!(cdf, run.bodies[0].cdf.facet(partly));
+    assert_eq!(
+        answer["cdf_thresholds_w_m2"].as_array().unwrap().len(),
+        run.bodies[0].cdf.thresholds_w_m2.len()
+    );
+
+    // Nearest facet to a facet's own centroid is that facet.
+    let c = facets.centroid_m[partly];
+    let (status, near) = get(
+        &server,
+        &format!("/v1/jobs/{id}/nearest?x_m={}&y_m={}&z_m={}", c.x, c.y, c.z),
+    );
+    assert_eq!(
+        (status, near["facet"].as_u64()),
+        (200, Some(partly as u64)),
+        "{near}"
+    );
+    let (lat, lon) = facets.lat_lon_deg(partly);
+    let (status, near) = get(
+        &server,
+        &format!("/v1/jobs/{id}/nearest?lat_deg={lat}&lon_deg={lon}"),
+    );
+    assert_eq!(status, 200);
+    assert!(
+        (near["lat_deg"].as_f64().unwrap() - lat).abs() < 1e-9,
+        "{near}"
+    );
+
+    // Windows above ~0 W/m² cover exactly the lit time and hold all the energy:
+    // Σ duration = lit fraction × period, Σ energy = mean × period.
+    let period = 12.0 * 3600.0;
+    let (status, w) = get(
+        &server,
+        &format!("/v1/jobs/{id}/windows?facet={partly}&threshold_w_m2=1e-9"),
+    );
+    assert_eq!(status, 200, "{w}");
+    let windows = w["windows"].as_array().unwrap();
+    assert!(!windows.is_empty());
+    let total = |key: &str| {
+        windows
+            .iter()
+            .map(|w| w[key].as_f64().unwrap())
+            .sum::<f64>()
+    };
+    let lit = facets.lit_fraction[partly] * period;
+    assert!(
+        (total("duration_s") - lit).abs() < 1e-6 * period,
+        "{} vs {lit}",
+        total("duration_s")
+    );
+    let energy = facets.mean_w_m2[partly] * period;
+    assert!(
+        (total("energy_j_m2") - energy).abs() < 1e-9 * energy,
+        "{} vs {energy}",
+        total("energy_j_m2")
+    );
+    let longest = windows
+        .iter()
+        .map(|w| w["duration_s"].as_f64().unwrap())
+        .fold(0.0, f64::max);
+    let (_, fewer) = get(
+        &server,
+        &format!(
+            "/v1/jobs/{id}/windows?facet={partly}&threshold_w_m2=1e-9&min_duration_s={longest}"
+        ),
+    );
+    assert!(fewer["windows"].as_array().unwrap().len() <= windows.len());
+    assert!(fewer["windows"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .all(|w| w["duration_s"].as_f64().unwrap() >= longest));
+
+    // On-demand series for two facets and a place equal the job's history.
+    let request = serde_json::json!({
+        "targets": [{"facet": partly}, {"body": "itokawa", "facet": 0},
+                    {"point_m": [c.x, c.y, c.z]}],
+        "from_step": 0
+    });
+    let (status, series) = post_json(&server, &format!("/v1/jobs/{id}/irradiance"), &request);
+    assert_eq!(status, 200, "{series}");
+    assert_eq!(series["steps"].as_array().unwrap().len(), steps);
+    for (k, facet) in [(0, partly), (1, 0), (2, partly)] {
+        let got: Vec<f64> =
+            serde_json::from_value(series["series"][k]["irradiance_w_m2"].clone()).unwrap();
+        assert_eq!(series["series"][k]["facet"], facet);
+        assert_eq!(got, history_of(&result, facet as u32), "target {k}");
+    }
+    // A window of steps, asked twice (the second time from the cached engine), and the
+    // same window by epochs.
+    let epochs: Vec<f64> = serde_json::from_value(series["et_tdb_s"].clone()).unwrap();
+    let by_steps =
+        serde_json::json!({"targets": [{"facet": partly}], "from_step": 10, "to_step": 20});
+    let by_epochs = serde_json::json!({"targets": [{"facet": partly}],
+        "from_tdb_s": epochs[10] - 1.0, "to_tdb_s": epochs[20] - 1.0});
+    for window in [&by_steps, &by_steps, &by_epochs] {
+        let (status, part) = post_json(&server, &format!("/v1/jobs/{id}/irradiance"), window);
+        assert_eq!(status, 200, "{part}");
+        let got: Vec<f64> =
+            serde_json::from_value(part["series"][0]["irradiance_w_m2"].clone()).unwrap();
+        assert_eq!(got, history_of(&result, partly as u32)[10..20]);
+        assert_eq!(part["steps"][0], 10);
+    }
+}
+
+// ---------------------------------------------------------------------------------------
+// Durability and deletion
+
+/// A job long enough to be caught running (tens of thousands of steps).
+fn slow_scene() -> String {
+    scene("shapes/itokawa_8.obj", 40_000)
+}
+
+/// Waits until a job has done some steps.
+fn wait_running(server: &Server, id: &str) {
+    let t0 = Instant::now();
+    loop {
+        let (_, job) = get(server, &format!("/v1/jobs/{id}"));
+        if job["state"] == "running" && job["progress"]["steps_done"].as_u64().unwrap() > 0 {
+            return;
+        }
+        assert_ne!(
+            job["state"], "succeeded",
+            "the slow job was too fast: {job}"
+        );
+        assert!(t0.elapsed() < Duration::from_secs(60), "job {id} never ran");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
+#[test]
+fn a_killed_server_keeps_finished_jobs_and_reports_interrupted_ones() {
+    let data = DataDir::new("restart");
+    let server = Server::start(data.path(), &[]);
+    let done = run_job(
+        &server,
+        post_toml(&server, &scene("shapes/itokawa_8.obj", 8)),
+    );
+    let summary = bytes(&server, &format!("/v1/jobs/{done}/summary.parquet"));
+    let (_, before) = get(&server, &format!("/v1/jobs/{done}"));
+    let (status, slow) = post_toml(&server, &slow_scene());
+    assert_eq!(status, 202);
+    let slow = slow["id"].as_str().unwrap().to_string();
+    let (_, queued) = post_toml(&server, &scene("shapes/itokawa_8.obj", 8));
+    let queued = queued["id"].as_str().unwrap().to_string();
+    wait_running(&server, &slow);
+    server.kill();
+
+    let server = Server::start(data.path(), &[]);
+    let (_, after) = get(&server, &format!("/v1/jobs/{done}"));
+    assert_eq!(after, before);
+    assert_eq!(
+        bytes(&server, &format!("/v1/jobs/{done}/summary.parquet")),
+        summary
+    );
+    let (_, job) = get(&server, &format!("/v1/jobs/{slow}"));
+    assert_eq!(job["state"], "interrupted", "{job}");
+    assert!(job["error"].as_str().unwrap().contains("stopped"));
+    assert_error(
+        get(&server, &format!("/v1/jobs/{slow}/summary.parquet")),
+        409,
+        "job_not_finished",
+    );
+    // The job that was still queued runs after the restart.
+    assert_eq!(wait_done(&server, &queued)["state"], "succeeded");
+}
+
+#[test]
+fn deleting_jobs_removes_them_running_or_finished() {
+    let data = DataDir::new("delete");
+    let server = Server::start(data.path(), &[]);
+    let done = run_job(
+        &server,
+        post_toml(&server, &scene("shapes/itokawa_8.obj", 8)),
+    );
+    let (_, slow) = post_toml(&server, &slow_scene());
+    let slow = slow["id"].as_str().unwrap().to_string();
+    wait_running(&server, &slow);
+    let (_, queued) = post_toml(&server, &scene("shapes/itokawa_8.obj", 8));
+    let queued = queued["id"].as_str().unwrap().to_string();
+    assert_eq!(
+        get(&server, &format!("/v1/jobs/{queued}")).1["state"],
+        "queued"
+    );
+    for id in [&queued, &done, &slow] {
+        let r = agent()
+            .delete(&server.url(&format!("/v1/jobs/{id}")))
+            .call()
+            .unwrap();
+        assert_eq!(r.status(), 204);
+        assert_error(get(&server, &format!("/v1/jobs/{id}")), 404, "unknown_job");
+    }
+    let t0 = Instant::now();
+    while data.path().join("jobs").join(&slow).exists() {
+        assert!(
+            t0.elapsed() < Duration::from_secs(30),
+            "the cancelled job's folder stays"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    assert!(!data.path().join("jobs").join(&done).exists());
+    assert!(!data.path().join("jobs").join(&queued).exists());
+    assert_error(
+        json(
+            agent()
+                .delete(&server.url(&format!("/v1/jobs/{done}")))
+                .call(),
+        ),
+        404,
+        "unknown_job",
+    );
+    // The service still runs jobs after a cancellation.
+    run_job(
+        &server,
+        post_toml(&server, &scene("shapes/itokawa_8.obj", 8)),
+    );
+}
+
+// ---------------------------------------------------------------------------------------
+// Bad input, limits and access
+
+#[test]
+fn every_bad_request_gets_a_json_4xx() {
+    let data = DataDir::new("errors");
+    // A link inside the catalogue to a file outside it (this test's own executable).
+    #[cfg(unix)]
+    std::os::unix::fs::symlink(
+        std::env::current_exe().unwrap(),
+        data.path().join("shapes/escape.obj"),
+    )
+    .unwrap();
+    let server = Server::start(
+        data.path(),
+        &[
+            "--max-facets",
+            "1000",
+            "--max-steps",
+            "500",
+            "--max-body-bytes",
+            "4096",
+        ],
+    );
+    let s = &server;
+    let with_mesh = |mesh: &str| scene(mesh, 8);
+
+    // The catalogue lists neither the outward link nor anything through a looping link.
+    #[cfg(unix)]
+    std::os::unix::fs::symlink(data.path().join("shapes"), data.path().join("shapes/loop"))
+        .unwrap();
+    let (status, catalogue) = get(s, "/v1/catalogue");
+    assert_eq!(status, 200);
+    assert_eq!(
+        catalogue["shapes"].as_array().unwrap().len(),
+        1,
+        "{catalogue}"
+    );
+
+    // Routes and jobs that do not exist.
+    assert_error(get(s, "/v1/nothing"), 404, "unknown_route");
+    assert_error(get(s, "/v1/jobs/0123456789abcdef"), 404, "unknown_job");
+    assert_error(
+        get(s, "/v1/jobs/..%2f..%2fetc/summary.parquet"),
+        404,
+        "unknown_job",
+    );
+    assert_error(
+        json(agent().put(&s.url("/v1/jobs")).send("x")),
+        405,
+        "method_not_allowed",
+    );
+
+    // Bodies that are not scenes.
+    assert_error(
+        post_json(s, "/v1/jobs", &serde_json::json!([1, 2])),
+        400,
+        "malformed_body",
+    );
+    assert_error(
+        json(
+            agent()
+                .post(&s.url("/v1/jobs"))
+                .header("Content-Type", "application/json")
+                .send("{not json"),
+        ),
+        400,
+        "malformed_body",
+    );
+    assert_error(
+        json(
+            agent()
+                .post(&s.url("/v1/jobs"))
+                .header("Content-Type", "image/png")
+                .send("x"),
+        ),
+        415,
+        "unsupported_media_type",
+    );
+    assert_error(post_toml(s, "this is [not toml"), 422, "bad_scene");
+    assert_error(
+        post_toml(
+            s,
+            &with_mesh("shapes/itokawa_8.obj").replace("units = \"km\"", "units = \"furlong\""),
+        ),
+        422,
+        "bad_scene",
+    );
+    let mut bad_json = scene_json(8);
+    bad_json["ephemeris"]["distance_au"] = serde_json::json!(-1.0);
+    assert_error(post_json(s, "/v1/jobs", &bad_json), 422, "bad_scene");
+    bad_json["ephemeris"]["distance_au"] = serde_json::Value::Null;
+    assert_error(post_json(s, "/v1/jobs", &bad_json), 422, "bad_scene");
+    assert_error(post_toml(s, &"#".repeat(5000)), 413, "body_too_large");
+
+    // Catalogue entries that do not exist, and paths that try to leave the data folder.
+    assert_error(
+        post_toml(s, &with_mesh("shapes/nothing.obj")),
+        404,
+        "unknown_catalogue_entry",
+    );
+    assert_error(
+        post_json(
+            s,
+            "/v1/jobs",
+            &serde_json::json!({"scene_file": "scenes/nothing.toml"}),
+        ),
+        404,
+        "unknown_catalogue_entry",
+    );
+    assert_error(
+        post_toml(s, &with_mesh("../slim-serve-secret.obj")),
+        403,
+        "path_outside_data",
+    );
+    assert_error(
+        post_toml(s, &with_mesh("shapes/../../slim-serve-secret.obj")),
+        403,
+        "path_outside_data",
+    );
+    assert_error(
+        post_toml(s, &with_mesh("/etc/hostname")),
+        403,
+        "path_outside_data",
+    );
+    #[cfg(unix)]
+    assert_error(
+        post_toml(s, &with_mesh("shapes/escape.obj")),
+        403,
+        "path_outside_data",
+    );
+    assert_error(
+        post_json(
+            s,
+            "/v1/jobs",
+            &serde_json::json!({"scene_file": "../slim-serve-secret.obj"}),
+        ),
+        403,
+        "path_outside_data",
+    );
+    assert_error(
+        post_json(
+            s,
+            "/v1/jobs",
+            &serde_json::json!({"scene_file": "/etc/hostname"}),
+        ),
+        403,
+        "path_outside_data",
+    );
+
+    // Limits per job.
+    let big = with_mesh("shapes/itokawa_8.obj").replace(
+        "mesh = \"shapes/itokawa_8.obj\"\nunits = \"km\"",
+        "ellipsoid = { radii_km = [1.0, 1.0, 1.0], levels = 3 }",
+    );
+    assert_error(post_toml(s, &big), 422, "limit_exceeded");
+    assert_error(
+        post_toml(s, &scene("shapes/itokawa_8.obj", 501)),
+        422,
+        "limit_exceeded",
+    );
+
+    // Queries: unfinished jobs, bad facet ids, bodies, places and targets.
+    let id = run_job(s, post_toml(s, &scene("shapes/itokawa_8.obj", 8)));
+    let (_, no_history) = post_toml(
+        s,
+        &with_mesh("shapes/itokawa_8.obj").replace("history = true", "history = false"),
+    );
+    let no_history = no_history["id"].as_str().unwrap().to_string();
+    let q = |path: &str| get(s, &format!("/v1/jobs/{id}/{path}"));
+    assert_error(q("facets?ids=abc"), 400, "bad_facet_id");
+    assert_error(q("facets?ids=-1"), 400, "bad_facet_id");
+    assert_error(q("facets?ids=768"), 404, "unknown_facet");
+    assert_error(q("facets?body=moon&ids=1"), 404, "unknown_body");
+    assert_error(q("facets"), 400, "bad_request");
+    assert_error(q("facets?ids=1&colour=red"), 400, "bad_request");
+    assert_error(q("nearest?lat_deg=95&lon_deg=0"), 400, "bad_place");
+    assert_error(q("nearest?x_m=1&y_m=2"), 400, "bad_place");
+    assert_error(q("nearest?lat_deg=abc&lon_deg=0"), 400, "bad_request");
+    assert_error(
+        q("windows?facet=9999&threshold_w_m2=10"),
+        404,
+        "unknown_facet",
+    );
+    assert_error(
+        q("windows?facet=1&threshold_w_m2=10&min_duration_s=-5"),
+        400,
+        "bad_query",
+    );
+    wait_done(s, &no_history);
+    assert_error(
+        get(
+            s,
+            &format!("/v1/jobs/{no_history}/windows?facet=1&threshold_w_m2=10"),
+        ),
+        409,
+        "no_history",
+    );
+    assert_error(
+        get(s, &format!("/v1/jobs/{no_history}/history.parquet")),
+        404,
+        "no_such_result",
+    );
+    let irradiance = format!("/v1/jobs/{id}/irradiance");
+    let target = |t: serde_json::Value| serde_json::json!({"targets": [t]});
+    assert_error(
+        post_json(s, &irradiance, &serde_json::json!({"targets": "all"})),
+        400,
+        "malformed_body",
+    );
+    assert_error(
+        post_json(s, &irradiance, &target(serde_json::json!({"facet": 5000}))),
+        404,
+        "unknown_facet",
+    );
+    assert_error(
+        post_json(
+            s,
+            &irradiance,
+            &target(serde_json::json!({"facet": 1, "lat_deg": 3})),
+        ),
+        400,
+        "bad_target",
+    );
+    assert_error(
+        post_json(s, &irradiance, &target(serde_json::json!({"lat_deg": 3}))),
+        400,
+        "bad_place",
+    );
+    assert_error(
+        post_json(
+            s,
+            &irradiance,
+            &target(serde_json::json!({"body": "x", "facet": 1})),
+        ),
+        404,
+        "unknown_body",
+    );
+    assert_error(
+        post_json(
+            s,
+            &irradiance,
+            &serde_json::json!({"targets": [{"facet": 1}], "from_step": 5, "to_step": 99}),
+        ),
+        400,
+        "bad_steps",
+    );
+    assert_error(
+        post_json(s, &irradiance, &serde_json::json!({"targets": []})),
+        422,
+        "limit_exceeded",
+    );
+    assert_error(
+        get(s, "/v1/jobs/0123456789abcdef/facets?ids=1"),
+        404,
+        "unknown_job",
+    );
+}
+
+#[test]
+fn the_token_guards_mutating_endpoints_and_optionally_reads() {
+    let data = DataDir::new("token");
+    let token_file = data.path().join("token");
+    std::fs::write(&token_file, "s3cret\n").unwrap();
+    let token = ["--token-file", token_file.to_str().unwrap()];
+    let server = Server::start(data.path(), &token);
+    let body = scene("shapes/itokawa_8.obj", 8);
+    assert_error(post_toml(&server, &body), 401, "unauthorized");
+    let wrong = agent()
+        .post(&server.url("/v1/jobs"))
+        .header("Content-Type", "application/toml")
+        .header("Authorization", "Bearer guess")
+        .send(&body);
+    assert_error(json(wrong), 401, "unauthorized");
+    let right = agent()
+        .post(&server.url("/v1/jobs"))
+        .header("Content-Type", "application/toml")
+        .header("Authorization", "Bearer s3cret")
+        .send(&body);
+    let id = run_job(&server, json(right));
+    assert_eq!(get(&server, "/v1/jobs").0, 200);
+    assert_error(
+        json(
+            agent()
+                .delete(&server.url(&format!("/v1/jobs/{id}")))
+                .call(),
+        ),
+        401,
+        "unauthorized",
+    );
+    server.kill();
+
+    let server = Server::start(data.path(), &[&token[..], &["--protect-reads"]].concat());
+    assert_error(get(&server, "/v1/jobs"), 401, "unauthorized");
+    assert_error(
+        get(&server, &format!("/v1/jobs/{id}/summary.parquet")),
+        401,
+        "unauthorized",
+    );
+    let (status, _) = json(
+        agent()
+            .get(&server.url(&format!("/v1/jobs/{id}")))
+            .header("Authorization", "Bearer s3cret")
+            .call(),
+    );
+    assert_eq!(status, 200);
+}
+
+// ---------------------------------------------------------------------------------------
+// OpenAPI
+
+#[test]
+fn openapi_matches_the_route_table() {
+    use slim::serve::routes::{table, Access};
+    use std::collections::BTreeSet;
+    let text =
+        std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/api/openapi.json")).unwrap();
+    let spec: serde_json::Value = serde_json::from_str(&text).unwrap();
+    assert_eq!(spec["openapi"], "3.1.0");
+    let methods = [
+        "get", "put", "post", "delete", "patch", "head", "options", "trace",
+    ];
+    let mut documented = BTreeSet::new();
+    for (path, item) in spec["paths"].as_object().unwrap() {
+        for (method, op) in item.as_object().unwrap() {
+            if methods.contains(&method.as_str()) {
+                documented.insert((
+                    method.to_uppercase(),
+                    path.clone(),
+                    op.get("security").is_some(),
+                ));
+            }
+        }
+    }
+    let routed: BTreeSet<(String, String, bool)> = table()
+        .into_iter()
+        .map(|r| {
+            (
+                r.method.to_string(),
+                r.path.to_string(),
+                r.access == Access::Write,
+            )
+        })
+        .collect();
+    assert_eq!(
+        documented, routed,
+        "api/openapi.json and the route table differ (method, path, needs token)"
+    );
+    // Every $ref names a schema that exists.
+    let schemas = spec["components"]["schemas"].as_object().unwrap();
+    for reference in text.match_indices("#/components/schemas/") {
+        let rest = &text[reference.0 + reference.1.len()..];
+        let name = &rest[..rest.find('"').unwrap()];
+        assert!(schemas.contains_key(name), "$ref to missing schema {name}");
+    }
+}
