@@ -24,6 +24,7 @@
 //! [`serve`] puts it behind an HTTP service (`slim serve`).
 
 pub mod analytic;
+pub mod bands;
 pub mod cli;
 pub mod compare;
 pub mod ephemeris;

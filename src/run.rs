@@ -4,6 +4,7 @@
 //! [`crate::output`] and the [`RunRecord`] also saved as `run.json`. Progress is reported
 //! through [`Progress`] so the CLI can draw a bar and a service can track jobs.
 
+use crate::bands::Bands;
 use crate::ephemeris::fixed::{normalized_direction, FixedGeometry, FixedSun};
 use crate::ephemeris::spice::{parse_aberration, Kernels, SpiceBody, SpiceEphemeris, SpiceMember};
 use crate::ephemeris::spin::{Spin, SpinModel};
@@ -395,6 +396,7 @@ pub fn simulate(
         states,
         tracer,
         None,
+        None,
         bins,
         timings,
         progress,
@@ -411,6 +413,7 @@ pub fn simulate_with_scatter(
     states: &[EpochState],
     tracer: TracerKind,
     scatter: Option<ScatterSettings>,
+    mut bands: Option<&mut Bands>,
     bins: Bins,
     timings: &mut Timings,
     progress: &dyn Progress,
@@ -467,6 +470,11 @@ pub fn simulate_with_scatter(
                 }
             }
         };
+        if let Some(bands) = bands.as_deref_mut() {
+            timings.time("spectral bands", || {
+                bands.add_step(state, &irradiance, scatter.as_mut())
+            });
+        }
         timings.time("history", || on_step(state, step))?;
         progress.step_done();
     }
@@ -543,17 +551,26 @@ pub fn run_scene(scene: &Scene, out_dir: &Path, progress: &dyn Progress) -> Resu
         .output
         .history
         .then(|| HistoryWriter::new(out_dir, csv, &world));
+    let mut bands = Bands::from_scene(scene, &world, scatter.as_ref(), bins)?;
     let sim = simulate_with_scatter(
         &world,
         &states,
         scene.run.tracer,
         scatter,
+        bands.as_mut(),
         bins,
         &mut timings,
         progress,
         |s, e| history.as_mut().map_or(Ok(()), |h| h.write_step(s, e)),
     )?;
-    let parts = sim.parts.as_ref().map(|p| (&p.direct, &p.scattered));
+    let mut named: Vec<(String, &FacetStats)> = Vec::new();
+    if let Some(p) = &sim.parts {
+        named.push(("direct".into(), &p.direct));
+        named.push(("scattered".into(), &p.scattered));
+    }
+    let band_parts = bands.map(Bands::into_parts).unwrap_or_default();
+    named.extend(band_parts.iter().map(|(name, stats)| (name.clone(), stats)));
+    let parts = &named[..];
     let mut outputs = timings.time("output", || -> Result<Vec<_>> {
         let mut files = output::write_summary(out_dir, csv, &world, &sim.stats, parts)?;
         files.extend(output::write_cdf(out_dir, csv, &world, &sim.stats, parts)?);

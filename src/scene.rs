@@ -373,6 +373,9 @@ pub struct BodySection {
     /// Per-facet albedo: a text file with one value per line in facet order (`#` starts a
     /// comment), relative to the scene file.
     pub albedo_file: Option<PathBuf>,
+    /// Albedo per `[[band]]` name (with `[scatter]`); bands left out use the albedo above.
+    #[serde(default)]
+    pub albedo_bands: std::collections::BTreeMap<String, f64>,
 }
 
 impl BodySection {
@@ -853,6 +856,13 @@ impl Scene {
         };
         for (i, b) in self.bodies.iter().enumerate() {
             albedo(&format!("body[{i}].albedo"), b.albedo)?;
+            for (name, value) in &b.albedo_bands {
+                let key = format!("body[{i}].albedo_bands.{name}");
+                if !self.bands.iter().any(|band| &band.name == name) {
+                    return Err(self.err(key, "no [[band]] has this name"));
+                }
+                albedo(&key, Some(*value))?;
+            }
             if b.albedo.is_some() && b.albedo_file.is_some() {
                 return Err(self.err(
                     format!("body[{i}]"),

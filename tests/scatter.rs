@@ -723,3 +723,93 @@ fn a_lommel_seeliger_first_bounce_matches_the_closed_form() {
         "the receiver faces away from the Sun and sends nothing"
     );
 }
+
+// ---------------------------------------------------------------------------------------
+// Spectral bands
+
+/// Summary means (`mean_w_m2` and `names`) of a bowl run with `extra` appended.
+fn bowl_means(dir: &TempDir, tag: &str, extra: &str, names: &[&str]) -> Vec<Vec<f64>> {
+    let sub = dir.0.join(tag);
+    std::fs::create_dir_all(&sub).unwrap();
+    let scene = slim::scene::Scene::load(&bowl_scene(&sub, extra)).unwrap();
+    slim::run::run_scene(&scene, &sub.join("out"), &slim::run::Silent).unwrap();
+    let (h, rows) = csv_columns(&sub.join("out/summary.csv"));
+    names.iter().map(|n| column(&h, &rows, n)).collect()
+}
+
+#[test]
+fn bands_take_their_share_of_the_flux_and_scatter_with_their_own_albedo() {
+    let dir = TempDir::new("bands");
+    let solve = "[scatter]\nsolver = \"cg\"\ntolerance = 1e-12\n";
+    let bands = "[[band]]\nname = \"blue\"\nsolar_constant_w_m2 = 400.0\n\
+                 [[band]]\nname = \"red\"\nsolar_constant_w_m2 = 961.0\n";
+    let with_bands = format!("albedo = 0.3\nalbedo_bands = {{ red = 0.6 }}\n{solve}{bands}");
+    let got = bowl_means(
+        &dir,
+        "bands",
+        &with_bands,
+        &[
+            "mean_w_m2",
+            "band_blue_mean_w_m2",
+            "band_red_mean_w_m2",
+            "bands_mean_w_m2",
+        ],
+    );
+    // Independent runs without bands: the broadband result at albedo 0.3 and at 0.6.
+    let at_03 = &got[0];
+    let at_06 = &bowl_means(
+        &dir,
+        "red",
+        &format!("albedo = 0.6\n{solve}"),
+        &["mean_w_m2"],
+    )[0];
+    let (blue_share, red_share) = (400.0 / 1361.0, 961.0 / 1361.0);
+    let close = |a: f64, b: f64| (a - b).abs() <= 1e-9 * b.abs().max(1.0);
+    for i in 0..at_03.len() {
+        let (blue, red, sum) = (got[1][i], got[2][i], got[3][i]);
+        assert!(
+            close(blue, blue_share * at_03[i]),
+            "facet {i}: {blue} vs {}",
+            blue_share * at_03[i]
+        );
+        assert!(
+            close(red, red_share * at_06[i]),
+            "facet {i}: {red} vs {}",
+            red_share * at_06[i]
+        );
+        assert!(close(sum, blue + red), "facet {i}");
+    }
+    // The red band's higher albedo adds light everywhere the bowl scatters.
+    assert!((0..at_03.len()).all(|i| got[2][i] >= red_share * at_03[i]));
+    assert!((0..at_03.len()).any(|i| got[2][i] > 1.05 * red_share * at_03[i]));
+}
+
+#[test]
+fn without_scattering_a_band_is_its_share_of_the_direct_light() {
+    let dir = TempDir::new("bands-direct");
+    let bands = "[[band]]\nname = \"blue\"\nsolar_constant_w_m2 = 400.0\n";
+    let got = bowl_means(
+        &dir,
+        "d",
+        bands,
+        &["mean_w_m2", "band_blue_mean_w_m2", "bands_mean_w_m2"],
+    );
+    for ((broadband, blue), sum) in got[0].iter().zip(&got[1]).zip(&got[2]) {
+        assert!((blue - 400.0 / 1361.0 * broadband).abs() <= 1e-12 * broadband.max(1.0));
+        assert_eq!(blue, sum);
+    }
+}
+
+#[test]
+fn band_albedos_must_name_a_band() {
+    let dir = TempDir::new("band-keys");
+    let path = bowl_scene(
+        &dir.0,
+        "albedo = 0.3\nalbedo_bands = { green = 0.6 }\n[scatter]\n",
+    );
+    let err = slim::scene::Scene::load(&path).unwrap_err().to_string();
+    assert!(
+        err.contains("body[0].albedo_bands.green") && err.contains("band"),
+        "{err}"
+    );
+}

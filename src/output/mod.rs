@@ -30,41 +30,28 @@ use table::{Table, TableWriter, Values};
 /// Rows per batch when writing the per-facet tables.
 const FACETS_PER_BATCH: usize = 1 << 14;
 
-/// Statistics of the direct and scattered parts, when the run has scattered light.
-pub type Parts<'a> = Option<(&'a FacetStats, &'a FacetStats)>;
+/// Named statistics beside the total: `direct` and `scattered` with scattered light,
+/// `band_NAME` and `bands` with spectral bands.
+pub type Parts<'a> = &'a [(String, &'a FacetStats)];
 
-/// Names of the summary columns of one part: min, max, mean, std.
-const DIRECT_COLUMNS: [&str; 4] = [
-    "direct_min_w_m2",
-    "direct_max_w_m2",
-    "direct_mean_w_m2",
-    "direct_std_w_m2",
-];
-const SCATTERED_COLUMNS: [&str; 4] = [
-    "scattered_min_w_m2",
-    "scattered_max_w_m2",
-    "scattered_mean_w_m2",
-    "scattered_std_w_m2",
-];
-
-/// Adds min, max, mean and std of `stats` for facets `global` as `names`.
+/// Adds min, max, mean and std of `stats` for facets `global` as `NAME_min_w_m2`, ….
 fn with_part_columns(
     batch: Table,
-    names: [&'static str; 4],
+    name: &str,
     stats: &FacetStats,
     global: impl Iterator<Item = usize> + Clone,
 ) -> Table {
     let column = |f: &dyn Fn(usize) -> f64| Values::F64(global.clone().map(f).collect());
     batch
-        .with(names[0], column(&|g| stats.min(g)))
-        .with(names[1], column(&|g| stats.max(g)))
-        .with(names[2], column(&|g| stats.mean(g)))
-        .with(names[3], column(&|g| stats.std(g)))
+        .with(format!("{name}_min_w_m2"), column(&|g| stats.min(g)))
+        .with(format!("{name}_max_w_m2"), column(&|g| stats.max(g)))
+        .with(format!("{name}_mean_w_m2"), column(&|g| stats.mean(g)))
+        .with(format!("{name}_std_w_m2"), column(&|g| stats.std(g)))
 }
 
 /// Writes `summary` (one row per facet). The min/max/mean/std/lit columns are of the
-/// total irradiance; with `parts`, the same statistics of the direct and the scattered
-/// irradiance follow as `direct_*` and `scattered_*` columns.
+/// total irradiance; each of `parts` adds the same statistics as `NAME_*` columns
+/// (`direct_*` and `scattered_*`, `band_NAME_*`, `bands_*`).
 pub fn write_summary(
     dir: &Path,
     csv: bool,
@@ -113,20 +100,16 @@ pub fn write_summary(
                 "lit_fraction",
                 Values::F64(global().map(|g| stats.lit_fraction(g)).collect()),
             );
-        let batch = match parts {
-            Some((direct, scattered)) => {
-                let batch = with_part_columns(batch, DIRECT_COLUMNS, direct, global());
-                with_part_columns(batch, SCATTERED_COLUMNS, scattered, global())
-            }
-            None => batch,
-        };
+        let batch = parts.iter().fold(batch, |batch, (name, stats)| {
+            with_part_columns(batch, name, stats, global())
+        });
         writer.write(&batch)
     })?;
     writer.finish()
 }
 
-/// Writes `cdf` (one row per facet and threshold): `cdf` of the total irradiance; with
-/// `parts`, also `cdf_direct` and `cdf_scattered` at the same thresholds.
+/// Writes `cdf` (one row per facet and threshold): `cdf` of the total irradiance; each of
+/// `parts` adds `cdf_NAME` at the same thresholds.
 pub fn write_cdf(
     dir: &Path,
     csv: bool,
@@ -158,12 +141,9 @@ pub fn write_cdf(
             .with("cdf", Values::F64(cdf));
         let all_cdfs =
             |s: &FacetStats| Values::F64(range.clone().flat_map(|i| s.cdf(offset + i)).collect());
-        let batch = match parts {
-            Some((direct, scattered)) => batch
-                .with("cdf_direct", all_cdfs(direct))
-                .with("cdf_scattered", all_cdfs(scattered)),
-            None => batch,
-        };
+        let batch = parts.iter().fold(batch, |batch, (name, stats)| {
+            batch.with(format!("cdf_{name}"), all_cdfs(stats))
+        });
         writer.write(&batch)
     })?;
     writer.finish()

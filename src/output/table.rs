@@ -75,13 +75,13 @@ fn write_csv_text(s: &str, out: &mut impl Write) -> std::io::Result<()> {
 /// A batch of rows: named columns of equal length. Names carry units (`mean_w_m2`).
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct Table {
-    pub columns: Vec<(&'static str, Values)>,
+    pub columns: Vec<(String, Values)>,
 }
 
 impl Table {
     /// Adds a column.
-    pub fn with(mut self, name: &'static str, values: Values) -> Table {
-        self.columns.push((name, values));
+    pub fn with(mut self, name: impl Into<String>, values: Values) -> Table {
+        self.columns.push((name.into(), values));
         self
     }
 
@@ -94,7 +94,7 @@ impl Table {
         Arc::new(Schema::new(
             self.columns
                 .iter()
-                .map(|(n, v)| Field::new(*n, v.data_type(), false))
+                .map(|(n, v)| Field::new(n.as_str(), v.data_type(), false))
                 .collect::<Vec<_>>(),
         ))
     }
@@ -171,7 +171,7 @@ impl TableWriter {
         if let Some(csv_path) = &self.csv_path {
             let path = partial(csv_path);
             let mut out = BufWriter::new(File::create(&path).map_err(|e| Error::io(&path, e))?);
-            let header: Vec<&str> = first.columns.iter().map(|(n, _)| *n).collect();
+            let header: Vec<&str> = first.columns.iter().map(|(n, _)| n.as_str()).collect();
             writeln!(out, "{}", header.join(",")).map_err(|e| Error::io(&path, e))?;
             self.csv = Some(out);
         }

@@ -26,6 +26,18 @@ pub fn facet_albedo(scene: &Scene, world: &World) -> Result<Option<Vec<f64>>> {
     Ok(Some(albedo))
 }
 
+/// Every facet's albedo in band `band`: a body's `albedo_bands` entry where it has one,
+/// else its broadband albedo from `broadband` (global ids).
+pub fn band_albedo(scene: &Scene, world: &World, band: &str, broadband: &[f64]) -> Vec<f64> {
+    let mut albedo = broadband.to_vec();
+    for ((b, body), offset) in scene.bodies.iter().zip(&world.bodies).zip(world.offsets()) {
+        if let Some(a) = b.albedo_bands.get(band) {
+            albedo[offset..offset + body.mesh.len()].fill(*a);
+        }
+    }
+    albedo
+}
+
 /// Reads a per-facet albedo file of exactly `facets` values.
 pub fn read_albedo_file(path: &Path, facets: usize) -> Result<Vec<f64>> {
     let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;

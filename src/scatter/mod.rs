@@ -426,15 +426,36 @@ impl<'w> Scatter<'w> {
         direct: &[f64],
         scattered: &mut [f64],
     ) -> SolveReport {
+        self.step_band(state, direct, None, scattered)
+    }
+
+    /// [`Scatter::step`] for one spectral band: `band` gives the band's albedo (global
+    /// ids) and first bounce instead of the broadband ones; `direct` is the band's direct
+    /// irradiance. The form factors are shared by every band.
+    pub fn step_band(
+        &mut self,
+        state: &EpochState,
+        direct: &[f64],
+        band: Option<(&[f64], &dyn FirstScatter)>,
+        scattered: &mut [f64],
+    ) -> SolveReport {
         let active = self.refresh_inter_blocks(state);
         let exchange = self.blocks(&active);
+        let (albedo, first, method) = match band {
+            Some((albedo, first)) => {
+                let max_albedo = albedo.iter().copied().fold(0.0, f64::max);
+                let method = solve::resolve(self.settings.solver, max_albedo);
+                (albedo, first, method)
+            }
+            None => (&self.settings.albedo[..], self.first.as_ref(), self.method),
+        };
         let mut s1 = vec![0.0; direct.len()];
-        self.first.first_order(
+        first.first_order(
             &FirstOrderInput {
                 world: self.world,
                 state,
                 direct,
-                albedo: &self.settings.albedo,
+                albedo,
                 exchange: &exchange,
             },
             &mut s1,
@@ -443,14 +464,7 @@ impl<'w> Scatter<'w> {
             tolerance: self.settings.tolerance,
             max_iterations: self.settings.max_orders,
         };
-        let report = solve::solve(
-            &exchange,
-            &self.settings.albedo,
-            &s1,
-            self.method,
-            stop,
-            scattered,
-        );
+        let report = solve::solve(&exchange, albedo, &s1, method, stop, scattered);
         drop(exchange);
         let r = &mut self.record;
         r.solves += 1;
