@@ -71,7 +71,7 @@ pub struct NearField {
 impl Default for NearField {
     /// Point formula beyond 16 sizes, 1e-3 relative per split (Richardson-extrapolated),
     /// at most 4^6 = 4096 sub-triangles: rows of a 1,280-facet sphere interior then sum
-    /// to 1 within 2e-5, where 8 sizes leave 1.2e-3 (README, "Scattered light").
+    /// to 1 within 1.3e-5, where 8 sizes leave 1.2e-3 (README, "Scattered light").
     fn default() -> Self {
         NearField {
             far_ratio: 16.0,
