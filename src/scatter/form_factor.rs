@@ -14,6 +14,13 @@
 //! agree to [`NearField::tolerance`] (relative) or [`NearField::max_depth`] is reached; the
 //! accepted value is Richardson-extrapolated (the centroid rule's error falls as h²).
 //! The outer integral runs over the smaller facet, where the integrand varies least.
+//!
+//! Between the two, pairs at least [`GAUSS_RATIO`] sizes apart whose triangles lie wholly
+//! in front of each other (no horizon cuts either, so the kernel is smooth on both) get a
+//! product Gauss rule: Dunavant's 6-point degree-4 rule on each triangle, 36 evaluations
+//! of the point kernel and no arctangent. Against a 1e-8 adaptive reference on the 12,288-
+//! facet Itokawa model its largest relative error is 1e-4 from 3 sizes on, 3e-5 from 4 and
+//! 6e-6 from 6, below the adaptive rule's own (6e-4, 8e-4 and 1e-4 on the same pairs).
 
 use glam::DVec3;
 use std::f64::consts::PI;
@@ -64,7 +71,7 @@ pub struct NearField {
 impl Default for NearField {
     /// Point formula beyond 16 sizes, 1e-3 relative per split (Richardson-extrapolated),
     /// at most 4^6 = 4096 sub-triangles: rows of a 1,280-facet sphere interior then sum
-    /// to 1 within 2e-5, where 8 sizes leave 1.2e-3 (README, "Scattered light").
+    /// to 1 within 1.3e-5, where 8 sizes leave 1.2e-3 (README, "Scattered light").
     fn default() -> Self {
         NearField {
             far_ratio: 16.0,
@@ -74,17 +81,26 @@ impl Default for NearField {
     }
 }
 
+/// Pairs closer than [`NearField::far_ratio`] but at least this many facet sizes apart,
+/// wholly in front of each other, get the product Gauss rule (module doc).
+pub const GAUSS_RATIO: f64 = 3.0;
+
 /// Exchange area `A_i F_ij` (m²) of two facets assumed mutually visible.
 pub fn exchange_area(a: &Facet, b: &Facet, near: &NearField) -> f64 {
     let r = b.centroid - a.centroid;
     let d2 = r.length_squared();
     let size = a.size.max(b.size);
     if d2 >= (near.far_ratio * size).powi(2) {
-        let cos_a = a.normal.dot(r).max(0.0);
-        let cos_b = (-b.normal.dot(r)).max(0.0);
-        // cos θ = n·r/|r| on both sides: |r|⁴ in the denominator.
-        return cos_a * cos_b * a.area * b.area / (PI * d2 * d2);
+        return point_kernel(a.normal, b.normal, r) * a.area * b.area;
     }
+    if d2 >= (GAUSS_RATIO * size).powi(2) && wholly_in_front(a, b) && wholly_in_front(b, a) {
+        return gauss_product(a, b);
+    }
+    adaptive(a, b, near)
+}
+
+/// Exact inner integral over the larger facet, adaptive outer over the smaller.
+fn adaptive(a: &Facet, b: &Facet, near: &NearField) -> f64 {
     let (outer, inner) = if a.area <= b.area { (a, b) } else { (b, a) };
     let whole = outer.area * point_to_facet(outer.centroid, outer.normal, inner);
     let quad = Quadrature {
@@ -95,6 +111,61 @@ pub fn exchange_area(a: &Facet, b: &Facet, near: &NearField) -> f64 {
         floor: 1e-12 * outer.area,
     };
     quad.refine(outer.corners, whole, near.max_depth)
+}
+
+/// `cos θ_a cos θ_b / (π r²)` for points with normals `na`, `nb` joined by `r` (a → b),
+/// zero when either is behind the other.
+#[inline]
+fn point_kernel(na: DVec3, nb: DVec3, r: DVec3) -> f64 {
+    let d2 = r.length_squared();
+    let cos_a = na.dot(r).max(0.0);
+    let cos_b = (-nb.dot(r)).max(0.0);
+    // cos θ = n·r/|r| on both sides: |r|⁴ in the denominator.
+    cos_a * cos_b / (PI * d2 * d2)
+}
+
+/// Every corner of `b` strictly in front of `a`'s plane.
+fn wholly_in_front(a: &Facet, b: &Facet) -> bool {
+    b.corners
+        .iter()
+        .all(|&p| a.normal.dot(p - a.centroid) > 0.0)
+}
+
+/// Dunavant's symmetric 6-point rule, exact for polynomials of degree 4 on a triangle:
+/// (barycentric coordinates, weight), weights summing to 1.
+const DUNAVANT_6: [([f64; 3], f64); 6] = {
+    const A1: f64 = 0.816_847_572_980_459;
+    const B1: f64 = 0.091_576_213_509_771;
+    const W1: f64 = 0.109_951_743_655_322;
+    const A2: f64 = 0.108_103_018_168_070;
+    const B2: f64 = 0.445_948_490_915_965;
+    const W2: f64 = 0.223_381_589_678_011;
+    [
+        ([A1, B1, B1], W1),
+        ([B1, A1, B1], W1),
+        ([B1, B1, A1], W1),
+        ([A2, B2, B2], W2),
+        ([B2, A2, B2], W2),
+        ([B2, B2, A2], W2),
+    ]
+};
+
+/// The exchange area by the product of [`DUNAVANT_6`] on both facets.
+fn gauss_product(a: &Facet, b: &Facet) -> f64 {
+    let nodes = |f: &Facet| {
+        DUNAVANT_6.map(|(w, _)| f.corners[0] * w[0] + f.corners[1] * w[1] + f.corners[2] * w[2])
+    };
+    let (pa, pb) = (nodes(a), nodes(b));
+    let mut sum = 0.0;
+    for (x, (_, wx)) in pa.iter().zip(DUNAVANT_6) {
+        let inner: f64 = pb
+            .iter()
+            .zip(DUNAVANT_6)
+            .map(|(&y, (_, wy))| wy * point_kernel(a.normal, b.normal, y - *x))
+            .sum();
+        sum += wx * inner;
+    }
+    sum * a.area * b.area
 }
 
 /// The adaptive outer integral over one facet of the form factor to `inner`.
@@ -202,6 +273,37 @@ mod tests {
         let s = (1.0f64 + 0.25).sqrt();
         let corner = (2.0 * 0.5 / s * (0.5 / s).atan()) / (2.0 * PI);
         assert!((f - 4.0 * corner).abs() < 1e-14, "{f} vs {}", 4.0 * corner);
+    }
+
+    #[test]
+    fn gauss_product_matches_the_exact_integral_from_three_sizes() {
+        // A tilted pair 3 sizes apart, wholly in front of each other: the product rule
+        // against the adaptive exact-inner integral run to 1e-9.
+        let a = Facet::new([
+            DVec3::ZERO,
+            DVec3::new(1.0, 0.0, 0.0),
+            DVec3::new(0.3, 0.9, 0.0),
+        ]);
+        let b = Facet::new([
+            DVec3::new(0.2, 0.1, 3.0),
+            DVec3::new(0.5, 1.0, 3.4),
+            DVec3::new(1.1, 0.0, 3.2),
+        ]);
+        assert!(wholly_in_front(&a, &b) && wholly_in_front(&b, &a));
+        let reference = adaptive(
+            &a,
+            &b,
+            &NearField {
+                tolerance: 1e-9,
+                max_depth: 9,
+                ..NearField::default()
+            },
+        );
+        let gauss = exchange_area(&a, &b, &NearField::default());
+        assert!(
+            (gauss / reference - 1.0).abs() < 1e-4,
+            "{gauss} vs {reference}"
+        );
     }
 
     #[test]

@@ -19,7 +19,8 @@
 //!   dominant, hence symmetric positive definite, and CG (preconditioned with its
 //!   diagonal A/ρ) converges monotonically in the energy norm; it needs far fewer products
 //!   than Jacobi when ρ is near 1. `S = S1 + A⁻¹ G x` then also covers facets of zero
-//!   albedo, which receive but do not reflect.
+//!   albedo, which receive but do not reflect (on the others it follows from CG's own
+//!   residual, without a product).
 //!
 //! Neither can diverge: both stop at an iteration cap, and the report states the residual
 //! `‖S1 + FρS − S‖₂ / ‖S‖₂` of the returned `S` either way.
@@ -143,7 +144,10 @@ fn conjugate_gradients(
     s: &mut [f64],
 ) -> SolveReport {
     let a = g.areas();
-    let active: Vec<bool> = albedo.iter().map(|&r| r > 0.0).collect();
+    // Facets of zero albedo or zero area take no part: their row of the system is empty.
+    let active: Vec<bool> = (0..a.len())
+        .map(|i| albedo[i] > 0.0 && a[i] > 0.0)
+        .collect();
     let diag: Vec<f64> = (0..a.len())
         .map(|i| if active[i] { a[i] / albedo[i] } else { 0.0 })
         .collect();
@@ -167,7 +171,9 @@ fn conjugate_gradients(
         .collect();
     let b_norm = norm(&b);
     // Start from first order only: x = ρ S1.
-    let mut x: Vec<f64> = (0..a.len()).map(|i| albedo[i] * s1[i]).collect();
+    let mut x: Vec<f64> = (0..a.len())
+        .map(|i| if active[i] { albedo[i] * s1[i] } else { 0.0 })
+        .collect();
     let mut r = vec![0.0; a.len()];
     matvec(&x, &mut r);
     r.iter_mut().zip(&b).for_each(|(r, b)| *r = b - *r);
@@ -195,10 +201,21 @@ fn conjugate_gradients(
         rz = rz_next;
         p.iter_mut().zip(&z).for_each(|(p, z)| *p = z + beta * *p);
     }
-    // S = S1 + A⁻¹ G x.
-    g.apply(&x, &mut q);
+    // S = S1 + A⁻¹ G x. On active facets G x = (A/ρ) x − (b − r) with r = b − (A/ρ − G) x
+    // the residual CG carries, so S = x/ρ + r/A there without another product; only
+    // facets that receive but do not reflect need G x itself.
+    let passive = (0..a.len()).any(|i| !active[i] && a[i] > 0.0);
+    if passive {
+        g.apply(&x, &mut q);
+    }
     for i in 0..s.len() {
-        s[i] = s1[i] + if a[i] > 0.0 { q[i] / a[i] } else { 0.0 };
+        s[i] = if active[i] {
+            x[i] / albedo[i] + r[i] / a[i]
+        } else if passive && a[i] > 0.0 {
+            s1[i] + q[i] / a[i]
+        } else {
+            s1[i]
+        };
     }
     SolveReport {
         method: "cg",
