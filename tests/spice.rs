@@ -563,3 +563,18 @@ fn the_moon_example_places_haworth_and_keeps_its_floor_in_shadow() {
         .fold(0.0, f64::max);
     assert!(brightest > 300.0, "brightest facet {brightest} W/m2");
 }
+
+#[test]
+fn an_iau_frame_name_picks_its_own_body() {
+    let k = kernels(&case_kernels("phobos").unwrap());
+    // Phobos placed in Mars's IAU frame: the rotation is Mars's, not Phobos's.
+    let body = SpiceBody::with_frame(&k, "phobos", 401, "IAU_MARS").unwrap();
+    let epoch = hifitime::Epoch::from_tdb_seconds(5.8e8);
+    let mars = k.rotation_model(499).unwrap().j2000_to_body(5.8e8);
+    let got = body.frame.j2000_to_frame(k.almanac(), epoch).unwrap();
+    assert!(rotation_angle(got, mars) < 1e-15);
+    let e = SpiceBody::with_frame(&k, "phobos", 401, "IAU_NOWHERE")
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("NOWHERE") && e.contains("NAIF_BODY_NAME"), "{e}");
+}

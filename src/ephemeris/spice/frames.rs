@@ -148,9 +148,22 @@ fn step(
     }
     let Some(id) = number(kernel, &format!("FRAME_{name}")) else {
         return match name.strip_prefix("IAU_") {
-            Some(_) => iau_model(naif_id).map(|m| Step::Base(Base::Iau(m))).ok_or_else(|| {
-                format!("frame {name}: no rotation model for NAIF {naif_id} in the loaded text PCKs")
-            }),
+            Some(body) => {
+                let id = body_id(kernel, body).ok_or_else(|| {
+                    format!(
+                        "frame {name}: slim knows no NAIF id for body {body} (the body of \
+                         NAIF {naif_id} is named by its id; name others with \
+                         NAIF_BODY_NAME/NAIF_BODY_CODE in a frame kernel)"
+                    )
+                })?;
+                iau_model(id)
+                    .map(|m| Step::Base(Base::Iau(m)))
+                    .ok_or_else(|| {
+                        format!(
+                            "frame {name}: no rotation model for NAIF {id} in the loaded text PCKs"
+                        )
+                    })
+            }
             None => Err(format!(
                 "frame {name} is not defined by the loaded frame kernels (no FRAME_{name}); \
                  they define: {}",
@@ -273,6 +286,52 @@ fn frame_rotation(angle: f64, axis: usize) -> DMat3 {
     cols[j][i] = s;
     cols[i][j] = -s;
     DMat3::from_cols(cols[0], cols[1], cols[2])
+}
+
+/// NAIF ids of bodies whose IAU frames scenes name most (SPICE's built-in names).
+const BODY_IDS: &[(&str, i32)] = &[
+    ("SUN", 10),
+    ("MERCURY", 199),
+    ("VENUS", 299),
+    ("EARTH", 399),
+    ("MOON", 301),
+    ("MARS", 499),
+    ("PHOBOS", 401),
+    ("DEIMOS", 402),
+    ("JUPITER", 599),
+    ("IO", 501),
+    ("EUROPA", 502),
+    ("GANYMEDE", 503),
+    ("CALLISTO", 504),
+    ("SATURN", 699),
+    ("ENCELADUS", 602),
+    ("TITAN", 606),
+    ("URANUS", 799),
+    ("NEPTUNE", 899),
+    ("PLUTO", 999),
+    ("CHARON", 901),
+    ("CERES", 2000001),
+    ("PALLAS", 2000002),
+    ("VESTA", 2000004),
+    ("LUTETIA", 2000021),
+    ("IDA", 2243),
+    ("EROS", 2000433),
+    ("ITOKAWA", 2025143),
+    ("BENNU", 2101955),
+    ("RYUGU", 2162173),
+];
+
+/// The NAIF id of body `name`: from the kernels' NAIF_BODY_NAME/NAIF_BODY_CODE, SPICE's
+/// built-in names above, or a number.
+fn body_id(kernel: &TextKernel, name: &str) -> Option<i32> {
+    let from_kernels = kernel.texts("NAIF_BODY_NAME").and_then(|names| {
+        let codes = kernel.numbers("NAIF_BODY_CODE")?;
+        let k = names.iter().position(|n| n.eq_ignore_ascii_case(name))?;
+        codes.get(k).map(|c| *c as i32)
+    });
+    from_kernels
+        .or_else(|| BODY_IDS.iter().find(|(n, _)| *n == name).map(|(_, id)| *id))
+        .or_else(|| name.parse().ok())
 }
 
 fn number(kernel: &TextKernel, key: &str) -> Option<f64> {

@@ -126,6 +126,18 @@ impl TextKernel {
         })
     }
 
+    /// The strings of variable `name`, if it exists and holds only strings.
+    pub fn texts(&self, name: &str) -> Option<Vec<&str>> {
+        self.vars
+            .get(name)?
+            .iter()
+            .map(|v| match v {
+                KernelValue::Text(s) => Some(s.as_str()),
+                KernelValue::Number(_) => None,
+            })
+            .collect()
+    }
+
     /// The variable names.
     pub fn names(&self) -> impl Iterator<Item = &str> {
         self.vars.keys().map(String::as_str)
