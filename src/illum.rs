@@ -96,8 +96,9 @@ impl<'w> Direct<'w> {
             .collect()
     }
 
-    /// Body `b`'s Sun, flux and shadow queries at this step.
-    fn sunlight(&self, b: usize, state: &EpochState) -> Result<Sunlight<'_>> {
+    /// Body `b`'s Sun, flux and shadow queries at this step (also used by the renderer
+    /// for points that are not centroids).
+    pub(crate) fn sunlight(&self, b: usize, state: &EpochState) -> Result<Sunlight<'_>> {
         let body = &self.world.bodies[b];
         let sun = checked_sun(body, state, b)?;
         Ok(Sunlight {
@@ -165,17 +166,7 @@ impl<'w> Direct<'w> {
             counts.night += 1;
             return 0.0;
         }
-        let c = mesh.centroids[i];
-        let t_min = self.min_height_m[b][i] / cos;
-        let blocked_by_self = light.own.as_deref().is_some_and(|q| {
-            counts.rays += 1;
-            q.blocked(c, t_min, Some(i as u32))
-        });
-        let blocked = blocked_by_self
-            || light.foreign.iter().any(|f| {
-                counts.rays += 1;
-                f.query.blocked(f.to_caster.point(c), t_min, None)
-            });
+        let blocked = light.blocked(mesh.centroids[i], self.t_min(b, i, cos), i, counts);
         counts.shadowed += blocked as u64;
         if blocked {
             0.0
@@ -183,14 +174,42 @@ impl<'w> Direct<'w> {
             light.flux * cos
         }
     }
+
+    /// The least distance along the Sun ray at which a hit on facet `i` of body `b` counts
+    /// as a shadow, for the Sun at `cos_i` from its normal (the module doc's `h_min`).
+    pub(crate) fn t_min(&self, b: usize, i: usize, cos_i: f64) -> f64 {
+        self.min_height_m[b][i] / cos_i
+    }
 }
 
 /// One body's Sun at one step with the shadow queries that serve it.
-struct Sunlight<'q> {
+pub(crate) struct Sunlight<'q> {
     sun: DVec3,
     flux: f64,
     own: Option<Box<dyn ShadowQuery + 'q>>,
     foreign: Vec<ForeignCaster<'q>>,
+}
+
+impl Sunlight<'_> {
+    /// True when a facet of any body blocks the Sun from `point` (receiver frame, on
+    /// facet `facet` of the receiver) farther than `t_min`; counts the rays traced.
+    pub(crate) fn blocked(
+        &self,
+        point: DVec3,
+        t_min: f64,
+        facet: usize,
+        counts: &mut StepCounts,
+    ) -> bool {
+        let blocked_by_self = self.own.as_deref().is_some_and(|q| {
+            counts.rays += 1;
+            q.blocked(point, t_min, Some(facet as u32))
+        });
+        blocked_by_self
+            || self.foreign.iter().any(|f| {
+                counts.rays += 1;
+                f.query.blocked(f.to_caster.point(point), t_min, None)
+            })
+    }
 }
 
 /// The body's Sun direction at this step, checked to be a finite unit vector.
@@ -208,7 +227,7 @@ fn checked_sun(body: &Body, state: &EpochState, b: usize) -> Result<DVec3> {
 }
 
 /// Per facet, the least height above its plane at which a hit counts as a shadow.
-pub(crate) fn min_blocker_heights(body: &Body) -> Vec<f64> {
+fn min_blocker_heights(body: &Body) -> Vec<f64> {
     let rounding = 256.0 * f64::EPSILON * body.bounding_radius_m;
     (0..body.mesh.len())
         .map(|i| {

@@ -14,9 +14,10 @@
 //! nearest facet wins. Facets with a corner at or behind the camera plane are left out
 //! and counted ([`GeometryImage::clipped_facets`]): the camera belongs outside the bodies.
 //!
-//! Shadows at the point hit, not at the facet centroid: the same Sun-parallel shadow
-//! queries as [`crate::illum`] (own body unless it is convex, every other body through
-//! its pose), with the same minimum blocker height against self-shadowing. Flat shading:
+//! Shadows at the point hit, not at the facet centroid, through [`crate::illum`]'s own
+//! shadow queries (own body unless it is convex, every other body whose bounding sphere
+//! can reach the receiver's shadow) and its minimum blocker height against
+//! self-shadowing. Flat shading:
 //! the facet's normal is used over the whole facet. Only single scattering of direct
 //! sunlight is rendered (no light scattered between facets).
 
@@ -25,10 +26,10 @@ pub mod job;
 
 use crate::ephemeris::EpochState;
 use crate::error::{Error, Result};
-use crate::illum::min_blocker_heights;
+use crate::illum::{Direct, StepCounts, Sunlight};
 use crate::image::Image;
 use crate::photometry::{i_over_f, Angles, Reflectance};
-use crate::trace::{self, ShadowQuery, Tracer, TracerKind};
+use crate::trace::{self, TracerKind};
 use crate::world::{FrameTransform, World};
 use camera::Camera;
 use glam::DVec3;
@@ -103,11 +104,10 @@ impl GeometryImage {
     }
 }
 
-/// The renderer: one shadow tracer per body, built once.
+/// The renderer: the direct-irradiance stage's shadow tracers, built once.
 pub struct Renderer<'w> {
     world: &'w World,
-    tracers: Vec<Box<dyn Tracer + 'w>>,
-    min_height_m: Vec<Vec<f64>>,
+    shadows: Direct<'w>,
 }
 
 /// Rows of the image handled together by one task.
@@ -125,23 +125,12 @@ struct BodyView {
     in_front: Vec<bool>,
 }
 
-/// The shadow queries of one receiving body.
-struct Shadows<'q> {
-    own: Option<Box<dyn ShadowQuery + 'q>>,
-    foreign: Vec<(Box<dyn ShadowQuery + 'q>, FrameTransform)>,
-}
-
 impl<'w> Renderer<'w> {
     /// Builds the shadow tracers of every body.
     pub fn new(world: &'w World, kind: TracerKind) -> Renderer<'w> {
         Renderer {
             world,
-            tracers: world
-                .bodies
-                .iter()
-                .map(|b| trace::build(kind, &b.mesh))
-                .collect(),
-            min_height_m: world.bodies.iter().map(min_blocker_heights).collect(),
+            shadows: Direct::new(world, kind),
         }
     }
 
@@ -158,7 +147,9 @@ impl<'w> Renderer<'w> {
         let views: Vec<BodyView> = (0..bodies.len())
             .map(|b| self.view(b, state, camera))
             .collect();
-        let shadows: Vec<Shadows<'_>> = (0..bodies.len()).map(|b| self.shadows(b, state)).collect();
+        let shadows = (0..bodies.len())
+            .map(|b| self.shadows.sunlight(b, state))
+            .collect::<Result<Vec<_>>>()?;
         let bands = self.bin_by_band(&views, camera);
         let mut samples = vec![None; camera.width * camera.height];
         samples
@@ -214,23 +205,6 @@ impl<'w> Renderer<'w> {
             eye,
             image_points,
             in_front,
-        }
-    }
-
-    /// Shadow queries for points on body `b` (as in [`crate::illum`]).
-    fn shadows(&self, b: usize, state: &EpochState) -> Shadows<'_> {
-        let bodies = &self.world.bodies;
-        let sun = state.bodies[b].sun_dir;
-        let foreign = (0..bodies.len())
-            .filter(|&c| c != b)
-            .map(|c| {
-                let to_caster = state.bodies[b].pose.relative_to(&state.bodies[c].pose);
-                (self.tracers[c].toward(to_caster.vector(sun)), to_caster)
-            })
-            .collect();
-        Shadows {
-            own: (!bodies[b].convex).then(|| self.tracers[b].toward(sun)),
-            foreign,
         }
     }
 
@@ -309,7 +283,7 @@ impl<'w> Renderer<'w> {
         b: usize,
         f: usize,
         view: &BodyView,
-        shadows: &Shadows<'_>,
+        shadows: &Sunlight<'_>,
         state: &EpochState,
         camera: &Camera,
         col: usize,
@@ -328,7 +302,10 @@ impl<'w> Renderer<'w> {
         let sun = state.bodies[b].sun_dir;
         let to_eye = -dir;
         let angles = Angles::from_vectors(n, sun, to_eye);
-        let lit = angles.cos_i > 0.0 && !self.blocked(b, f, point, angles.cos_i, shadows);
+        let lit = angles.cos_i > 0.0 && {
+            let t_min = self.shadows.t_min(b, f, angles.cos_i);
+            !shadows.blocked(point, t_min, f, &mut StepCounts::default())
+        };
         Sample {
             body: b as u32,
             facet: f as u32,
@@ -336,17 +313,6 @@ impl<'w> Renderer<'w> {
             lit,
             range_m: t,
         }
-    }
-
-    /// True when a facet of any body blocks the Sun from `point` on facet `f` of body `b`.
-    fn blocked(&self, b: usize, f: usize, point: DVec3, cos_i: f64, s: &Shadows<'_>) -> bool {
-        let t_min = self.min_height_m[b][f] / cos_i;
-        s.own
-            .as_ref()
-            .is_some_and(|q| q.blocked(point, t_min, Some(f as u32)))
-            || s.foreign
-                .iter()
-                .any(|(q, to_caster)| q.blocked(to_caster.point(point), t_min, None))
     }
 }
 
