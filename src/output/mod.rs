@@ -34,19 +34,20 @@ const FACETS_PER_BATCH: usize = 1 << 14;
 /// `band_NAME` and `bands` with spectral bands.
 pub type Parts<'a> = &'a [(String, &'a FacetStats)];
 
-/// Adds min, max, mean and std of `stats` for facets `global` as `NAME_min_w_m2`, ….
-fn with_part_columns(
+/// Adds min, max, mean and std of `stats` for facets `global` as `PREFIXmin_w_m2`, …
+/// (`prefix` empty for the total, `NAME_` for a part).
+fn with_stat_columns(
     batch: Table,
-    name: &str,
+    prefix: &str,
     stats: &FacetStats,
     global: impl Iterator<Item = usize> + Clone,
 ) -> Table {
     let column = |f: &dyn Fn(usize) -> f64| Values::F64(global.clone().map(f).collect());
     batch
-        .with(format!("{name}_min_w_m2"), column(&|g| stats.min(g)))
-        .with(format!("{name}_max_w_m2"), column(&|g| stats.max(g)))
-        .with(format!("{name}_mean_w_m2"), column(&|g| stats.mean(g)))
-        .with(format!("{name}_std_w_m2"), column(&|g| stats.std(g)))
+        .with(format!("{prefix}min_w_m2"), column(&|g| stats.min(g)))
+        .with(format!("{prefix}max_w_m2"), column(&|g| stats.max(g)))
+        .with(format!("{prefix}mean_w_m2"), column(&|g| stats.mean(g)))
+        .with(format!("{prefix}std_w_m2"), column(&|g| stats.std(g)))
 }
 
 /// Writes `summary` (one row per facet). The min/max/mean/std/lit columns are of the
@@ -79,29 +80,13 @@ pub fn write_summary(
             .with("centroid_z_m", vec_column(&|i| mesh.centroids[i].z))
             .with("normal_x", vec_column(&|i| mesh.normals[i].x))
             .with("normal_y", vec_column(&|i| mesh.normals[i].y))
-            .with("normal_z", vec_column(&|i| mesh.normals[i].z))
-            .with(
-                "min_w_m2",
-                Values::F64(global().map(|g| stats.min(g)).collect()),
-            )
-            .with(
-                "max_w_m2",
-                Values::F64(global().map(|g| stats.max(g)).collect()),
-            )
-            .with(
-                "mean_w_m2",
-                Values::F64(global().map(|g| stats.mean(g)).collect()),
-            )
-            .with(
-                "std_w_m2",
-                Values::F64(global().map(|g| stats.std(g)).collect()),
-            )
-            .with(
-                "lit_fraction",
-                Values::F64(global().map(|g| stats.lit_fraction(g)).collect()),
-            );
+            .with("normal_z", vec_column(&|i| mesh.normals[i].z));
+        let batch = with_stat_columns(batch, "", stats, global()).with(
+            "lit_fraction",
+            Values::F64(global().map(|g| stats.lit_fraction(g)).collect()),
+        );
         let batch = parts.iter().fold(batch, |batch, (name, stats)| {
-            with_part_columns(batch, name, stats, global())
+            with_stat_columns(batch, &format!("{name}_"), stats, global())
         });
         writer.write(&batch)
     })?;
