@@ -10,73 +10,28 @@
 //! z-buffer, shadow queries at every hit; the Sun-view build of the step included) and the
 //! shading pass. Mesh loading is not timed.
 
+// Shared by several benchmarks; each uses part of it.
+#[allow(dead_code)]
+mod common;
+
 use glam::{DMat3, DVec3};
 use slim::ephemeris::{BodyState, EpochState};
-use slim::mesh::{generate::subdivide, inspect::inspect, read_mesh, LengthUnit, Mesh};
 use slim::photometry::hapke::{HFunction, Hapke, PhaseFunction};
 use slim::photometry::Reflectance;
 use slim::render::camera::Camera;
 use slim::render::Renderer;
 use slim::trace::TracerKind;
-use slim::world::{Body, Pose, World};
-use std::path::PathBuf;
+use slim::world::Pose;
 use std::time::Instant;
 
-struct Args {
-    mesh: PathBuf,
-    subdivide: u32,
-    size: usize,
-    threads: Option<usize>,
-    repeat: usize,
-}
-
-/// The value after `flag`, parsed, or `default`.
-fn option<T: std::str::FromStr>(argv: &[String], flag: &str, default: T) -> Result<T, String> {
-    match argv.iter().position(|a| a == flag) {
-        None => Ok(default),
-        Some(k) => argv
-            .get(k + 1)
-            .and_then(|v| v.parse().ok())
-            .ok_or(format!("{flag} needs a number")),
-    }
-}
-
-fn parse_args() -> Result<Args, String> {
-    let argv: Vec<String> = std::env::args().skip(1).collect();
-    let flags = ["--subdivide", "--size", "--threads", "--repeat"];
-    // A mesh path is any argument that is neither a flag nor a flag's value.
-    let mesh = argv
-        .iter()
-        .enumerate()
-        .find(|(k, a)| !a.starts_with("--") && (*k == 0 || !flags.contains(&argv[k - 1].as_str())))
-        .map(|(_, a)| PathBuf::from(a))
-        .unwrap_or_else(|| {
-            PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-                .join("data/shapes/itokawa/ItokawaHayabusa.obj")
-        });
-    let threads: usize = option(&argv, "--threads", 0)?;
-    Ok(Args {
-        mesh,
-        subdivide: option(&argv, "--subdivide", 2)?,
-        size: option(&argv, "--size", 1024)?,
-        threads: (threads > 0).then_some(threads),
-        repeat: option(&argv, "--repeat", 3usize)?.max(1),
-    })
-}
-
 fn main() -> Result<(), Box<dyn std::error::Error>> {
-    let args = parse_args()?;
-    if let Some(n) = args.threads {
-        let pool = rayon::ThreadPoolBuilder::new().num_threads(n);
-        pool.build_global()?;
-    }
+    let options = common::Options::from_env(&["--subdivide", "--size", "--threads", "--repeat"]);
+    options.apply_threads()?;
+    let size: usize = options.value("--size", 1024)?;
+    let repeat = options.value("--repeat", 3usize)?.max(1);
     // Midpoint subdivision, as bench_direct does: ×4 facets per level, same shape.
-    let raw = (0..args.subdivide).fold(read_mesh(&args.mesh, None)?, |m, _| subdivide(&m));
-    let mesh = Mesh::from_raw(raw, LengthUnit::Km);
-    let convex = inspect(&mesh).convex;
-    let world = World {
-        bodies: vec![Body::new("body", mesh, convex)],
-    };
+    let world = options.world(2)?;
+    let convex = world.bodies[0].convex;
     let phase = 45f64.to_radians();
     let eye = DVec3::new(0.0, -2000.0, 300.0);
     let sun = (DMat3::from_rotation_z(phase) * eye.normalize()).normalize();
@@ -90,8 +45,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             pose: Pose::IDENTITY,
         }],
     };
-    let camera =
-        Camera::with_fov(args.size, args.size, 18.0)?.looking_at(eye, DVec3::ZERO, DVec3::Z)?;
+    let camera = Camera::with_fov(size, size, 18.0)?.looking_at(eye, DVec3::ZERO, DVec3::Z)?;
     let hapke = Hapke {
         w: 0.42,
         b0: 1.0,
@@ -103,15 +57,15 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let materials: [&dyn Reflectance; 1] = [&hapke];
     println!(
         "mesh {} ({} facets, convex: {convex}), {size}×{size} pixels, {} threads",
-        args.mesh.display(),
+        options.mesh().display(),
         world.facet_count(),
         rayon::current_num_threads(),
-        size = args.size,
+        size = size,
     );
     let t0 = Instant::now();
     let renderer = Renderer::new(&world, TracerKind::Sunview);
     println!("tracer build: {:.3} s", t0.elapsed().as_secs_f64());
-    for k in 0..args.repeat {
+    for k in 0..repeat {
         let t1 = Instant::now();
         let geometry = renderer.geometry(&state, &camera)?;
         let t_geometry = t1.elapsed().as_secs_f64();

@@ -9,106 +9,41 @@
 //! bytes, the process's peak resident memory (VmHWM), and the time of each step's solve
 //! to 1e-6 relative (the direct irradiance is computed first and not timed).
 
+// Shared by several benchmarks; each uses part of it.
+#[allow(dead_code)]
+mod common;
+
+use common::peak_rss_mb;
 use glam::DVec3;
-use slim::ephemeris::spin::{Spin, SpinModel};
 use slim::illum::Direct;
-use slim::mesh::{generate::subdivide, read_mesh, LengthUnit, Mesh};
-use slim::run::epoch_states;
 use slim::scatter::form_factor::NearField;
 use slim::scatter::solve::SolverKind;
 use slim::scatter::{FirstBounce, Lambertian, Scatter, Settings};
 use slim::trace::TracerKind;
-use slim::world::{Body, World};
-use std::path::PathBuf;
 use std::time::Instant;
 
-struct Args {
-    mesh: PathBuf,
-    subdivide: u32,
-    steps: usize,
-    albedo: Vec<f64>,
-    threads: Option<usize>,
-}
-
-fn parse_args() -> Result<Args, String> {
-    let mut args = Args {
-        mesh: PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-            .join("data/shapes/itokawa/ItokawaHayabusa.obj"),
-        subdivide: 0,
-        steps: 12,
-        albedo: vec![0.1, 0.9],
-        threads: None,
-    };
-    let mut it = std::env::args().skip(1);
-    while let Some(a) = it.next() {
-        let mut value = || it.next().ok_or(format!("{a} needs a value"));
-        match a.as_str() {
-            "--subdivide" => args.subdivide = value()?.parse().map_err(|e| format!("{e}"))?,
-            "--steps" => args.steps = value()?.parse().map_err(|e| format!("{e}"))?,
-            "--albedo" => args.albedo = vec![value()?.parse().map_err(|e| format!("{e}"))?],
-            "--threads" => args.threads = Some(value()?.parse().map_err(|e| format!("{e}"))?),
-            "--bench" => {}
-            path => args.mesh = PathBuf::from(path),
-        }
-    }
-    Ok(args)
-}
-
-/// Peak resident memory of this process, MB (Linux; 0 elsewhere).
-fn peak_rss_mb() -> f64 {
-    std::fs::read_to_string("/proc/self/status")
-        .ok()
-        .and_then(|s| {
-            s.lines()
-                .find(|l| l.starts_with("VmHWM:"))
-                .and_then(|l| l.split_whitespace().nth(1)?.parse::<f64>().ok())
-        })
-        .map_or(0.0, |kb| kb / 1024.0)
-}
-
 fn main() -> Result<(), Box<dyn std::error::Error>> {
-    let args = parse_args()?;
-    if let Some(n) = args.threads {
-        rayon::ThreadPoolBuilder::new()
-            .num_threads(n)
-            .build_global()?;
-    }
-    let mut raw = read_mesh(&args.mesh, None)?;
-    for _ in 0..args.subdivide {
-        raw = subdivide(&raw);
-    }
-    let world = World {
-        bodies: vec![Body::new(
-            "body",
-            Mesh::from_raw(raw, LengthUnit::Km),
-            false,
-        )],
+    let options = common::Options::from_env(&["--subdivide", "--steps", "--albedo", "--threads"]);
+    options.apply_threads()?;
+    let steps: usize = options.value("--steps", 12)?;
+    // One albedo when given; else the Jacobi (0.1) and the CG (0.9) regime.
+    let albedos = match options.optional::<f64>("--albedo")? {
+        Some(a) => vec![a],
+        None => vec![0.1, 0.9],
     };
+    let world = options.world(0)?;
     let n = world.facet_count();
-    let spin = SpinModel {
-        start: hifitime::Epoch::from_tdb_seconds(0.0),
-        duration_s: 12.13 * 3600.0,
-        steps: args.steps,
-        sun_dir_scene: DVec3::new(1.0, 0.0, 0.3).normalize(),
-        sun_distance_m: slim::AU_M,
-        solar_constant_w_m2: slim::SOLAR_CONSTANT_W_M2,
-        bodies: vec![Spin {
-            period_s: Some(12.13 * 3600.0),
-            initial_angle_rad: 0.0,
-            position_m: DVec3::ZERO,
-        }],
-    };
-    let states = epoch_states(&spin)?;
+    let states = common::spin_states(steps, DVec3::new(1.0, 0.0, 0.3))?;
     println!(
         "mesh {} ({n} facets), {} steps, {} threads, peak RSS after loading {:.0} MB",
-        args.mesh.display(),
-        args.steps,
+        options.mesh().display(),
+        steps,
         rayon::current_num_threads(),
         peak_rss_mb()
     );
     let direct = Direct::new(&world, TracerKind::Sunview);
     let settings = Settings {
-        albedo: vec![args.albedo[0]; n],
+        albedo: vec![albedos[0]; n],
         solver: SolverKind::Auto,
         max_orders: 1000,
         tolerance: 1e-6,
@@ -132,7 +67,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     );
     let mut d = vec![0.0; n];
     let mut out = vec![0.0; n];
-    for &albedo in &args.albedo {
+    for &albedo in &albedos {
         stage.set_albedo(vec![albedo; n]);
         let mut times = Vec::new();
         let mut reports = Vec::new();

@@ -1,0 +1,115 @@
+//! What the benchmarks share: command-line options, the thread count, the test body (a
+//! mesh file, km, optionally subdivided) spinning under a fixed Sun, and peak memory.
+
+use glam::DVec3;
+use slim::ephemeris::spin::{Spin, SpinModel};
+use slim::ephemeris::EpochState;
+use slim::mesh::{generate::subdivide, inspect::inspect, read_mesh, LengthUnit, Mesh};
+use slim::run::epoch_states;
+use slim::world::{Body, World};
+use std::path::PathBuf;
+
+/// Itokawa's spin period, seconds: the benchmarks' spin.
+const SPIN_PERIOD_S: f64 = 12.13 * 3600.0;
+
+/// The command line: `[MESH] [--flag value]…`; `flags` are the flags that take a value.
+pub struct Options {
+    argv: Vec<String>,
+    flags: &'static [&'static str],
+}
+
+impl Options {
+    /// This process's arguments; `flags` lists every flag that takes a value.
+    pub fn from_env(flags: &'static [&'static str]) -> Options {
+        Options {
+            argv: std::env::args().skip(1).collect(),
+            flags,
+        }
+    }
+
+    /// The value after `flag`, parsed, or `None` when the flag is absent.
+    pub fn optional<T: std::str::FromStr>(&self, flag: &str) -> Result<Option<T>, String> {
+        match self.argv.iter().position(|a| a == flag) {
+            None => Ok(None),
+            Some(k) => self
+                .argv
+                .get(k + 1)
+                .and_then(|v| v.parse().ok())
+                .map(Some)
+                .ok_or(format!("{flag} needs a value")),
+        }
+    }
+
+    /// The value after `flag`, parsed, or `default` when the flag is absent.
+    pub fn value<T: std::str::FromStr>(&self, flag: &str, default: T) -> Result<T, String> {
+        Ok(self.optional(flag)?.unwrap_or(default))
+    }
+
+    /// The mesh: the argument that is neither a flag nor a flag's value, or the
+    /// 49,152-facet Itokawa model.
+    pub fn mesh(&self) -> PathBuf {
+        let argv = &self.argv;
+        argv.iter()
+            .enumerate()
+            .find(|(k, a)| {
+                !a.starts_with("--") && (*k == 0 || !self.flags.contains(&argv[k - 1].as_str()))
+            })
+            .map(|(_, a)| PathBuf::from(a))
+            .unwrap_or_else(|| {
+                PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+                    .join("data/shapes/itokawa/ItokawaHayabusa.obj")
+            })
+    }
+
+    /// `--threads N` (0 or absent: rayon's default) applied to the global pool.
+    pub fn apply_threads(&self) -> Result<(), Box<dyn std::error::Error>> {
+        let threads: usize = self.value("--threads", 0)?;
+        if threads > 0 {
+            rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build_global()?;
+        }
+        Ok(())
+    }
+
+    /// One body from the mesh (km) subdivided `--subdivide` times (×4 facets per level,
+    /// same shape), `default_subdivide` when the flag is absent.
+    pub fn world(&self, default_subdivide: u32) -> Result<World, Box<dyn std::error::Error>> {
+        let levels: u32 = self.value("--subdivide", default_subdivide)?;
+        let raw = (0..levels).fold(read_mesh(&self.mesh(), None)?, |m, _| subdivide(&m));
+        let mesh = Mesh::from_raw(raw, LengthUnit::Km);
+        let convex = inspect(&mesh).convex;
+        Ok(World {
+            bodies: vec![Body::new("body", mesh, convex)],
+        })
+    }
+}
+
+/// `steps` states over one spin of the body about z, the Sun at 1 AU along `sun_dir`.
+pub fn spin_states(steps: usize, sun_dir: DVec3) -> Result<Vec<EpochState>, slim::Error> {
+    epoch_states(&SpinModel {
+        start: hifitime::Epoch::from_tdb_seconds(0.0),
+        duration_s: SPIN_PERIOD_S,
+        steps,
+        sun_dir_scene: sun_dir.normalize(),
+        sun_distance_m: slim::AU_M,
+        solar_constant_w_m2: slim::SOLAR_CONSTANT_W_M2,
+        bodies: vec![Spin {
+            period_s: Some(SPIN_PERIOD_S),
+            initial_angle_rad: 0.0,
+            position_m: DVec3::ZERO,
+        }],
+    })
+}
+
+/// Peak resident memory of this process, MB (Linux; 0 elsewhere).
+pub fn peak_rss_mb() -> f64 {
+    std::fs::read_to_string("/proc/self/status")
+        .ok()
+        .and_then(|s| {
+            s.lines()
+                .find(|l| l.starts_with("VmHWM:"))
+                .and_then(|l| l.split_whitespace().nth(1)?.parse::<f64>().ok())
+        })
+        .map_or(0.0, |kb| kb / 1024.0)
+}
