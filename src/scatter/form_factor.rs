@@ -6,25 +6,28 @@
 //!
 //! Far apart (centroid distance ≥ [`NearField::far_ratio`] × the larger facet's longest
 //! edge) the point formula `cos θ_i cos θ_j A_i A_j / (π r²)` is used; its relative error
-//! falls as (size/distance)². Closer, the inner integral over the receiving triangle is
-//! exact — Lambert's formula for the form factor from a point to a polygon, with the
-//! polygon first clipped to the half-space in front of the point — and the outer integral
-//! over the other triangle is adaptive: a triangle's centroid-rule value is compared with
-//! the sum over its four midpoint children, and children are split again until the two
-//! agree to [`NearField::tolerance`] relative to the larger of the triangle's own value and
-//! its area's share of the pair's estimate, or [`NearField::max_depth`] is reached; the
-//! accepted value is Richardson-extrapolated (the centroid rule's error falls as h²).
-//! The outer integral runs over the smaller facet, where the integrand varies least.
+//! falls as (size/distance)². Closer, the inner integral over the receiving (larger)
+//! triangle is exact — Lambert's formula for the form factor from a point to a polygon,
+//! the polygon first clipped to the half-space in front of the sending facet's plane —
+//! and the outer integral runs over the part of the sending (smaller) triangle in front
+//! of the receiver's plane. Clipping both ways leaves an integrand that is smooth up to
+//! the piece's edges (it falls linearly to zero at a horizon line instead of breaking
+//! there), so the outer integral uses Dunavant's 6-point degree-4 rule, adaptively: a
+//! triangle's Gauss value is compared with the sum over its four midpoint children, and
+//! children are split again until the two agree to [`NearField::tolerance`] relative to
+//! the larger of the children's sum and the triangle's area share of the pair's estimate,
+//! or [`NearField::max_depth`] splits are reached. Only pairs closer than [`GAUSS_RATIO`]
+//! sizes are split; farther, one Gauss pass over the clipped piece suffices.
 //!
 //! Between the two, pairs at least [`GAUSS_RATIO`] sizes apart whose triangles lie wholly
 //! in front of each other (no horizon cuts either, so the kernel is smooth on both) get a
-//! product Gauss rule: Dunavant's 6-point degree-4 rule on each triangle, 36 evaluations
-//! of the point kernel and no arctangent. Against a 1e-8 adaptive reference on the 12,288-
-//! facet Itokawa model its largest relative error is 1e-4 from 3 sizes on, 3e-5 from 4 and
-//! 6e-6 from 6, below the adaptive rule's own (6e-4, 8e-4 and 1e-4 on the same pairs).
+//! product Gauss rule: the 6-point rule on each triangle, 36 evaluations of the point
+//! kernel and no arctangent. Against a 1e-8 adaptive reference on the 12,288-facet
+//! Itokawa model its largest relative error is 1e-4 from 3 sizes on, 3e-5 from 4 and
+//! 6e-6 from 6.
 
 use glam::DVec3;
-use std::f64::consts::PI;
+use std::f64::consts::{FRAC_PI_2, FRAC_PI_4, PI};
 
 /// One facet as the form-factor integrals see it.
 #[derive(Debug, Clone, Copy)]
@@ -63,23 +66,22 @@ pub struct NearField {
     /// Pairs closer than this many facet sizes get the exact-inner, adaptive-outer integral.
     pub far_ratio: f64,
     /// Adaptive-outer stopping tolerance, relative to the pair's exchange area: a
-    /// triangle is not split when its centroid value and its children's sum agree to this.
+    /// triangle is not split when its Gauss value and its children's sum agree to this.
     pub tolerance: f64,
-    /// Deepest split of the outer facet (4^depth sub-triangles at most).
+    /// Most splits of the outer facet (4^depth sub-triangles at most).
     pub max_depth: u32,
 }
 
 impl Default for NearField {
-    /// Point formula beyond 16 sizes, 1e-3 relative per split (Richardson-extrapolated),
-    /// at most 4^3 = 64 sub-triangles: rows of a 1,280-facet sphere interior then sum
-    /// to 1 within 1.3e-5, where 8 sizes leave 1.2e-3 (README, "Scattered light"). Deeper
-    /// splits only refine along shared edges and horizon lines: on the 3,072-facet
-    /// Itokawa model, depth 6 instead of 3 takes 8× longer and changes the mean row sum's
-    /// error against a 1e-6, depth-8 reference from 8.3e-6 to 5.0e-6 (largest 5e-3 both).
+    /// Point formula beyond 16 sizes, splits to 3e-4 relative, at most 3 splits (64
+    /// sub-triangles): rows of a 1,280-facet sphere interior then sum to 1 within 3.5e-7,
+    /// and Howell's catalogue cases (tests/scatter.rs) come within 1.9e-4. The point
+    /// formula from 8 sizes on instead leaves 1.2e-3 in the sphere's rows (README,
+    /// "Scattered light").
     fn default() -> Self {
         NearField {
             far_ratio: 16.0,
-            tolerance: 1e-3,
+            tolerance: 3e-4,
             max_depth: 3,
         }
     }
@@ -97,30 +99,56 @@ pub fn exchange_area(a: &Facet, b: &Facet, near: &NearField) -> f64 {
     if d2 >= (near.far_ratio * size).powi(2) {
         return point_kernel(a.normal, b.normal, r) * a.area * b.area;
     }
-    if d2 >= (GAUSS_RATIO * size).powi(2) && wholly_in_front(a, b) && wholly_in_front(b, a) {
+    let mid_range = d2 >= (GAUSS_RATIO * size).powi(2);
+    if mid_range && wholly_in_front(a, b) && wholly_in_front(b, a) {
         return gauss_product(a, b);
     }
-    adaptive(a, b, near)
+    // From GAUSS_RATIO sizes on, the integrand over the clipped outer facet is smooth:
+    // one Gauss pass, no splits.
+    adaptive(
+        a,
+        b,
+        near.tolerance,
+        if mid_range { 0 } else { near.max_depth },
+    )
 }
 
-/// Exact inner integral over the larger facet, adaptive outer over the smaller.
-fn adaptive(a: &Facet, b: &Facet, near: &NearField) -> f64 {
+/// Exact inner integral over the larger facet, adaptive outer (relative `tolerance`, at
+/// most `depth` splits) over the part of the smaller facet in front of the larger one's
+/// plane.
+fn adaptive(a: &Facet, b: &Facet, tolerance: f64, depth: u32) -> f64 {
     let (outer, inner) = if a.area <= b.area { (a, b) } else { (b, a) };
-    let whole = outer.area * point_to_facet(outer.centroid, outer.normal, inner);
+    // The part of the outer facet behind the inner one's plane sees none of it: clipping
+    // it off leaves an integrand that is smooth up to the pieces' edges.
+    let mut piece = [DVec3::ZERO; 4];
+    let count = clip_in_front(&outer.corners, inner.centroid, inner.normal, &mut piece);
+    // Every outer point shares the outer plane, so the inner facet's part in front of
+    // them is the same polygon for all of them.
+    let mut seen = [DVec3::ZERO; 4];
+    let seen_count = clip_in_front(&inner.corners, outer.centroid, outer.normal, &mut seen);
+    if count < 3 || seen_count < 3 {
+        return 0.0;
+    }
     let mut quad = Quadrature {
         n: outer.normal,
         inner,
-        rel: near.tolerance,
+        seen: &seen[..seen_count],
         per_area: 0.0,
+        rel: tolerance,
         // Contributions this small (in units of the outer area) are not worth a split.
         floor: 1e-12 * outer.area,
     };
-    let (children, parts) = quad.children(outer.corners);
-    // The pair's own estimate, the larger of the first two levels (the centroid alone
-    // may lie behind the other facet's plane), spread over the outer facet by area.
-    let estimate = whole.max(parts.iter().sum());
-    quad.per_area = near.tolerance * estimate / outer.area;
-    quad.settle(whole, children, parts, near.max_depth)
+    let fan = [
+        [piece[0], piece[1], piece[2]],
+        [piece[0], piece[2], piece[3]],
+    ];
+    let fan = &fan[..count - 2];
+    let first: Vec<f64> = fan.iter().map(|&t| quad.gauss(t)).collect();
+    quad.per_area = tolerance * first.iter().sum::<f64>() / outer.area;
+    fan.iter()
+        .zip(first)
+        .map(|(&t, whole)| quad.refine(t, whole, depth))
+        .sum()
 }
 
 /// `cos θ_a cos θ_b / (π r²)` for points with normals `na`, `nb` joined by `r` (a → b),
@@ -180,8 +208,11 @@ fn gauss_product(a: &Facet, b: &Facet) -> f64 {
 
 /// The adaptive outer integral over one facet of the form factor to `inner`.
 struct Quadrature<'a> {
+    /// The outer facet's normal.
     n: DVec3,
     inner: &'a Facet,
+    /// The part of `inner` in front of the outer facet's plane.
+    seen: &'a [DVec3],
     rel: f64,
     /// The pair's error budget per unit area of the outer facet (m² of exchange area per
     /// m²): `rel ×` the pair's estimate / the outer area.
@@ -190,37 +221,44 @@ struct Quadrature<'a> {
 }
 
 impl Quadrature<'_> {
-    /// The four midpoint children of `tri` and their centroid-rule values.
-    fn children(&self, tri: [DVec3; 3]) -> ([[DVec3; 3]; 4], [f64; 4]) {
-        let children = split4(tri);
-        let quarter = 0.5 * (tri[1] - tri[0]).cross(tri[2] - tri[0]).length() / 4.0;
-        let parts = children
-            .map(|c| quarter * point_to_facet((c[0] + c[1] + c[2]) / 3.0, self.n, self.inner));
-        (children, parts)
+    /// [`DUNAVANT_6`] over `tri` of the point-to-inner form factor, times its area.
+    fn gauss(&self, tri: [DVec3; 3]) -> f64 {
+        let area = 0.5 * (tri[1] - tri[0]).cross(tri[2] - tri[0]).length();
+        let sum: f64 = DUNAVANT_6
+            .iter()
+            .map(|&(w, weight)| {
+                let x = tri[0] * w[0] + tri[1] * w[1] + tri[2] * w[2];
+                weight * self.point_to_inner(x)
+            })
+            .sum();
+        area * sum
     }
 
-    /// The integral over `tri`, whose centroid-rule value is `whole`.
+    /// The form factor from outer point `x` to the inner facet.
+    fn point_to_inner(&self, x: DVec3) -> f64 {
+        if self.inner.normal.dot(x - self.inner.centroid) <= 0.0 {
+            return 0.0;
+        }
+        lambert_polygon(x, self.n, self.seen)
+    }
+
+    /// The integral over `tri`, whose Gauss value is `whole`: accepted when the sum over
+    /// its four midpoint children agrees with it to `rel` of the larger of that sum and
+    /// its area's share of the pair's estimate, else each child is refined in turn, at
+    /// most `depth` more times. Sub-triangles that add little to the pair (along the
+    /// shared edge or horizon line, where the integrand is least smooth) stop early, and
+    /// the pair's error stays below about `rel × (pair + estimate)`.
     fn refine(&self, tri: [DVec3; 3], whole: f64, depth: u32) -> f64 {
-        let (children, parts) = self.children(tri);
-        self.settle(whole, children, parts, depth)
-    }
-
-    /// The integral over the triangle split into `children` (centroid-rule values
-    /// `parts`), whose own centroid-rule value is `whole`. A triangle is accepted when
-    /// the two rules agree to `rel` of the larger of its own value and its area's share
-    /// of the pair's estimate: sub-triangles that add little to the pair (along the
-    /// line where the other facet's plane cuts this one) stop early, and the pair's
-    /// error stays below `rel × (pair + estimate)`, at most twice the per-triangle
-    /// relative test's `rel × pair`.
-    fn settle(&self, whole: f64, children: [[DVec3; 3]; 4], parts: [f64; 4], depth: u32) -> f64 {
+        if depth == 0 {
+            return whole;
+        }
+        let children = split4(tri);
+        let parts = children.map(|c| self.gauss(c));
         let sum: f64 = parts.iter().sum();
-        let c = &children[3];
-        let area = 2.0 * (c[1] - c[0]).cross(c[2] - c[0]).length();
+        let area = 0.5 * (tri[1] - tri[0]).cross(tri[2] - tri[0]).length();
         let allowed = (self.rel * sum).max(self.per_area * area) + self.floor;
-        if depth == 0 || (sum - whole).abs() <= allowed {
-            // The centroid rule's error falls as h² for a smooth integrand: one step of
-            // Richardson extrapolation removes that term.
-            return sum + (sum - whole) / 3.0;
+        if (sum - whole).abs() <= allowed {
+            return sum;
         }
         children
             .iter()
@@ -260,10 +298,47 @@ pub fn lambert_polygon(x: DVec3, n: DVec3, poly: &[DVec3]) -> f64 {
         let cross = a.cross(b);
         let sin = cross.length();
         if sin > 0.0 {
-            sum += sin.atan2(a.dot(b)) * n.dot(cross) / sin;
+            sum += angle(sin, a.dot(b)) * n.dot(cross) / sin;
         }
     }
     (sum / (2.0 * PI)).abs()
+}
+
+/// The angle in [0, π] whose sine and cosine are proportional to `sin` (> 0) and `cos`:
+/// `sin.atan2(cos)` to within 1e-12 rad at a third of its cost (the near field evaluates
+/// it hundreds of millions of times). The argument is reduced to [0, tan π/8], where
+/// `atan(x)/x` is a degree-7 polynomial in x² (least squares on Chebyshev nodes, largest
+/// error 3e-13).
+#[inline]
+fn angle(sin: f64, cos: f64) -> f64 {
+    const P: [f64; 8] = [
+        9.999_999_999_992_706e-1,
+        -3.333_333_327_838_434e-1,
+        1.999_999_318_889_491e-1,
+        -1.428_539_126_020_617e-1,
+        1.110_353_493_587_36e-1,
+        -8.993_217_497_112_789e-2,
+        6.977_006_340_284_059e-2,
+        -3.770_175_923_250_445e-2,
+    ];
+    const TAN_PI_8: f64 = 0.414_213_562_373_095_03;
+    let c = cos.abs();
+    let x = sin.min(c) / sin.max(c);
+    let (y, base) = if x > TAN_PI_8 {
+        ((x - 1.0) / (x + 1.0), FRAC_PI_4)
+    } else {
+        (x, 0.0)
+    };
+    let u = y * y;
+    let poly = P.iter().rev().fold(0.0, |acc, &p| acc * u + p);
+    let mut r = base + y * poly;
+    if sin > c {
+        r = FRAC_PI_2 - r;
+    }
+    if cos < 0.0 {
+        r = PI - r;
+    }
+    r
 }
 
 /// Sutherland–Hodgman clip of a triangle to the half-space `n·(p − x) ≥ 0`; writes the
@@ -323,20 +398,60 @@ mod tests {
             DVec3::new(1.1, 0.0, 3.2),
         ]);
         assert!(wholly_in_front(&a, &b) && wholly_in_front(&b, &a));
-        let reference = adaptive(
-            &a,
-            &b,
-            &NearField {
-                tolerance: 1e-9,
-                max_depth: 9,
-                ..NearField::default()
-            },
-        );
+        let reference = adaptive(&a, &b, 1e-9, 9);
         let gauss = exchange_area(&a, &b, &NearField::default());
         assert!(
             (gauss / reference - 1.0).abs() < 1e-4,
             "{gauss} vs {reference}"
         );
+    }
+
+    #[test]
+    fn one_gauss_pass_suffices_for_a_horizon_cut_pair_from_three_sizes() {
+        // The plane of `a` cuts `b`: one Gauss pass over the clipped outer facet against
+        // the same rule split to 1e-9.
+        let a = Facet::new([
+            DVec3::ZERO,
+            DVec3::new(1.0, 0.0, 0.0),
+            DVec3::new(0.3, 0.9, 0.0),
+        ]);
+        let b = Facet::new([
+            DVec3::new(5.0, 0.0, -0.3),
+            DVec3::new(5.1, -0.2, 0.8),
+            DVec3::new(5.0, 0.9, 0.6),
+        ]);
+        assert!(!wholly_in_front(&a, &b) && wholly_in_front(&b, &a));
+        assert!((b.centroid - a.centroid).length() > GAUSS_RATIO * a.size.max(b.size));
+        let reference = adaptive(&a, &b, 1e-9, 9);
+        let once = exchange_area(&a, &b, &NearField::default());
+        assert!(reference > 0.0);
+        assert!(
+            (once / reference - 1.0).abs() < 1e-4,
+            "{once} vs {reference}"
+        );
+    }
+
+    #[test]
+    fn fast_angle_matches_atan2() {
+        let mut worst: f64 = 0.0;
+        for i in 1..=2000 {
+            let theta = PI * i as f64 / 2001.0;
+            for scale in [1e-300, 1e-3, 1.0, 7e5] {
+                let (s, c) = (scale * theta.sin(), scale * theta.cos());
+                worst = worst.max((angle(s, c) - s.atan2(c)).abs());
+            }
+        }
+        // Exactly along the axes, and a sine far below the cosine.
+        for (s, c) in [
+            (1.0, 0.0),
+            (1.0, 1.0),
+            (1e-20, 1.0),
+            (1e-20, -1.0),
+            (2.0, -1e-30),
+        ] {
+            worst = worst.max((angle(s, c) - f64::atan2(s, c)).abs());
+        }
+        assert!(worst < 1e-12, "{worst}");
     }
 
     #[test]

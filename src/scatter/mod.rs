@@ -342,7 +342,7 @@ pub struct Scatter<'w> {
     world: &'w World,
     settings: Settings,
     method: SolverKind,
-    bvhs: Vec<Bvh<'w>>,
+    bvhs: Vec<Bvh>,
     offsets: Vec<usize>,
     own: Vec<Csr>,
     own_row_sums: Vec<f64>,
