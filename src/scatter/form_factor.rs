@@ -383,38 +383,41 @@ mod tests {
         assert!((f - 4.0 * corner).abs() < 1e-14, "{f} vs {}", 4.0 * corner);
     }
 
-    #[test]
-    fn gauss_product_matches_the_exact_integral_from_three_sizes() {
-        // A tilted pair 3 sizes apart, wholly in front of each other: the product rule
-        // against the adaptive exact-inner integral run to 1e-9.
-        let a = Facet::new([
+    /// A unit-sized triangle in the plane z = 0, facing +z.
+    fn base_facet() -> Facet {
+        Facet::new([
             DVec3::ZERO,
             DVec3::new(1.0, 0.0, 0.0),
             DVec3::new(0.3, 0.9, 0.0),
-        ]);
+        ])
+    }
+
+    /// The default exchange area of `a` and `b` relative to the exact-inner rule split to
+    /// 1e-9, less one.
+    fn error_against_fine_split(a: &Facet, b: &Facet) -> f64 {
+        let reference = adaptive(a, b, 1e-9, 9);
+        assert!(reference > 0.0);
+        exchange_area(a, b, &NearField::default()) / reference - 1.0
+    }
+
+    #[test]
+    fn gauss_product_matches_the_exact_integral_from_three_sizes() {
+        // A tilted pair 3 sizes apart, wholly in front of each other: the product rule.
+        let a = base_facet();
         let b = Facet::new([
             DVec3::new(0.2, 0.1, 3.0),
             DVec3::new(0.5, 1.0, 3.4),
             DVec3::new(1.1, 0.0, 3.2),
         ]);
         assert!(wholly_in_front(&a, &b) && wholly_in_front(&b, &a));
-        let reference = adaptive(&a, &b, 1e-9, 9);
-        let gauss = exchange_area(&a, &b, &NearField::default());
-        assert!(
-            (gauss / reference - 1.0).abs() < 1e-4,
-            "{gauss} vs {reference}"
-        );
+        let error = error_against_fine_split(&a, &b);
+        assert!(error.abs() < 1e-4, "{error}");
     }
 
     #[test]
     fn one_gauss_pass_suffices_for_a_horizon_cut_pair_from_three_sizes() {
-        // The plane of `a` cuts `b`: one Gauss pass over the clipped outer facet against
-        // the same rule split to 1e-9.
-        let a = Facet::new([
-            DVec3::ZERO,
-            DVec3::new(1.0, 0.0, 0.0),
-            DVec3::new(0.3, 0.9, 0.0),
-        ]);
+        // The plane of `a` cuts `b`: one Gauss pass over the clipped outer facet.
+        let a = base_facet();
         let b = Facet::new([
             DVec3::new(5.0, 0.0, -0.3),
             DVec3::new(5.1, -0.2, 0.8),
@@ -422,13 +425,8 @@ mod tests {
         ]);
         assert!(!wholly_in_front(&a, &b) && wholly_in_front(&b, &a));
         assert!((b.centroid - a.centroid).length() > GAUSS_RATIO * a.size.max(b.size));
-        let reference = adaptive(&a, &b, 1e-9, 9);
-        let once = exchange_area(&a, &b, &NearField::default());
-        assert!(reference > 0.0);
-        assert!(
-            (once / reference - 1.0).abs() < 1e-4,
-            "{once} vs {reference}"
-        );
+        let error = error_against_fine_split(&a, &b);
+        assert!(error.abs() < 1e-4, "{error}");
     }
 
     #[test]
