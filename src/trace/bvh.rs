@@ -275,7 +275,10 @@ impl Slab {
     fn hits(&self, lo: Vec3A, hi: Vec3A) -> bool {
         let a = (lo - self.origin) * self.inv;
         let b = (hi - self.origin) * self.inv;
-        // NaN (0·∞ on a box face) compares false and so never narrows the range.
+        // A NaN (0·∞: the segment runs parallel to an axis, in a box face's plane) either
+        // drops out (widening the range) or rejects the box; it rejects only a segment
+        // lying in the plane of a face padded `BOX_MARGIN` beyond every facet inside,
+        // which therefore crosses none of them.
         let near = a.min(b).max_element().max(self.t0);
         let far = a.max(b).min_element().min(self.t1);
         near <= far
@@ -652,5 +655,22 @@ mod tests {
         // Parallel to the grid just above it: nothing.
         let (a, b) = (DVec3::new(0.5, 4.0, 1e-6), DVec3::new(7.5, 4.0, 1e-6));
         assert!(!bvh.segment_blocked(a, b, none, 1e-9));
+        // Along grid lines and axes, in the grid's plane and across it: as the exact
+        // predicate over every facet says (axis-parallel directions give 0·∞ in the box
+        // tests).
+        for (a, b) in [
+            (DVec3::new(0.0, 4.0, 0.0), DVec3::new(8.0, 4.0, 0.0)),
+            (DVec3::new(3.0, -1.0, 0.0), DVec3::new(3.0, 9.0, 0.0)),
+            (DVec3::new(0.0, 0.0, 0.0), DVec3::new(8.0, 8.0, 0.0)),
+            (DVec3::new(2.0, 2.0, -1.0), DVec3::new(2.0, 2.0, 1.0)),
+            (DVec3::new(8.0, 0.0, -1.0), DVec3::new(8.0, 0.0, 1.0)),
+            (DVec3::new(8.0, 3.0, 0.5), DVec3::new(8.0, 3.0, -0.5)),
+        ] {
+            assert_eq!(
+                bvh.segment_blocked(a, b, none, 1e-9),
+                brute_force(&mesh, a, b, 1e-9),
+                "{a} → {b}"
+            );
+        }
     }
 }
