@@ -319,63 +319,48 @@ fn round_up(x: f64) -> f32 {
 /// The traversal layout of the built `nodes`: one [`Pair`] per inner node (the root's
 /// first), with boxes relative to `centre` and widened by `margin` metres.
 fn pairs(nodes: &[Node], centre: DVec3, margin: f32) -> Vec<Pair> {
-    let Some(root) = nodes.first() else {
+    if nodes.is_empty() {
         return Vec::new();
-    };
-    // A leaf root becomes a pair with one child and one empty box.
-    let empty = Node {
-        lo: DVec3::INFINITY,
-        hi: DVec3::NEG_INFINITY,
-        first: 0,
-        count: u32::MAX,
-    };
-    let children = |n: &Node| {
-        if n.count == 0 {
-            [nodes[n.first as usize], nodes[n.first as usize + 1]]
-        } else {
-            [*n, empty]
-        }
-    };
-    // Inner nodes in build order get consecutive pair indices (the root's pair is 0).
+    }
+    // The root and then every other inner node, in build order, each get a pair (a leaf
+    // root's pair holds just itself); `index` maps an inner node to its pair.
     let mut index = vec![0u32; nodes.len()];
-    let mut next = 1;
+    let mut owners = vec![0usize];
     for (i, n) in nodes.iter().enumerate().skip(1) {
         if n.count == 0 {
-            index[i] = next;
-            next += 1;
+            index[i] = owners.len() as u32;
+            owners.push(i);
         }
     }
-    let mut out = Vec::with_capacity(next as usize);
-    for n in std::iter::once(root).chain(nodes[1..].iter().filter(|n| n.count == 0)) {
-        let kids = children(n);
-        let child_index = |k: usize| {
-            if n.count == 0 {
-                n.first as usize + k
+    owners
+        .iter()
+        .map(|&i| {
+            let n = &nodes[i];
+            let first = n.first as usize;
+            let (kids, used) = if n.count == 0 {
+                ([first, first + 1], 2)
             } else {
-                0
-            }
-        };
-        let mut pair = Pair {
-            lo: [Vec3A::INFINITY; 2],
-            hi: [Vec3A::INFINITY; 2],
-            first: [0; 2],
-            count: [0; 2],
-        };
-        for (k, c) in kids.iter().enumerate() {
-            if c.count == u32::MAX {
-                continue;
-            }
-            pair.lo[k] = Vec3A::from((c.lo - centre).as_vec3()) - Vec3A::splat(margin);
-            pair.hi[k] = Vec3A::from((c.hi - centre).as_vec3()) + Vec3A::splat(margin);
-            (pair.first[k], pair.count[k]) = if c.count == 0 {
-                (index[child_index(k)], 0)
-            } else {
-                (c.first, c.count)
+                ([i, i], 1)
             };
-        }
-        out.push(pair);
-    }
-    out
+            let mut pair = Pair {
+                lo: [Vec3A::INFINITY; 2],
+                hi: [Vec3A::INFINITY; 2],
+                first: [0; 2],
+                count: [0; 2],
+            };
+            for (k, &c) in kids[..used].iter().enumerate() {
+                let child = &nodes[c];
+                pair.lo[k] = Vec3A::from((child.lo - centre).as_vec3()) - Vec3A::splat(margin);
+                pair.hi[k] = Vec3A::from((child.hi - centre).as_vec3()) + Vec3A::splat(margin);
+                (pair.first[k], pair.count[k]) = if child.count == 0 {
+                    (index[c], 0)
+                } else {
+                    (child.first, child.count)
+                };
+            }
+            pair
+        })
+        .collect()
 }
 
 fn leaf(mesh: &Mesh, facets: &[u32], first: u32) -> Node {
