@@ -131,6 +131,20 @@ fn settings(albedo: Vec<f64>, solver: SolverKind, tolerance: f64) -> Settings {
 // ---------------------------------------------------------------------------------------
 // Form factors
 
+/// The factor from the unit square in z = 0 (n × n cells, facing +z) to the rectangle
+/// `(origin, edge, edge)` (n × n cells), asserted within 0.5 % of Howell's `exact`;
+/// returns its relative error.
+fn unit_square_against(second: (DVec3, DVec3, DVec3), n: u32, exact: f64, case: &str) -> f64 {
+    let mut raw = RawMesh::default();
+    rectangle(DVec3::ZERO, DVec3::X, DVec3::Y, n, &mut raw);
+    rectangle(second.0, second.1, second.2, n, &mut raw);
+    let mesh = Mesh::from_raw(raw, LengthUnit::M);
+    let f = surface_factor(&mesh, &block_of(&mesh), 2 * (n * n) as usize);
+    let error = f / exact - 1.0;
+    assert!(error.abs() < 5e-3, "{case}: {f} vs {exact}");
+    error.abs()
+}
+
 #[test]
 fn howell_catalogue_closed_forms_coarse_and_fine() {
     // The tolerance 0.5 % covers the near-field quadrature (3e-4 per split, measured
@@ -139,30 +153,16 @@ fn howell_catalogue_closed_forms_coarse_and_fine() {
     let mut worst: f64 = 0.0;
     for n in [1, 4] {
         for c in [1.0, 0.5, 0.2, 0.1] {
-            let mut raw = RawMesh::default();
-            rectangle(DVec3::ZERO, DVec3::X, DVec3::Y, n, &mut raw);
-            rectangle(DVec3::new(0.0, 0.0, c), DVec3::Y, DVec3::X, n, &mut raw);
-            let mesh = Mesh::from_raw(raw, LengthUnit::M);
-            let f = surface_factor(&mesh, &block_of(&mesh), 2 * (n * n) as usize);
+            let case = format!("parallel squares {c} apart, {n}×{n}");
+            let second = (DVec3::new(0.0, 0.0, c), DVec3::Y, DVec3::X);
             let exact = howell_parallel(1.0, 1.0, c);
-            worst = worst.max((f / exact - 1.0).abs());
-            assert!(
-                (f / exact - 1.0).abs() < 5e-3,
-                "parallel squares {c} apart, {n}×{n}: {f} vs {exact}"
-            );
+            worst = worst.max(unit_square_against(second, n, exact, &case));
         }
         for h in [1.0, 0.5, 0.1] {
-            let mut raw = RawMesh::default();
-            rectangle(DVec3::ZERO, DVec3::X, DVec3::Y, n, &mut raw);
-            rectangle(DVec3::ZERO, DVec3::Z * h, DVec3::X, n, &mut raw);
-            let mesh = Mesh::from_raw(raw, LengthUnit::M);
-            let f = surface_factor(&mesh, &block_of(&mesh), 2 * (n * n) as usize);
+            let case = format!("perpendicular, height {h}, {n}×{n}");
+            let second = (DVec3::ZERO, DVec3::Z * h, DVec3::X);
             let exact = howell_perpendicular(1.0, 1.0, h);
-            worst = worst.max((f / exact - 1.0).abs());
-            assert!(
-                (f / exact - 1.0).abs() < 5e-3,
-                "perpendicular, height {h}, {n}×{n}: {f} vs {exact}"
-            );
+            worst = worst.max(unit_square_against(second, n, exact, &case));
         }
     }
     eprintln!("Howell catalogue: worst relative error {worst:.2e}");
