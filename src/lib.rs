@@ -53,3 +53,12 @@ pub const SOLAR_CONSTANT_W_M2: f64 = 1361.0;
 
 /// One astronomical unit in metres (IAU 2012).
 pub const AU_M: f64 = 149_597_870_700.0;
+
+/// A file name's extension in lower case, empty when it has none (or is not UTF-8): what
+/// the readers dispatch on (mesh, kernel and image formats).
+pub(crate) fn lowercase_extension(path: &std::path::Path) -> String {
+    path.extension()
+        .and_then(|e| e.to_str())
+        .map(str::to_ascii_lowercase)
+        .unwrap_or_default()
+}

@@ -105,11 +105,7 @@ impl Image {
 
 /// Reads an image file by extension: `.fits`/`.fit`/`.fts` or `.png`.
 pub fn read_image(path: &Path) -> Result<Image> {
-    let ext = path
-        .extension()
-        .and_then(|e| e.to_str())
-        .map(str::to_ascii_lowercase)
-        .unwrap_or_default();
+    let ext = crate::lowercase_extension(path);
     match ext.as_str() {
         "fits" | "fit" | "fts" => fits::read(path),
         "png" => png::read(path),

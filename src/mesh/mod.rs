@@ -50,8 +50,7 @@ pub enum MeshFormat {
 impl MeshFormat {
     /// The format implied by a file name's extension, if any.
     pub fn from_path(path: &Path) -> Option<MeshFormat> {
-        let ext = path.extension()?.to_str()?.to_ascii_lowercase();
-        match ext.as_str() {
+        match crate::lowercase_extension(path).as_str() {
             "obj" => Some(MeshFormat::Obj),
             "ply" => Some(MeshFormat::Ply),
             "stl" => Some(MeshFormat::Stl),

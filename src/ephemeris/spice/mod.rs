@@ -58,11 +58,7 @@ impl Kernels {
     }
 
     fn load_one(&mut self, path: &Path) -> Result<()> {
-        let ext = path
-            .extension()
-            .and_then(|e| e.to_str())
-            .map(str::to_ascii_lowercase)
-            .unwrap_or_default();
+        let ext = crate::lowercase_extension(path);
         match ext.as_str() {
             "bsp" | "bpc" => {
                 let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
