@@ -54,9 +54,17 @@ pub fn own_block(mesh: &Mesh, bvh: &Bvh, near: &NearField) -> Csr {
         holds_cols: true,
     }];
     let margin = rounding_margin(&f);
+    let planes = planes(&f);
     let upper: Vec<Vec<(u32, f32)>> = (0..f.len())
         .into_par_iter()
-        .map(|i| visible_row(&f[i], i, &f[i + 1..], i + 1, &occluders, margin, near))
+        .map(|i| {
+            let others = Partners {
+                facets: &f[i + 1..],
+                planes: &planes[i + 1..],
+                first: i + 1,
+            };
+            visible_row(&f[i], i, &others, &occluders, margin, near)
+        })
         .collect();
     Csr::symmetric_from_upper(&upper)
 }
@@ -70,20 +78,56 @@ pub fn cross_block(
     near: &NearField,
 ) -> Csr {
     let margin = rounding_margin(rows).max(rounding_margin(cols));
+    let others = Partners {
+        facets: cols,
+        planes: &planes(cols),
+        first: 0,
+    };
     let lists: Vec<Vec<(u32, f32)>> = (0..rows.len())
         .into_par_iter()
-        .map(|i| visible_row(&rows[i], i, cols, 0, occluders, margin, near))
+        .map(|i| visible_row(&rows[i], i, &others, occluders, margin, near))
         .collect();
     Csr::from_rows(&lists, cols.len())
 }
 
-/// The visible partners of facet `a` (id `ia` in the row body) among `others` (ids from
-/// `first` in the column body), with their exchange areas.
+/// A facet's plane as the mutual-facing test reads it, packed apart from the rest of
+/// [`Facet`] because every row scans all of them.
+#[derive(Clone, Copy)]
+struct Plane {
+    centroid: DVec3,
+    normal: DVec3,
+    /// `normal · centroid` (m); zero-area facets get +∞, so nothing is in front of them.
+    offset: f64,
+}
+
+fn planes(facets: &[Facet]) -> Vec<Plane> {
+    facets
+        .iter()
+        .map(|f| Plane {
+            centroid: f.centroid,
+            normal: f.normal,
+            offset: if f.area > 0.0 {
+                f.normal.dot(f.centroid)
+            } else {
+                f64::INFINITY
+            },
+        })
+        .collect()
+}
+
+/// The candidate partners of a row: facets with their planes, ids from `first`.
+struct Partners<'a> {
+    facets: &'a [Facet],
+    planes: &'a [Plane],
+    first: usize,
+}
+
+/// The visible partners of facet `a` (id `ia` in the row body) among `others`, with
+/// their exchange areas.
 fn visible_row(
     a: &Facet,
     ia: usize,
-    others: &[Facet],
-    first: usize,
+    others: &Partners,
     occluders: &[Occluder],
     margin: f64,
     near: &NearField,
@@ -93,13 +137,11 @@ fn visible_row(
     }
     let front = a.normal.dot(a.centroid);
     let mut row = Vec::new();
-    for (k, b) in others.iter().enumerate() {
-        let facing =
-            a.normal.dot(b.centroid) > front && b.normal.dot(a.centroid) > b.normal.dot(b.centroid);
-        if !facing || b.area <= 0.0 {
+    for (k, p) in others.planes.iter().enumerate() {
+        if !(a.normal.dot(p.centroid) > front && p.normal.dot(a.centroid) > p.offset) {
             continue;
         }
-        let ib = first + k;
+        let (ib, b) = (others.first + k, &others.facets[k]);
         if occluders
             .iter()
             .any(|o| hides(o, a.centroid, b.centroid, [ia, ib], margin))

@@ -6,18 +6,28 @@
 //! The hit decision is the shared exact predicate of [`super::ray`] evaluated in the frame
 //! of the segment's direction, so a segment is classified exactly as a shadow ray of the
 //! other tracers would be. The tree is built with the binned surface-area heuristic;
-//! leaves hold at most [`LEAF_SIZE`] facets. For traversal each inner node stores both
-//! children's boxes in `f32`, relative to the mesh's centre and rounded outward with a
-//! margin far above `f32` rounding, so the box tests can only let through more, never
-//! fewer, segments than exact ones would; facets are then tested in `f64`.
+//! leaves hold at most [`LEAF_SIZE`] facets. For traversal the binary tree is collapsed
+//! into one of four children per node, whose boxes are stored in `f32` by axis (one
+//! child per SIMD lane), relative to the mesh's centre and rounded outward with a margin
+//! far above `f32` rounding, so the box tests can only let through more, never fewer,
+//! segments than exact ones would; facets are then screened in `f32` and tested in `f64`.
 
 use super::caster_facets;
 use super::ray::{inside, DepthPlane, RayFrame};
 use crate::mesh::Mesh;
-use glam::{DVec3, Vec3A};
+use glam::{DVec3, Vec3, Vec3A, Vec4};
 
 /// Most facets in a leaf.
 const LEAF_SIZE: usize = 4;
+
+/// Nodes below this depth are split at the median instead of by the surface-area
+/// heuristic, which on strongly clustered facets can peel off a few at a time; the tree
+/// is then at most `SAH_DEPTH + 31` levels deep for any `u32` facet count.
+const SAH_DEPTH: u32 = 32;
+
+/// Room on the traversal stack: a quad pushes at most four children having popped
+/// itself, so three more per level of the (binary) tree.
+const STACK: usize = 3 * (SAH_DEPTH as usize + 31) + 1;
 
 /// One node while building: a box and either two children (`count == 0`, children at
 /// `first` and `first + 1`) or a run of `count` facets starting at `first` in the facet
@@ -113,22 +123,22 @@ impl Screened {
     }
 }
 
-/// One node as traversed: the boxes of its two children (metres from the tree's centre)
-/// and, per child, either a run of `count[k]` facets from `first[k]` or (`count[k] == 0`)
-/// the index of the child's own node. A missing child (beside a root that is a leaf) has
-/// the box at +∞ on every axis, which no segment reaches.
+/// One node as traversed: the boxes of up to four children (metres from the tree's
+/// centre, one child per lane, by axis) and, per child, either a run of `count[k]`
+/// facets from `first[k]` or (`count[k] == 0`) the index of the child's own node. An
+/// unused lane has its box at +∞ on every axis, which no segment reaches.
 #[derive(Debug, Clone, Copy)]
-struct Pair {
-    lo: [Vec3A; 2],
-    hi: [Vec3A; 2],
-    first: [u32; 2],
-    count: [u32; 2],
+struct Quad {
+    lo: [Vec4; 3],
+    hi: [Vec4; 3],
+    first: [u32; 4],
+    count: [u32; 4],
 }
 
 /// A BVH over one mesh's facets of non-zero area.
 pub struct Bvh {
     /// The root's children at index 0 (absent for a mesh without facets).
-    pairs: Vec<Pair>,
+    quads: Vec<Quad>,
     tris: Vec<Tri>,
     screens: Vec<Screen>,
     /// Origin of the boxes' coordinates (m, mesh frame).
@@ -146,7 +156,7 @@ impl Bvh {
         let mut nodes = Vec::with_capacity(2 * facets.len() / LEAF_SIZE + 1);
         if !facets.is_empty() {
             nodes.push(leaf(mesh, &facets, 0));
-            split(mesh, &mut nodes, &mut facets, 0);
+            split(mesh, &mut nodes, &mut facets, 0, 0);
         }
         let (centre, reach) = match nodes.first() {
             Some(root) => {
@@ -168,7 +178,7 @@ impl Bvh {
             .map(|(&f, t)| Screen::new(t.corners, t.normal, centre, f))
             .collect();
         Bvh {
-            pairs: pairs(&nodes, centre, BOX_MARGIN * reach as f32),
+            quads: quads(&nodes, centre, BOX_MARGIN * reach as f32),
             tris,
             screens,
             centre,
@@ -183,16 +193,16 @@ impl Bvh {
         let Some(segment) = self.segment(a, b, skip, margin) else {
             return false;
         };
-        let mut stack = [0u32; 64];
+        let mut stack = [0u32; STACK];
         let mut top = 1;
         while top > 0 {
             top -= 1;
-            let pair = &self.pairs[stack[top] as usize];
-            for k in 0..2 {
-                if !segment.slab.hits(pair.lo[k], pair.hi[k]) {
-                    continue;
-                }
-                let (first, count) = (pair.first[k] as usize, pair.count[k] as usize);
+            let quad = &self.quads[stack[top] as usize];
+            let mut lanes = segment.slab.hits(quad);
+            while lanes != 0 {
+                let k = lanes.trailing_zeros() as usize;
+                lanes &= lanes - 1;
+                let (first, count) = (quad.first[k] as usize, quad.count[k] as usize);
                 if count == 0 {
                     stack[top] = first as u32;
                     top += 1;
@@ -208,7 +218,7 @@ impl Bvh {
     /// (no longer than the two margins, or missing the tree's bounding sphere).
     fn segment(&self, a: DVec3, b: DVec3, skip: [u32; 2], margin: f64) -> Option<Segment> {
         let length = (b - a).length();
-        if self.pairs.is_empty() || length <= 2.0 * margin {
+        if self.quads.is_empty() || length <= 2.0 * margin {
             return None;
         }
         let dir = (b - a) / length;
@@ -228,12 +238,7 @@ impl Bvh {
             t0,
             t1,
             skip,
-            slab: Slab {
-                origin: start.as_vec3().into(),
-                inv: dir.as_vec3().recip().into(),
-                t0: round_down(t0 - tc),
-                t1: round_up(t1 - tc),
-            },
+            slab: Slab::new(start.as_vec3(), dir.as_vec3().recip(), t0 - tc, t1 - tc),
         })
     }
 
@@ -260,28 +265,42 @@ struct Segment {
     slab: Slab,
 }
 
-/// A segment as the `f32` box tests see it: origin relative to the tree's centre,
-/// reciprocal direction, and the parameter range.
+/// A segment as the `f32` box tests see it, each value in all four lanes: origin
+/// relative to the tree's centre, reciprocal direction (by axis), and the parameter range.
 struct Slab {
-    origin: Vec3A,
-    inv: Vec3A,
-    t0: f32,
-    t1: f32,
+    origin: [Vec4; 3],
+    inv: [Vec4; 3],
+    t0: Vec4,
+    t1: Vec4,
 }
 
 impl Slab {
-    /// Ray–box slab test over [t0, t1].
+    /// The range `[t0, t1]` (m) is rounded outward to `f32`.
+    fn new(origin: Vec3, inv: Vec3, t0: f64, t1: f64) -> Slab {
+        Slab {
+            origin: origin.to_array().map(Vec4::splat),
+            inv: inv.to_array().map(Vec4::splat),
+            t0: Vec4::splat(round_down(t0)),
+            t1: Vec4::splat(round_up(t1)),
+        }
+    }
+
+    /// Ray–box slab tests over [t0, t1] of a node's four children: bit `k` set when the
+    /// segment may pass through child `k`'s box.
     #[inline]
-    fn hits(&self, lo: Vec3A, hi: Vec3A) -> bool {
-        let a = (lo - self.origin) * self.inv;
-        let b = (hi - self.origin) * self.inv;
-        // A NaN (0·∞: the segment runs parallel to an axis, in a box face's plane) either
-        // drops out (widening the range) or rejects the box; it rejects only a segment
-        // lying in the plane of a face padded `BOX_MARGIN` beyond every facet inside,
-        // which therefore crosses none of them.
-        let near = a.min(b).max_element().max(self.t0);
-        let far = a.max(b).min_element().min(self.t1);
-        near <= far
+    fn hits(&self, quad: &Quad) -> u32 {
+        let (mut near, mut far) = (self.t0, self.t1);
+        for axis in 0..3 {
+            let a = (quad.lo[axis] - self.origin[axis]) * self.inv[axis];
+            let b = (quad.hi[axis] - self.origin[axis]) * self.inv[axis];
+            // A NaN (0·∞: the segment runs parallel to this axis, in a box face's plane)
+            // either drops out (widening the range) or rejects the box; it rejects only a
+            // segment lying in the plane of a face padded `BOX_MARGIN` beyond every facet
+            // inside, which therefore crosses none of them.
+            near = a.min(b).max(near);
+            far = a.max(b).min(far);
+        }
+        near.cmple(far).bitmask()
     }
 }
 
@@ -316,51 +335,65 @@ fn round_up(x: f64) -> f32 {
     -round_down(-x)
 }
 
-/// The traversal layout of the built `nodes`: one [`Pair`] per inner node (the root's
-/// first), with boxes relative to `centre` and widened by `margin` metres.
-fn pairs(nodes: &[Node], centre: DVec3, margin: f32) -> Vec<Pair> {
-    if nodes.is_empty() {
-        return Vec::new();
-    }
-    // The root and then every other inner node, in build order, each get a pair (a leaf
-    // root's pair holds just itself); `index` maps an inner node to its pair.
-    let mut index = vec![0u32; nodes.len()];
-    let mut owners = vec![0usize];
-    for (i, n) in nodes.iter().enumerate().skip(1) {
-        if n.count == 0 {
-            index[i] = owners.len() as u32;
-            owners.push(i);
-        }
-    }
-    owners
-        .iter()
-        .map(|&i| {
-            let n = &nodes[i];
-            let first = n.first as usize;
-            let (kids, used) = if n.count == 0 {
-                ([first, first + 1], 2)
-            } else {
-                ([i, i], 1)
-            };
-            let mut pair = Pair {
-                lo: [Vec3A::INFINITY; 2],
-                hi: [Vec3A::INFINITY; 2],
-                first: [0; 2],
-                count: [0; 2],
-            };
-            for (k, &c) in kids[..used].iter().enumerate() {
-                let child = &nodes[c];
-                pair.lo[k] = Vec3A::from((child.lo - centre).as_vec3()) - Vec3A::splat(margin);
-                pair.hi[k] = Vec3A::from((child.hi - centre).as_vec3()) + Vec3A::splat(margin);
-                (pair.first[k], pair.count[k]) = if child.count == 0 {
-                    (index[c], 0)
-                } else {
-                    (child.first, child.count)
-                };
+/// The traversal layout of the built `nodes`: one [`Quad`] per node that owns one (the
+/// root's first), with boxes relative to `centre` and widened by `margin` metres. A quad
+/// holds a binary node's children, with the largest inner ones replaced by theirs until
+/// there are four (a leaf root's quad holds just itself).
+fn quads(nodes: &[Node], centre: DVec3, margin: f32) -> Vec<Quad> {
+    let mut quads = Vec::new();
+    // Nodes owning a quad, in quad order.
+    let mut owners = if nodes.is_empty() { vec![] } else { vec![0] };
+    while let Some(&owner) = owners.get(quads.len()) {
+        let mut quad = Quad {
+            lo: [Vec4::INFINITY; 3],
+            hi: [Vec4::INFINITY; 3],
+            first: [0; 4],
+            count: [0; 4],
+        };
+        for (lane, c) in grandchildren(nodes, owner).into_iter().enumerate() {
+            let child = &nodes[c];
+            let lo = (child.lo - centre).as_vec3() - margin;
+            let hi = (child.hi - centre).as_vec3() + margin;
+            for axis in 0..3 {
+                quad.lo[axis][lane] = lo[axis];
+                quad.hi[axis][lane] = hi[axis];
             }
-            pair
-        })
-        .collect()
+            (quad.first[lane], quad.count[lane]) = if child.count == 0 {
+                owners.push(c);
+                (owners.len() as u32 - 1, 0)
+            } else {
+                (child.first, child.count)
+            };
+        }
+        quads.push(quad);
+    }
+    quads
+}
+
+/// The up to four nodes under inner node `n` that its quad holds: its children, the
+/// largest inner one among them replaced by its own children while room is left.
+fn grandchildren(nodes: &[Node], n: usize) -> Vec<usize> {
+    let node = &nodes[n];
+    if node.count > 0 {
+        return vec![n];
+    }
+    let mut kids = vec![node.first as usize, node.first as usize + 1];
+    while kids.len() < 4 {
+        let area = |&&c: &&usize| half_area((nodes[c].lo, nodes[c].hi));
+        let Some(&widest) = kids
+            .iter()
+            .filter(|&&c| nodes[c].count == 0)
+            .max_by(|x, y| area(x).total_cmp(&area(y)))
+        else {
+            break;
+        };
+        kids.retain(|&c| c != widest);
+        kids.extend([
+            nodes[widest].first as usize,
+            nodes[widest].first as usize + 1,
+        ]);
+    }
+    kids
 }
 
 fn leaf(mesh: &Mesh, facets: &[u32], first: u32) -> Node {
@@ -382,14 +415,19 @@ fn leaf(mesh: &Mesh, facets: &[u32], first: u32) -> Node {
     }
 }
 
-/// Splits node `n` (a leaf over `facets[first..first+count]`) until leaves are small.
-fn split(mesh: &Mesh, nodes: &mut Vec<Node>, facets: &mut [u32], n: usize) {
+/// Splits node `n` (a leaf over `facets[first..first+count]`, `depth` levels below the
+/// root) until leaves are small.
+fn split(mesh: &Mesh, nodes: &mut Vec<Node>, facets: &mut [u32], n: usize, depth: u32) {
     let Node { first, count, .. } = nodes[n];
     if count as usize <= LEAF_SIZE {
         return;
     }
     let run = &mut facets[first as usize..(first + count) as usize];
-    let (axis, at) = sah_split(mesh, run);
+    let (axis, at) = if depth < SAH_DEPTH {
+        sah_split(mesh, run)
+    } else {
+        median_split(mesh, run)
+    };
     run.sort_unstable_by(|&x, &y| {
         mesh.centroids[x as usize][axis].total_cmp(&mesh.centroids[y as usize][axis])
     });
@@ -398,8 +436,8 @@ fn split(mesh: &Mesh, nodes: &mut Vec<Node>, facets: &mut [u32], n: usize) {
     nodes.push(leaf(mesh, &run[at..], first + at as u32));
     nodes[n].first = left as u32;
     nodes[n].count = 0;
-    split(mesh, nodes, facets, left);
-    split(mesh, nodes, facets, left + 1);
+    split(mesh, nodes, facets, left, depth + 1);
+    split(mesh, nodes, facets, left + 1, depth + 1);
 }
 
 /// Bins along each axis for the surface-area heuristic.
@@ -409,13 +447,7 @@ const BINS: usize = 16;
 /// the binned surface-area heuristic: the split minimising `area(left)·n_left +
 /// area(right)·n_right`, the expected cost of a random ray through the node.
 fn sah_split(mesh: &Mesh, run: &[u32]) -> (usize, usize) {
-    let (clo, chi) = run.iter().fold(
-        (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY)),
-        |(lo, hi), &f| {
-            let c = mesh.centroids[f as usize];
-            (lo.min(c), hi.max(c))
-        },
-    );
+    let (clo, chi) = centroid_bounds(mesh, run);
     let extent = chi - clo;
     let mut best = (f64::INFINITY, 0, run.len() / 2);
     for axis in 0..3 {
@@ -458,6 +490,22 @@ fn sah_split(mesh: &Mesh, run: &[u32]) -> (usize, usize) {
         }
     }
     (best.1, best.2)
+}
+
+/// The axis of the widest spread of centroids, and half the facets.
+fn median_split(mesh: &Mesh, run: &[u32]) -> (usize, usize) {
+    let (lo, hi) = centroid_bounds(mesh, run);
+    ((hi - lo).max_position(), run.len() / 2)
+}
+
+fn centroid_bounds(mesh: &Mesh, run: &[u32]) -> (DVec3, DVec3) {
+    run.iter().fold(
+        (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY)),
+        |(lo, hi), &f| {
+            let c = mesh.centroids[f as usize];
+            (lo.min(c), hi.max(c))
+        },
+    )
 }
 
 /// Half the surface area of a box (zero when empty).
@@ -580,6 +628,60 @@ mod tests {
             }
             // Both answers occur often enough for the comparison to mean something.
             assert!(blocked > 300 && blocked < 2700, "{blocked} of 3000 blocked");
+        }
+    }
+
+    /// Levels of quads below and including quad `q`.
+    fn depth(bvh: &Bvh, q: usize) -> usize {
+        let quad = &bvh.quads[q];
+        1 + (0..4)
+            .filter(|&k| quad.count[k] == 0 && quad.lo[0][k].is_finite())
+            .map(|k| depth(bvh, quad.first[k] as usize))
+            .max()
+            .unwrap_or(0)
+    }
+
+    #[test]
+    fn strongly_clustered_facets_give_a_shallow_tree_that_still_answers_exactly() {
+        // Facets at geometrically growing distances (ratio 1.03 over 32 decades, sizes in
+        // proportion): the surface-area heuristic peels a few off the far end at each
+        // split, so the tree is deeper than a balanced one (38 quad levels, 43 without the
+        // depth cap, against ~6), which the cap bounds for any input; the f32 boxes must stay
+        // conservative at every scale.
+        let mut raw = RawMesh::default();
+        for k in 0..2500 {
+            let x = 1.03f64.powi(k);
+            let n = raw.vertices.len() as u32;
+            raw.vertices.extend([
+                DVec3::new(x, 0.0, -0.01 * x),
+                DVec3::new(x, 0.01 * x, 0.01 * x),
+                DVec3::new(x, -0.01 * x, 0.01 * x),
+            ]);
+            raw.triangles.push([n, n + 1, n + 2]);
+        }
+        let mesh = Mesh::from_raw(raw, LengthUnit::M);
+        let bvh = Bvh::build(&mesh);
+        let levels = depth(&bvh, 0);
+        assert!(levels <= SAH_DEPTH as usize + 31, "{levels} levels");
+        let none = [u32::MAX; 2];
+        for k in [3, 50, 300, 2499] {
+            let x = 1.03f64.powi(k);
+            for (a, b) in [
+                (
+                    DVec3::new(0.5 * x, 1e-3 * x, 0.0),
+                    DVec3::new(2.0 * x, 0.0, 0.0),
+                ),
+                (
+                    DVec3::new(0.5 * x, 0.05 * x, 0.0),
+                    DVec3::new(2.0 * x, 0.05 * x, 0.0),
+                ),
+            ] {
+                assert_eq!(
+                    bvh.segment_blocked(a, b, none, 1e-9),
+                    brute_force(&mesh, a, b, 1e-9),
+                    "{a} → {b}"
+                );
+            }
         }
     }
 
