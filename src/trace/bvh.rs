@@ -15,9 +15,9 @@
 use super::caster_facets;
 use super::ray::{inside, DepthPlane, RayFrame};
 use crate::mesh::Mesh;
-use glam::{DVec3, Vec3, Vec3A, Vec4};
+use glam::{BVec4A, DVec3, Vec3, Vec4};
 
-/// Most facets in a leaf.
+/// Most facets in a leaf: one per lane of its [`Leaf`] screen.
 const LEAF_SIZE: usize = 4;
 
 /// Nodes below this depth are split at the median instead of by the surface-area
@@ -47,64 +47,90 @@ struct Tri {
     normal: DVec3,
 }
 
-/// A facet as the quick screen sees it (`f32`, relative to the tree's centre, in tree
-/// order beside [`Tri`]): its plane `n·x = d` and, per edge, the inward unit vector in
-/// the plane perpendicular to it with its offset.
+/// The facets of one leaf as the quick screen sees them (`f32`, relative to the tree's
+/// centre, one facet per lane): their planes `n·x = d` by component and, per edge, the
+/// inward unit vector in the plane perpendicular to it with its offset. An unused lane
+/// has a zero normal and `d = -∞`: every point lies infinitely far in front of it.
 #[derive(Debug, Clone, Copy)]
-struct Screen {
-    plane: [f32; 4],
-    edges: [[f32; 4]; 3],
-    id: u32,
+struct Leaf {
+    plane: [Vec4; 4],
+    edges: [[Vec4; 4]; 3],
+    /// Mesh facet ids, per lane.
+    ids: [u32; 4],
+    /// Tree position of the lane-0 facet; the others follow it.
+    first: u32,
 }
 
-impl Screen {
-    fn new(corners: [DVec3; 3], normal: DVec3, centre: DVec3, id: u32) -> Screen {
-        let plane_of = |n: DVec3, p: DVec3| {
-            let n32 = n.as_vec3();
-            [n32.x, n32.y, n32.z, n32.as_dvec3().dot(p - centre) as f32]
+impl Leaf {
+    fn new(tris: &[Tri], ids: &[u32], first: u32, centre: DVec3) -> Leaf {
+        let mut leaf = Leaf {
+            plane: [Vec4::ZERO, Vec4::ZERO, Vec4::ZERO, Vec4::NEG_INFINITY],
+            edges: [[Vec4::ZERO; 4]; 3],
+            ids: [u32::MAX; 4],
+            first,
         };
-        Screen {
-            plane: plane_of(normal, corners[0]),
-            edges: [0, 1, 2].map(|k| {
-                let edge = corners[(k + 1) % 3] - corners[k];
-                plane_of(normal.cross(edge).normalize_or_zero(), corners[k])
-            }),
-            id,
+        let put = |rows: &mut [Vec4; 4], lane: usize, n: DVec3, p: DVec3| {
+            let n32 = n.as_vec3();
+            for (k, v) in n32.to_array().into_iter().enumerate() {
+                rows[k][lane] = v;
+            }
+            rows[3][lane] = n32.as_dvec3().dot(p - centre) as f32;
+        };
+        for (lane, (t, &id)) in tris.iter().zip(ids).enumerate() {
+            put(&mut leaf.plane, lane, t.normal, t.corners[0]);
+            for (k, rows) in leaf.edges.iter_mut().enumerate() {
+                let edge = t.corners[(k + 1) % 3] - t.corners[k];
+                put(
+                    rows,
+                    lane,
+                    t.normal.cross(edge).normalize_or_zero(),
+                    t.corners[k],
+                );
+            }
+            leaf.ids[lane] = id;
         }
+        leaf
     }
 
-    /// False when the segment clearly misses the facet: both ends lie on one side of its
-    /// plane by more than the segment's `slack`, or it crosses the plane (at an angle of
-    /// at least 0.01 rad, where the crossing point is well conditioned) farther than its
-    /// `reach` outside an edge. True leaves the decision to the exact predicate.
+    /// Bit `k` clear when the segment clearly misses facet `k`: both ends lie on one side
+    /// of its plane by more than the segment's `slack`, or it crosses the plane (at an
+    /// angle of at least 0.01 rad, where the crossing point is well conditioned) farther
+    /// than its `reach` outside an edge. A set bit leaves the decision to the exact
+    /// predicate.
     #[inline]
-    fn may_cross(&self, s: &Screened) -> bool {
-        let height = |p: Vec3A, [x, y, z, d]: [f32; 4]| x * p.x + y * p.y + z * p.z - d;
-        let (sa, sb) = (height(s.a, self.plane), height(s.b, self.plane));
-        if (sa > s.slack && sb > s.slack) || (sa < -s.slack && sb < -s.slack) {
-            return false;
-        }
+    fn may_cross(&self, s: &Screened) -> u32 {
+        let height =
+            |p: &[Vec4; 3], [x, y, z, d]: &[Vec4; 4]| *x * p[0] + *y * p[1] + *z * p[2] - *d;
+        let (sa, sb) = (height(&s.a, &self.plane), height(&s.b, &self.plane));
+        let one_side =
+            (sa.cmpgt(s.slack) & sb.cmpgt(s.slack)) | (sa.cmplt(-s.slack) & sb.cmplt(-s.slack));
         let rise = sa - sb;
-        if rise.abs() <= 0.01 * s.length {
-            return true;
-        }
-        let p = s.a + (s.b - s.a) * (sa / rise);
-        self.edges.iter().all(|&e| height(p, e) >= -s.reach)
+        let steep = rise.abs().cmpgt(s.steep);
+        let t = sa / rise;
+        let p = [0, 1, 2].map(|k| s.a[k] + s.d[k] * t);
+        let outside = self.edges.iter().fold(BVec4A::splat(false), |out, e| {
+            out | height(&p, e).cmplt(-s.reach)
+        });
+        (!(one_side | (steep & outside))).bitmask()
     }
 }
 
-/// A segment's ends as the screen sees them, with its tolerances.
+/// A segment's ends as the screen sees them, with its tolerances, each in all four lanes.
 struct Screened {
-    a: Vec3A,
-    b: Vec3A,
-    length: f32,
+    /// The ends and `b - a`, by axis.
+    a: [Vec4; 3],
+    b: [Vec4; 3],
+    d: [Vec4; 3],
     /// Plane heights within this of zero count as either side (m): about 50× the `f32`
     /// rounding of a height for points of the segment's and the tree's magnitude.
-    slack: f32,
+    slack: Vec4,
     /// Crossings within this outside an edge count as inside (m): about 15× the
     /// rounding of the crossing point, which is at most 100 height roundings (the
     /// crossing angle is at least 0.01 rad).
-    reach: f32,
+    reach: Vec4,
+    /// Differences of the two ends' heights above this (0.01 × the length) mean a
+    /// crossing angle of at least 0.01 rad.
+    steep: Vec4,
 }
 
 impl Screened {
@@ -113,34 +139,37 @@ impl Screened {
         let scale = tree_reach
             .max(a.abs().max_element())
             .max(b.abs().max_element()) as f32;
+        let (a32, b32) = (a.as_vec3(), b.as_vec3());
         Screened {
-            a: a.as_vec3().into(),
-            b: b.as_vec3().into(),
-            length: (b - a).length() as f32,
-            slack: 1e-5 * scale,
-            reach: 3e-4 * scale,
+            a: a32.to_array().map(Vec4::splat),
+            b: b32.to_array().map(Vec4::splat),
+            d: (b32 - a32).to_array().map(Vec4::splat),
+            slack: Vec4::splat(1e-5 * scale),
+            reach: Vec4::splat(3e-4 * scale),
+            steep: Vec4::splat(0.01 * (b - a).length() as f32),
         }
     }
 }
 
 /// One node as traversed: the boxes of up to four children (metres from the tree's
-/// centre, one child per lane, by axis) and, per child, either a run of `count[k]`
-/// facets from `first[k]` or (`count[k] == 0`) the index of the child's own node. An
-/// unused lane has its box at +∞ on every axis, which no segment reaches.
+/// centre, one child per lane, by axis) and, per child, the index of its [`Leaf`] or of
+/// its own node. An unused lane has its box at +∞ on every axis, which no segment
+/// reaches.
 #[derive(Debug, Clone, Copy)]
 struct Quad {
     lo: [Vec4; 3],
     hi: [Vec4; 3],
-    first: [u32; 4],
-    count: [u32; 4],
+    child: [u32; 4],
+    leaf: [bool; 4],
 }
 
 /// A BVH over one mesh's facets of non-zero area.
 pub struct Bvh {
     /// The root's children at index 0 (absent for a mesh without facets).
     quads: Vec<Quad>,
+    /// Facets in tree order.
     tris: Vec<Tri>,
-    screens: Vec<Screen>,
+    leaves: Vec<Leaf>,
     /// Origin of the boxes' coordinates (m, mesh frame).
     centre: DVec3,
     /// Radius of a sphere about `centre` holding every facet (m).
@@ -172,15 +201,18 @@ impl Bvh {
                 normal: mesh.normals[f as usize],
             })
             .collect();
-        let screens = facets
+        let (quads, runs) = quads(&nodes, centre, BOX_MARGIN * reach as f32);
+        let leaves = runs
             .iter()
-            .zip(&tris)
-            .map(|(&f, t)| Screen::new(t.corners, t.normal, centre, f))
+            .map(|&(first, count)| {
+                let run = first as usize..(first + count) as usize;
+                Leaf::new(&tris[run.clone()], &facets[run], first, centre)
+            })
             .collect();
         Bvh {
-            quads: quads(&nodes, centre, BOX_MARGIN * reach as f32),
+            quads,
             tris,
-            screens,
+            leaves,
             centre,
             radius: 2.0 * reach,
             reach,
@@ -202,11 +234,10 @@ impl Bvh {
             while lanes != 0 {
                 let k = lanes.trailing_zeros() as usize;
                 lanes &= lanes - 1;
-                let (first, count) = (quad.first[k] as usize, quad.count[k] as usize);
-                if count == 0 {
-                    stack[top] = first as u32;
+                if !quad.leaf[k] {
+                    stack[top] = quad.child[k];
                     top += 1;
-                } else if (first..first + count).any(|i| self.blocks(i, &segment)) {
+                } else if self.leaf_blocks(&self.leaves[quad.child[k] as usize], &segment) {
                     return true;
                 }
             }
@@ -242,13 +273,26 @@ impl Bvh {
         })
     }
 
-    /// True if the facet at tree position `k` blocks the segment.
+    /// True if a facet of `leaf` blocks the segment.
     #[inline]
-    fn blocks(&self, k: usize, s: &Segment) -> bool {
-        let screen = &self.screens[k];
-        !s.skip.contains(&screen.id)
-            && screen.may_cross(&s.screened)
-            && crosses(&s.frame, s.q, &self.tris[k], s.t0, s.t1)
+    fn leaf_blocks(&self, leaf: &Leaf, s: &Segment) -> bool {
+        let mut lanes = leaf.may_cross(&s.screened);
+        while lanes != 0 {
+            let k = lanes.trailing_zeros() as usize;
+            lanes &= lanes - 1;
+            if !s.skip.contains(&leaf.ids[k])
+                && crosses(
+                    &s.frame,
+                    s.q,
+                    &self.tris[leaf.first as usize + k],
+                    s.t0,
+                    s.t1,
+                )
+            {
+                return true;
+            }
+        }
+        false
     }
 }
 
@@ -336,19 +380,21 @@ fn round_up(x: f64) -> f32 {
 }
 
 /// The traversal layout of the built `nodes`: one [`Quad`] per node that owns one (the
-/// root's first), with boxes relative to `centre` and widened by `margin` metres. A quad
-/// holds a binary node's children, with the largest inner ones replaced by theirs until
-/// there are four (a leaf root's quad holds just itself).
-fn quads(nodes: &[Node], centre: DVec3, margin: f32) -> Vec<Quad> {
+/// root's first), with boxes relative to `centre` and widened by `margin` metres, and
+/// the leaves' runs of facets `(first, count)` in tree order. A quad holds a binary
+/// node's children, with the largest inner ones replaced by theirs until there are four
+/// (a leaf root's quad holds just itself).
+fn quads(nodes: &[Node], centre: DVec3, margin: f32) -> (Vec<Quad>, Vec<(u32, u32)>) {
     let mut quads = Vec::new();
+    let mut runs = Vec::new();
     // Nodes owning a quad, in quad order.
     let mut owners = if nodes.is_empty() { vec![] } else { vec![0] };
     while let Some(&owner) = owners.get(quads.len()) {
         let mut quad = Quad {
             lo: [Vec4::INFINITY; 3],
             hi: [Vec4::INFINITY; 3],
-            first: [0; 4],
-            count: [0; 4],
+            child: [0; 4],
+            leaf: [false; 4],
         };
         for (lane, c) in grandchildren(nodes, owner).into_iter().enumerate() {
             let child = &nodes[c];
@@ -358,16 +404,18 @@ fn quads(nodes: &[Node], centre: DVec3, margin: f32) -> Vec<Quad> {
                 quad.lo[axis][lane] = lo[axis];
                 quad.hi[axis][lane] = hi[axis];
             }
-            (quad.first[lane], quad.count[lane]) = if child.count == 0 {
-                owners.push(c);
-                (owners.len() as u32 - 1, 0)
+            quad.leaf[lane] = child.count > 0;
+            quad.child[lane] = if quad.leaf[lane] {
+                runs.push((child.first, child.count));
+                runs.len() as u32 - 1
             } else {
-                (child.first, child.count)
+                owners.push(c);
+                owners.len() as u32 - 1
             };
         }
         quads.push(quad);
     }
-    quads
+    (quads, runs)
 }
 
 /// The up to four nodes under inner node `n` that its quad holds: its children, the
@@ -635,8 +683,8 @@ mod tests {
     fn depth(bvh: &Bvh, q: usize) -> usize {
         let quad = &bvh.quads[q];
         1 + (0..4)
-            .filter(|&k| quad.count[k] == 0 && quad.lo[0][k].is_finite())
-            .map(|k| depth(bvh, quad.first[k] as usize))
+            .filter(|&k| !quad.leaf[k] && quad.lo[0][k].is_finite())
+            .map(|k| depth(bvh, quad.child[k] as usize))
             .max()
             .unwrap_or(0)
     }
