@@ -193,24 +193,31 @@ impl Csr {
                     .min(n)
             })
             .collect();
+        // Part p adds only into rows from its first one on (the upper triangle's columns
+        // lie right of its rows), so its vector starts there, which saves zeroing and
+        // summing the parts' untouched heads.
         let partials: Vec<Vec<f64>> = (0..PARTS)
             .into_par_iter()
             .map(|p| {
-                let mut acc = vec![0.0; n];
-                for r in bounds[p]..bounds[p + 1] {
+                let from = bounds[p];
+                let mut acc = vec![0.0; n - from];
+                for r in from..bounds[p + 1] {
                     let mut own = 0.0;
                     let xr = x[r];
                     self.for_each_entry(r, |j, v| {
                         own += v as f64 * x[j];
-                        acc[j] += v as f64 * xr;
+                        acc[j - from] += v as f64 * xr;
                     });
-                    acc[r] += own;
+                    acc[r - from] += own;
                 }
                 acc
             })
             .collect();
         y.par_iter_mut().enumerate().for_each(|(i, yi)| {
-            *yi += partials.iter().map(|acc| acc[i]).sum::<f64>();
+            *yi += (0..PARTS)
+                .filter(|&p| bounds[p] <= i)
+                .map(|p| partials[p][i - bounds[p]])
+                .sum::<f64>();
         });
     }
 }
@@ -244,6 +251,47 @@ mod tests {
         assert_eq!((t.rows(), t.cols), (3, 2));
         assert_eq!(t.row(0).collect::<Vec<_>>(), vec![(1, 4.0)]);
         assert_eq!(t.row(2).collect::<Vec<_>>(), vec![(0, 1.0)]);
+    }
+
+    #[test]
+    fn symmetric_product_equals_the_dense_one() {
+        // Enough rows and uneven row lengths that every part starts at a different row.
+        let n = 300;
+        let mut seed = 0x9e37_79b9_7f4a_7c15u64;
+        let mut next = || {
+            seed ^= seed << 13;
+            seed ^= seed >> 7;
+            seed ^= seed << 17;
+            seed
+        };
+        let upper: Vec<Vec<(u32, f32)>> = (0..n)
+            .map(|i| {
+                ((i + 1)..n)
+                    .filter_map(|j| {
+                        let r = next();
+                        (r % 5 == 0).then(|| (j as u32, (r >> 8) as f32 % 1000.0 / 7.0))
+                    })
+                    .collect()
+            })
+            .collect();
+        let mut dense = vec![vec![0.0; n]; n];
+        for (i, row) in upper.iter().enumerate() {
+            for &(j, v) in row {
+                dense[i][j as usize] = v as f64;
+                dense[j as usize][i] = v as f64;
+            }
+        }
+        let x: Vec<f64> = (0..n).map(|k| 1.0 + (k % 17) as f64).collect();
+        let mut y = vec![0.5; n];
+        Csr::symmetric_from_upper(&upper).mul_add(&x, &mut y);
+        for i in 0..n {
+            let expected = 0.5 + (0..n).map(|j| dense[i][j] * x[j]).sum::<f64>();
+            assert!(
+                (y[i] - expected).abs() <= 1e-12 * expected,
+                "row {i}: {} vs {expected}",
+                y[i]
+            );
+        }
     }
 
     #[test]
