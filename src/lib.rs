@@ -62,3 +62,27 @@ pub(crate) fn lowercase_extension(path: &std::path::Path) -> String {
         .map(str::to_ascii_lowercase)
         .unwrap_or_default()
 }
+
+/// A seeded xorshift generator for unit tests' random cases: reproducible, and not the
+/// code under test.
+#[cfg(test)]
+pub(crate) struct TestRng(u64);
+
+#[cfg(test)]
+impl TestRng {
+    pub(crate) fn new(seed: u64) -> TestRng {
+        TestRng(seed.max(1))
+    }
+
+    pub(crate) fn next_u64(&mut self) -> u64 {
+        self.0 ^= self.0 << 13;
+        self.0 ^= self.0 >> 7;
+        self.0 ^= self.0 << 17;
+        self.0
+    }
+
+    /// Uniform in [0, 1).
+    pub(crate) fn unit(&mut self) -> f64 {
+        (self.next_u64() >> 11) as f64 / (1u64 << 53) as f64
+    }
+}

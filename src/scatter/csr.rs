@@ -257,18 +257,12 @@ mod tests {
     fn symmetric_product_equals_the_dense_one() {
         // Enough rows and uneven row lengths that every part starts at a different row.
         let n = 300;
-        let mut seed = 0x9e37_79b9_7f4a_7c15u64;
-        let mut next = || {
-            seed ^= seed << 13;
-            seed ^= seed >> 7;
-            seed ^= seed << 17;
-            seed
-        };
+        let mut rng = crate::TestRng::new(0x9e37_79b9_7f4a_7c15);
         let upper: Vec<Vec<(u32, f32)>> = (0..n)
             .map(|i| {
                 ((i + 1)..n)
                     .filter_map(|j| {
-                        let r = next();
+                        let r = rng.next_u64();
                         (r % 5 == 0).then(|| (j as u32, (r >> 8) as f32 % 1000.0 / 7.0))
                     })
                     .collect()

@@ -644,13 +644,8 @@ mod tests {
         for centre in [DVec3::ZERO, DVec3::new(4.0e6, -1.0e6, 2.5e6)] {
             let mesh = terrain(24, 1.0, centre);
             let bvh = Bvh::build(&mesh);
-            let mut seed = 0x2545_f491_4f6c_dd1du64;
-            let mut next = || {
-                seed ^= seed << 13;
-                seed ^= seed >> 7;
-                seed ^= seed << 17;
-                (seed >> 11) as f64 / (1u64 << 53) as f64
-            };
+            let mut rng = crate::TestRng::new(0x2545_f491_4f6c_dd1d);
+            let mut next = || rng.unit();
             let mut blocked = 0;
             for k in 0..3000 {
                 let (i, j) = (
