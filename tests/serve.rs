@@ -206,6 +206,16 @@ fn run_job(server: &Server, submit: (u16, serde_json::Value)) -> String {
     id
 }
 
+/// A job that finishes at once (8 steps).
+fn quick_scene() -> String {
+    scene("shapes/itokawa_8.obj", 8)
+}
+
+/// Runs a [`quick_scene`] to success; returns its id.
+fn run_quick_job(server: &Server) -> String {
+    run_job(server, post_toml(server, &quick_scene()))
+}
+
 fn bytes(server: &Server, path: &str) -> Vec<u8> {
     let mut r = agent().get(&server.url(path)).call().unwrap();
     assert_eq!(r.status(), 200, "{path}");
@@ -294,10 +304,7 @@ fn jobs_write_the_same_files_as_slim_run() {
 fn result_files_support_single_byte_ranges() {
     let data = DataDir::new("ranges");
     let server = Server::start(data.path(), &[]);
-    let id = run_job(
-        &server,
-        post_toml(&server, &scene("shapes/itokawa_8.obj", 8)),
-    );
+    let id = run_quick_job(&server);
     let path = format!("/v1/jobs/{id}/summary.parquet");
     let whole = bytes(&server, &path);
     let len = whole.len();
@@ -539,16 +546,13 @@ fn wait_running(server: &Server, id: &str) {
 fn a_killed_server_keeps_finished_jobs_and_reports_interrupted_ones() {
     let data = DataDir::new("restart");
     let server = Server::start(data.path(), &[]);
-    let done = run_job(
-        &server,
-        post_toml(&server, &scene("shapes/itokawa_8.obj", 8)),
-    );
+    let done = run_quick_job(&server);
     let summary = bytes(&server, &format!("/v1/jobs/{done}/summary.parquet"));
     let (_, before) = get(&server, &format!("/v1/jobs/{done}"));
     let (status, slow) = post_toml(&server, &slow_scene());
     assert_eq!(status, 202);
     let slow = slow["id"].as_str().unwrap().to_string();
-    let (_, queued) = post_toml(&server, &scene("shapes/itokawa_8.obj", 8));
+    let (_, queued) = post_toml(&server, &quick_scene());
     let queued = queued["id"].as_str().unwrap().to_string();
     wait_running(&server, &slow);
     server.kill();
@@ -576,14 +580,11 @@ fn a_killed_server_keeps_finished_jobs_and_reports_interrupted_ones() {
 fn deleting_jobs_removes_them_running_or_finished() {
     let data = DataDir::new("delete");
     let server = Server::start(data.path(), &[]);
-    let done = run_job(
-        &server,
-        post_toml(&server, &scene("shapes/itokawa_8.obj", 8)),
-    );
+    let done = run_quick_job(&server);
     let (_, slow) = post_toml(&server, &slow_scene());
     let slow = slow["id"].as_str().unwrap().to_string();
     wait_running(&server, &slow);
-    let (_, queued) = post_toml(&server, &scene("shapes/itokawa_8.obj", 8));
+    let (_, queued) = post_toml(&server, &quick_scene());
     let queued = queued["id"].as_str().unwrap().to_string();
     assert_eq!(
         get(&server, &format!("/v1/jobs/{queued}")).1["state"],
@@ -617,10 +618,7 @@ fn deleting_jobs_removes_them_running_or_finished() {
         "unknown_job",
     );
     // The service still runs jobs after a cancellation.
-    run_job(
-        &server,
-        post_toml(&server, &scene("shapes/itokawa_8.obj", 8)),
-    );
+    run_quick_job(&server);
 }
 
 // ---------------------------------------------------------------------------------------
@@ -786,7 +784,7 @@ fn every_bad_request_gets_a_json_4xx() {
     );
 
     // Queries: unfinished jobs, bad facet ids, bodies, places and targets.
-    let id = run_job(s, post_toml(s, &scene("shapes/itokawa_8.obj", 8)));
+    let id = run_quick_job(s);
     let (_, no_history) = post_toml(
         s,
         &with_mesh("shapes/itokawa_8.obj").replace("history = true", "history = false"),
@@ -889,7 +887,7 @@ fn the_token_guards_mutating_endpoints_and_optionally_reads() {
     std::fs::write(&token_file, "s3cret\n").unwrap();
     let token = ["--token-file", token_file.to_str().unwrap()];
     let server = Server::start(data.path(), &token);
-    let body = scene("shapes/itokawa_8.obj", 8);
+    let body = quick_scene();
     assert_error(post_toml(&server, &body), 401, "unauthorized");
     let wrong = agent()
         .post(&server.url("/v1/jobs"))
