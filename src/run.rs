@@ -20,7 +20,7 @@ use crate::mesh::{read_mesh, Mesh};
 use crate::output::record::{input_file, BodyRecord, InputFile, RunRecord};
 use crate::output::{self, HistoryWriter};
 use crate::plan::Plan;
-use crate::scatter::{Scatter, ScatterRecord, Settings as ScatterSettings};
+use crate::scatter::{Scatter, ScatterRecord, Settings as ScatterSettings, LANES};
 use crate::scene::{
     BodySection, EphemerisSection, FixedSection, Orient, Scene, Shape, SpiceSection, SpinSection,
 };
@@ -431,52 +431,66 @@ pub fn simulate_with_scatter(
     let mut part_stats = scatter
         .as_ref()
         .map(|_| (FacetStats::new(n, bins), FacetStats::new(n, bins)));
-    let mut irradiance = vec![0.0; n];
-    let mut scattered = vec![0.0; n];
+    // With scattered light on a single body, whose exchange areas are the same at every
+    // step, up to LANES steps are traced first and then solved together.
+    let batch = if scatter.is_some() && world.bodies.len() == 1 {
+        LANES
+    } else {
+        1
+    };
+    let mut directs = vec![vec![0.0; n]; batch];
+    let mut scattered = vec![vec![0.0; n]; batch];
     let mut total = vec![0.0; n];
     let mut counts = StepCounts::default();
     progress.begin_steps(states.len() as u64);
-    for state in states {
-        if progress.cancelled() {
-            return Err(Error::Cancelled);
+    for chunk in states.chunks(batch) {
+        for (state, irradiance) in chunk.iter().zip(directs.iter_mut()) {
+            if progress.cancelled() {
+                return Err(Error::Cancelled);
+            }
+            counts += timings.time("direct irradiance", || direct.compute(state, irradiance))?;
         }
-        counts += timings.time("direct irradiance", || {
-            direct.compute(state, &mut irradiance)
-        })?;
-        let step = match (scatter.as_mut(), part_stats.as_mut()) {
-            (Some(stage), Some((direct_stats, scattered_stats))) => {
-                timings.time("scattered light", || {
-                    stage.step(state, &irradiance, &mut scattered)
-                });
-                timings.time("statistics", || {
-                    total
-                        .iter_mut()
-                        .zip(irradiance.iter().zip(&scattered))
-                        .for_each(|(t, (d, s))| *t = d + s);
-                    stats.add_step(&total);
-                    direct_stats.add_step(&irradiance);
-                    scattered_stats.add_step(&scattered);
-                });
-                StepIrradiance {
-                    total: &total,
-                    parts: Some((&irradiance, &scattered)),
-                }
-            }
-            _ => {
-                timings.time("statistics", || stats.add_step(&irradiance));
-                StepIrradiance {
-                    total: &irradiance,
-                    parts: None,
-                }
-            }
-        };
-        if let Some(bands) = bands.as_deref_mut() {
-            timings.time("spectral bands", || {
-                bands.add_step(state, &irradiance, scatter.as_mut())
+        if let Some(stage) = scatter.as_mut() {
+            timings.time("scattered light", || {
+                let d: Vec<&[f64]> = directs.iter().map(Vec::as_slice).collect();
+                let mut s: Vec<&mut [f64]> = scattered.iter_mut().map(Vec::as_mut_slice).collect();
+                let lanes = chunk.len();
+                stage.step_many(chunk, &d[..lanes], &mut s[..lanes])
             });
         }
-        timings.time("history", || on_step(state, step))?;
-        progress.step_done();
+        for ((state, irradiance), scattered) in chunk.iter().zip(&directs).zip(&scattered) {
+            let step = match part_stats.as_mut() {
+                Some((direct_stats, scattered_stats)) => {
+                    timings.time("statistics", || {
+                        total
+                            .iter_mut()
+                            .zip(irradiance.iter().zip(scattered))
+                            .for_each(|(t, (d, s))| *t = d + s);
+                        stats.add_step(&total);
+                        direct_stats.add_step(irradiance);
+                        scattered_stats.add_step(scattered);
+                    });
+                    StepIrradiance {
+                        total: &total,
+                        parts: Some((irradiance, scattered)),
+                    }
+                }
+                None => {
+                    timings.time("statistics", || stats.add_step(irradiance));
+                    StepIrradiance {
+                        total: irradiance,
+                        parts: None,
+                    }
+                }
+            };
+            if let Some(bands) = bands.as_deref_mut() {
+                timings.time("spectral bands", || {
+                    bands.add_step(state, irradiance, scatter.as_mut())
+                });
+            }
+            timings.time("history", || on_step(state, step))?;
+            progress.step_done();
+        }
     }
     progress.end_steps();
     Ok(Simulation {

@@ -317,6 +317,62 @@ fn jacobi_iterate_k_holds_orders_up_to_k() {
     assert_eq!(&first[n / 2..], &second[n / 2..]);
 }
 
+#[test]
+fn steps_solved_side_by_side_match_one_at_a_time() {
+    // A 40° bowl, the Sun circling above it; one step is dark. Eleven steps take lanes of
+    // 8, 2 and 1, and in each lane group the steps need different numbers of products.
+    let mesh = Mesh::from_raw(bowl_mesh(100.0, 40f64.to_radians(), 12), LengthUnit::M);
+    let n = mesh.len();
+    let suns: Vec<DVec3> = (0..11)
+        .map(|k| {
+            let azimuth = k as f64 * 0.7;
+            DVec3::new(azimuth.cos(), azimuth.sin(), 0.2 + 0.1 * k as f64).normalize()
+        })
+        .collect();
+    let directs: Vec<Vec<f64>> = suns
+        .iter()
+        .enumerate()
+        .map(|(k, sun)| {
+            let flux = if k == 5 { 0.0 } else { 1361.0 };
+            mesh.normals
+                .iter()
+                .map(|n| flux * n.dot(*sun).max(0.0))
+                .collect()
+        })
+        .collect();
+    let states: Vec<EpochState> = suns
+        .iter()
+        .map(|&sun| state(vec![(sun, Pose::IDENTITY)], 1361.0))
+        .collect();
+    let world = World {
+        bodies: vec![Body::new("bowl", mesh, false)],
+    };
+    for (albedo, solver) in [(0.1, SolverKind::Jacobi), (0.9, SolverKind::Cg)] {
+        let mut stage = Scatter::new(
+            &world,
+            settings(vec![albedo; n], solver, 1e-9),
+            Box::new(Lambertian),
+        );
+        let mut alone = vec![vec![0.0; n]; states.len()];
+        let single: Vec<_> = (0..states.len())
+            .map(|k| stage.step(&states[k], &directs[k], &mut alone[k]))
+            .collect();
+        let mut together = vec![vec![0.0; n]; states.len()];
+        let d: Vec<&[f64]> = directs.iter().map(Vec::as_slice).collect();
+        let mut out: Vec<&mut [f64]> = together.iter_mut().map(Vec::as_mut_slice).collect();
+        let batch = stage.step_many(&states, &d, &mut out);
+        // Lane arithmetic is that of one step alone, so the results are bit for bit equal.
+        assert_eq!(batch, single, "{solver:?}");
+        assert_eq!(together, alone, "{solver:?}");
+        assert!(batch.iter().all(|r| r.converged), "{batch:?}");
+        assert_eq!(batch[5].residual, 0.0);
+        assert!(together[5].iter().all(|&s| s == 0.0));
+        let iterations: std::collections::BTreeSet<u32> =
+            batch.iter().map(|r| r.iterations).collect();
+        assert!(iterations.len() > 1, "{solver:?}: {batch:?}");
+    }
+}
+
 /// Mean relative error of the scattered irradiance over the shadowed facets of a bowl of
 /// `rings` rings (Ingersoll's closed form), with the given solver.
 fn ingersoll_error(rings: u32, solver: SolverKind) -> f64 {

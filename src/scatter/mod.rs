@@ -39,7 +39,7 @@ use crate::plan::Decision;
 use crate::scene::{FirstBounceKind, Scene};
 use crate::trace::bvh::Bvh;
 use crate::world::{FrameTransform, World};
-use csr::Csr;
+use csr::{Csr, Lanes};
 use form_factor::NearField;
 use rayon::prelude::*;
 use serde::Serialize;
@@ -282,8 +282,8 @@ pub struct Blocks<'a> {
 }
 
 impl Exchange for Blocks<'_> {
-    fn apply(&self, x: &[f64], y: &mut [f64]) {
-        y.fill(0.0);
+    fn apply<L: Lanes>(&self, x: &[L], y: &mut [L]) {
+        y.fill(L::ZERO);
         for b in &self.blocks {
             let rows = b.row_offset..b.row_offset + b.matrix.rows();
             let cols = b.col_offset..b.col_offset + b.matrix.cols;
@@ -330,12 +330,26 @@ pub struct ScatterRecord {
     pub inter_body_skipped: u64,
 }
 
+impl ScatterRecord {
+    fn add(&mut self, report: &SolveReport) {
+        self.solves += 1;
+        self.method = report.method;
+        self.iterations_total += report.iterations as u64;
+        self.iterations_max = self.iterations_max.max(report.iterations);
+        self.residual_max = self.residual_max.max(report.residual);
+        self.not_converged += !report.converged as u64;
+    }
+}
+
 /// An inter-body block as last computed.
 struct Cached {
     pose: FrameTransform,
     forward: Csr,
     backward: Csr,
 }
+
+/// Most steps that [`Scatter::step_many`] solves side by side.
+pub const LANES: usize = 8;
 
 /// The scattered-light stage.
 pub struct Scatter<'w> {
@@ -429,6 +443,40 @@ impl<'w> Scatter<'w> {
         self.step_band(state, direct, None, scattered)
     }
 
+    /// [`Scatter::step`] for consecutive steps: `directs[k]` and `scattered[k]` belong to
+    /// `states[k]`, with the same results and reports as one step at a time. For a single
+    /// body, whose exchange areas are the same at every step, up to [`LANES`] steps are
+    /// solved side by side ([`solve::solve_lanes`]), so that each product with the stored
+    /// matrix serves all of them.
+    pub fn step_many(
+        &mut self,
+        states: &[EpochState],
+        directs: &[&[f64]],
+        scattered: &mut [&mut [f64]],
+    ) -> Vec<SolveReport> {
+        let mut reports = Vec::with_capacity(states.len());
+        let mut done = 0;
+        while done < states.len() {
+            let left = states.len() - done;
+            let lanes = if self.world.bodies.len() > 1 {
+                1 // inter-body blocks change with the poses
+            } else {
+                [LANES, 4, 2].into_iter().find(|&k| k <= left).unwrap_or(1)
+            };
+            let range = done..done + lanes;
+            let (states, directs) = (&states[range.clone()], &directs[range.clone()]);
+            let out = &mut scattered[range];
+            match lanes {
+                LANES => reports.extend(self.solve_steps::<LANES>(states, directs, None, out)),
+                4 => reports.extend(self.solve_steps::<4>(states, directs, None, out)),
+                2 => reports.extend(self.solve_steps::<2>(states, directs, None, out)),
+                _ => reports.extend(self.solve_steps::<1>(states, directs, None, out)),
+            }
+            done += lanes;
+        }
+        reports
+    }
+
     /// [`Scatter::step`] for one spectral band: `band` gives the band's albedo (global
     /// ids) and first bounce instead of the broadband ones; `direct` is the band's direct
     /// irradiance. The form factors are shared by every band.
@@ -439,7 +487,24 @@ impl<'w> Scatter<'w> {
         band: Option<(&[f64], &dyn FirstScatter)>,
         scattered: &mut [f64],
     ) -> SolveReport {
-        let active = self.refresh_inter_blocks(state);
+        let [report] = self.solve_steps::<1>(
+            std::slice::from_ref(state),
+            &[direct],
+            band,
+            &mut [scattered],
+        );
+        report
+    }
+
+    /// K steps with the same exchange areas (those at `states[0]`), solved side by side.
+    fn solve_steps<const K: usize>(
+        &mut self,
+        states: &[EpochState],
+        directs: &[&[f64]],
+        band: Option<(&[f64], &dyn FirstScatter)>,
+        scattered: &mut [&mut [f64]],
+    ) -> [SolveReport; K] {
+        let active = self.refresh_inter_blocks(&states[0]);
         let exchange = self.blocks(&active);
         let (albedo, first, method) = match band {
             Some((albedo, first)) => {
@@ -449,31 +514,37 @@ impl<'w> Scatter<'w> {
             }
             None => (&self.settings.albedo[..], self.first.as_ref(), self.method),
         };
-        let mut s1 = vec![0.0; direct.len()];
-        first.first_order(
-            &FirstOrderInput {
-                world: self.world,
-                state,
-                direct,
-                albedo,
-                exchange: &exchange,
-            },
-            &mut s1,
-        );
+        let n = self.areas.len();
+        let mut s1 = vec![[0.0; K]; n];
+        let mut one = vec![0.0; n];
+        for (k, (state, direct)) in states.iter().zip(directs).enumerate() {
+            first.first_order(
+                &FirstOrderInput {
+                    world: self.world,
+                    state,
+                    direct,
+                    albedo,
+                    exchange: &exchange,
+                },
+                &mut one,
+            );
+            s1.iter_mut().zip(&one).for_each(|(lanes, v)| lanes[k] = *v);
+        }
         let stop = Stopping {
             tolerance: self.settings.tolerance,
             max_iterations: self.settings.max_orders,
         };
-        let report = solve::solve(&exchange, albedo, &s1, method, stop, scattered);
+        let mut out = vec![[0.0; K]; n];
+        let reports = solve::solve_lanes(&exchange, albedo, &s1, method, stop, &mut out);
         drop(exchange);
-        let r = &mut self.record;
-        r.solves += 1;
-        r.method = report.method;
-        r.iterations_total += report.iterations as u64;
-        r.iterations_max = r.iterations_max.max(report.iterations);
-        r.residual_max = r.residual_max.max(report.residual);
-        r.not_converged += !report.converged as u64;
-        report
+        for (k, scattered) in scattered.iter_mut().enumerate() {
+            scattered
+                .iter_mut()
+                .zip(&out)
+                .for_each(|(s, lanes)| *s = lanes[k]);
+        }
+        reports.iter().for_each(|report| self.record.add(report));
+        reports
     }
 
     /// Brings the inter-body blocks up to date for this step: recomputed if their bodies

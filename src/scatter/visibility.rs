@@ -153,6 +153,8 @@ fn visible_row(
             row.push((ib as u32, g as f32));
         }
     }
+    // Rows wait for the whole block before they are packed: drop the growth slack.
+    row.shrink_to_fit();
     row
 }
 
