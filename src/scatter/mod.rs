@@ -504,6 +504,7 @@ impl<'w> Scatter<'w> {
         band: Option<(&[f64], &dyn FirstScatter)>,
         scattered: &mut [&mut [f64]],
     ) -> [SolveReport; K] {
+        debug_assert!(states.len() == K && directs.len() == K && scattered.len() == K);
         let active = self.refresh_inter_blocks(&states[0]);
         let exchange = self.blocks(&active);
         let (albedo, first, method) = match band {
