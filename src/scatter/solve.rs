@@ -402,14 +402,23 @@ fn lanes<const K: usize>(mask: [bool; K]) -> impl Iterator<Item = usize> {
     (0..K).filter(move |&k| mask[k])
 }
 
-fn dots<const K: usize>(a: &[[f64; K]], b: &[[f64; K]]) -> [f64; K] {
+/// Each lane's `Σ_i term(a_i, b_i)`.
+fn lane_sums<const K: usize>(
+    a: &[[f64; K]],
+    b: &[[f64; K]],
+    term: impl Fn(f64, f64) -> f64,
+) -> [f64; K] {
     let mut sum = [0.0; K];
     for (a, b) in a.iter().zip(b) {
-        for k in 0..K {
-            sum[k] += a[k] * b[k];
+        for ((sum, a), b) in sum.iter_mut().zip(a).zip(b) {
+            *sum += term(*a, *b);
         }
     }
     sum
+}
+
+fn dots<const K: usize>(a: &[[f64; K]], b: &[[f64; K]]) -> [f64; K] {
+    lane_sums(a, b, |a, b| a * b)
 }
 
 fn norms<const K: usize>(a: &[[f64; K]]) -> [f64; K] {
@@ -417,13 +426,7 @@ fn norms<const K: usize>(a: &[[f64; K]]) -> [f64; K] {
 }
 
 fn distances<const K: usize>(a: &[[f64; K]], b: &[[f64; K]]) -> [f64; K] {
-    let mut sum = [0.0; K];
-    for (a, b) in a.iter().zip(b) {
-        for k in 0..K {
-            sum[k] += (a[k] - b[k]).powi(2);
-        }
-    }
-    sum.map(f64::sqrt)
+    lane_sums(a, b, |a, b| (a - b).powi(2)).map(f64::sqrt)
 }
 
 /// `y = x + beta y`, lane by lane.
