@@ -8,7 +8,7 @@
 //! in parallel (rayon), and reports epochs per second.
 
 use slim::ephemeris::spice::{parse_aberration, SpiceBody, SpiceEphemeris};
-use slim::run::{epoch_states, load_kernels};
+use slim::prepare::{epoch_states, load_kernels};
 use slim::scene::Scene;
 use std::time::Instant;
 

@@ -569,6 +569,27 @@ impl Scene {
         }
     }
 
+    /// Every file the scene names, each with the key that names it: mesh files, SPICE
+    /// kernels and per-facet albedo files, resolved relative to the scene file. Whatever
+    /// reads input files for a scene reads only these; the service checks exactly these.
+    pub fn input_files(&self) -> Vec<(String, &Path)> {
+        let mut files = Vec::new();
+        for (i, b) in self.bodies.iter().enumerate() {
+            if let Some(mesh) = &b.mesh {
+                files.push((format!("body[{i}].mesh"), mesh.as_path()));
+            }
+            if let Some(albedo) = &b.albedo_file {
+                files.push((format!("body[{i}].albedo_file"), albedo.as_path()));
+            }
+        }
+        if let EphemerisSection::Spice(s) = &self.ephemeris {
+            for (i, k) in s.kernels.iter().enumerate() {
+                files.push((format!("ephemeris.kernels[{i}]"), k.as_path()));
+            }
+        }
+        files
+    }
+
     /// The scene's solar constant (W/m² at 1 AU).
     pub fn solar_constant_w_m2(&self) -> f64 {
         match &self.ephemeris {

@@ -19,7 +19,9 @@ use slim::illum::{Direct, StepCounts};
 use slim::mesh::generate::icosphere;
 use slim::mesh::inspect::inspect;
 use slim::mesh::{read_mesh, LengthUnit, Mesh, RawMesh};
-use slim::run::{epoch_states, simulate, Silent, Simulation, Timings};
+use slim::prepare::epoch_states;
+use slim::progress::{Silent, Timings};
+use slim::simulate::{simulate, Options, Simulation};
 use slim::stats::{Bins, FacetStats};
 use slim::trace::{self, TracerKind};
 use slim::world::{Body, Pose, World};
@@ -86,8 +88,7 @@ fn run(world: &World, eph: &dyn Ephemeris, kind: TracerKind, bins: Bins) -> Simu
     simulate(
         world,
         &states,
-        kind,
-        bins,
+        Options::direct(kind, bins),
         &mut Timings::default(),
         &Silent,
         |_, _| Ok(()),

@@ -587,7 +587,7 @@ fn scene_keys_are_checked_with_their_paths() {
     std::fs::write(dir.0.join("a.txt"), "# albedo\n0.1\nabc\n").unwrap();
     let path = bowl_scene(&dir.0, "albedo_file = \"a.txt\"\n[scatter]");
     let scene = slim::scene::Scene::load(&path).unwrap();
-    let err = slim::run::run_scene(&scene, &dir.0.join("out"), &slim::run::Silent)
+    let err = slim::run::run_scene(&scene, &dir.0.join("out"), &slim::progress::Silent)
         .unwrap_err()
         .to_string();
     assert!(err.contains("a.txt") && err.contains("line 3"), "{err}");
@@ -604,7 +604,7 @@ fn run_writes_direct_scattered_and_total_columns() {
     );
     let scene = slim::scene::Scene::load(&path).unwrap();
     let out = dir.0.join("out");
-    let record = slim::run::run_scene(&scene, &out, &slim::run::Silent).unwrap();
+    let record = slim::run::run_scene(&scene, &out, &slim::progress::Silent).unwrap();
     let rec = record.scatter.as_ref().expect("scatter record");
     assert_eq!(rec.solves, 2);
     assert!(rec.residual_max < 1e-8 && rec.not_converged == 0);
@@ -657,7 +657,7 @@ fn without_a_scatter_section_outputs_are_unchanged() {
     let dir = TempDir::new("off");
     let path = bowl_scene(&dir.0, "");
     let scene = slim::scene::Scene::load(&path).unwrap();
-    let record = slim::run::run_scene(&scene, &dir.0.join("out"), &slim::run::Silent).unwrap();
+    let record = slim::run::run_scene(&scene, &dir.0.join("out"), &slim::progress::Silent).unwrap();
     assert!(record.scatter.is_none());
     let (h, _) = csv_columns(&dir.0.join("out/summary.csv"));
     assert!(!h
@@ -793,7 +793,7 @@ fn bowl_means(dir: &TempDir, tag: &str, extra: &str, names: &[&str]) -> Vec<Vec<
     let sub = dir.0.join(tag);
     std::fs::create_dir_all(&sub).unwrap();
     let scene = slim::scene::Scene::load(&bowl_scene(&sub, extra)).unwrap();
-    slim::run::run_scene(&scene, &sub.join("out"), &slim::run::Silent).unwrap();
+    slim::run::run_scene(&scene, &sub.join("out"), &slim::progress::Silent).unwrap();
     let (h, rows) = csv_columns(&sub.join("out/summary.csv"));
     names.iter().map(|n| column(&h, &rows, n)).collect()
 }

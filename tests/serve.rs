@@ -752,6 +752,12 @@ fn every_bad_request_gets_a_json_4xx() {
         403,
         "path_outside_data",
     );
+    // Every file a scene names is checked, the per-facet albedo file as well as the mesh.
+    for albedo_file in ["../slim-serve-secret.txt", "/etc/passwd"] {
+        let scattering = with_mesh("shapes/itokawa_8.obj")
+            + &format!("albedo_file = \"{albedo_file}\"\n\n[scatter]\n");
+        assert_error(post_toml(s, &scattering), 403, "path_outside_data");
+    }
     assert_error(
         post_json(
             s,

@@ -455,8 +455,8 @@ fn a_scene_frame_key_selects_moon_me() {
         &format!("{window}{}", body("frame = \"MOON_ME\"\n")),
     );
     let iau = spice_scene(&names, &format!("{window}{}", body("")));
-    let me = slim::run::build_ephemeris(&me, None).unwrap();
-    let iau = slim::run::build_ephemeris(&iau, None).unwrap();
+    let me = slim::prepare::build_ephemeris(&me, None).unwrap();
+    let iau = slim::prepare::build_ephemeris(&iau, None).unwrap();
     let k = kernels(&names);
     let reference = SpiceBody::with_frame(&k, "moon", 301, "MOON_ME").unwrap();
     for step in 0..me.steps() {
@@ -499,7 +499,7 @@ fn a_synthetic_moonlet_follows_its_circular_orbit_and_faces_its_primary() {
              orbit = {{ radius_km = {radius_km}, period_h = {period_h}, phase_deg = 90 }}\n"
         ),
     );
-    let eph = slim::run::build_ephemeris(&scene, None).unwrap();
+    let eph = slim::prepare::build_ephemeris(&scene, None).unwrap();
     assert_eq!(eph.steps(), 8);
     for step in 0..eph.steps() {
         let s = eph.state(step).unwrap();
@@ -528,13 +528,10 @@ fn a_synthetic_moonlet_follows_its_circular_orbit_and_faces_its_primary() {
 #[test]
 fn the_moon_example_places_haworth_and_keeps_its_floor_in_shadow() {
     let scene = slim::scene::Scene::load(&root().join("data/moon-haworth.toml")).unwrap();
-    let kernels = slim::run::load_kernels(&scene).unwrap();
-    let (world, _, _) = slim::run::build_world(&scene, kernels.as_ref()).unwrap();
-    let eph = slim::run::build_ephemeris(&scene, kernels).unwrap();
-    let states = slim::run::epoch_states(eph.as_ref()).unwrap();
+    let prepared = slim::prepare::prepare(&scene, &mut Default::default()).unwrap();
+    let (world, states) = (&prepared.assembly.world, &prepared.states);
     assert_eq!(states.len(), 720);
-    let bins = slim::run::bins_for(&scene, &states);
-    let sim = slim::run::statistics(&world, &states, scene.run.tracer, bins).unwrap();
+    let sim = slim::simulate::statistics(world, states, scene.run.tracer, prepared.bins).unwrap();
 
     let mesh = &world.bodies[0].mesh;
     let radius = |i: usize| mesh.centroids[i].length();

@@ -5,7 +5,7 @@ use glam::DVec3;
 use slim::ephemeris::spin::{Spin, SpinModel};
 use slim::ephemeris::EpochState;
 use slim::mesh::{generate::subdivide, inspect::inspect, read_mesh, LengthUnit, Mesh};
-use slim::run::epoch_states;
+use slim::prepare::epoch_states;
 use slim::world::{Body, World};
 use std::path::PathBuf;
 

@@ -50,6 +50,10 @@ pub trait Ephemeris: Send + Sync {
     fn state(&self, step: usize) -> Result<EpochState>;
     /// Total time covered, seconds (each step stands for `duration / steps`).
     fn duration_s(&self) -> f64;
+    /// The SPICE kernels this ephemeris reads, if it reads any.
+    fn kernels(&self) -> Option<&spice::Kernels> {
+        None
+    }
 }
 
 /// Solar irradiance (W/m²) at `distance_m` from the Sun for a solar constant at 1 AU.

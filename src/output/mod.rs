@@ -21,7 +21,7 @@ pub mod table;
 
 use crate::ephemeris::EpochState;
 use crate::error::Result;
-use crate::run::StepIrradiance;
+use crate::simulate::StepIrradiance;
 use crate::stats::FacetStats;
 use crate::world::World;
 use std::path::{Path, PathBuf};

@@ -14,14 +14,14 @@
 
 use super::camera::Camera;
 use super::{GeometryImage, Renderer};
-use crate::ephemeris::spice::Kernels;
 use crate::ephemeris::{Ephemeris, EpochState};
 use crate::error::{Error, Result};
 use crate::fit::{fit, FitResult, Observation};
 use crate::image::png::Stretch;
 use crate::image::{fits, png, read_image, Image, Value};
 use crate::photometry::{Material, Reflectance};
-use crate::run::{build_ephemeris, build_world, load_kernels};
+use crate::prepare::assemble;
+use crate::progress::Timings;
 use crate::scene::{CameraSection, Scene};
 use crate::world::World;
 use glam::DVec3;
@@ -73,25 +73,17 @@ pub struct View {
 enum CameraSite {
     /// A fixed position, scene frame, metres.
     Fixed(DVec3),
-    /// A NAIF body or spacecraft placed by the kernels, relative to the first body.
-    Spice {
-        kernels: Box<Kernels>,
-        observer: i32,
-        first_body: i32,
-    },
+    /// A NAIF body or spacecraft placed by the ephemeris' kernels, relative to the first
+    /// body.
+    Spice { observer: i32, first_body: i32 },
 }
 
 impl View {
     /// Loads the scene's bodies and ephemeris.
     pub fn load(scene: &Scene) -> Result<View> {
-        let kernels = load_kernels(scene)?;
-        let (world, _, warnings) = build_world(scene, kernels.as_ref())?;
+        let assembly = assemble(scene, &mut Timings::default())?;
         let camera_site = match scene.camera.as_ref().and_then(|c| c.observer_naif_id) {
             Some(observer) => CameraSite::Spice {
-                // The ephemeris keeps its own copy of the kernels.
-                kernels: Box::new(load_kernels(scene)?.ok_or_else(|| {
-                    Error::Usage("camera.observer_naif_id needs spice mode".into())
-                })?),
                 observer,
                 first_body: scene.bodies[0].naif_id.unwrap_or_default(),
             },
@@ -105,42 +97,45 @@ impl View {
                 ) * 1000.0,
             ),
         };
-        let ephemeris = build_ephemeris(scene, kernels)?;
         Ok(View {
-            world,
-            ephemeris,
-            warnings,
+            world: assembly.world,
+            ephemeris: assembly.ephemeris,
+            warnings: assembly.warnings,
             camera_site,
         })
     }
 
     /// The camera's position at `state`, scene frame, metres.
     pub fn camera_position_m(&self, scene: &Scene, state: &EpochState) -> Result<DVec3> {
-        match &self.camera_site {
-            CameraSite::Fixed(p) => Ok(*p),
+        let (observer, first_body) = match self.camera_site {
+            CameraSite::Fixed(p) => return Ok(p),
             CameraSite::Spice {
-                kernels,
                 observer,
                 first_body,
-            } => kernels
-                .vector_km(*observer, *first_body, state.epoch, None)
-                .map(|v| v * 1000.0)
-                .map_err(|msg| Error::Spice {
-                    body: format!("camera observer of {}", scene.bodies[0].name),
-                    naif_id: *observer,
-                    frame: "J2000".into(),
-                    epoch: format!("{} ({} TDB s)", state.epoch, state.epoch.to_tdb_seconds()),
-                    msg: format!(
-                        "camera position relative to NAIF {first_body}: {msg}; the loaded SPKs provide: {}",
-                        kernels
-                            .ephemeris_coverage()
-                            .iter()
-                            .map(|c| c.0.to_string())
-                            .collect::<Vec<_>>()
-                            .join(", ")
-                    ),
-                }),
-        }
+            } => (observer, first_body),
+        };
+        let kernels = self
+            .ephemeris
+            .kernels()
+            .ok_or_else(|| Error::Usage("camera.observer_naif_id needs spice mode".into()))?;
+        kernels
+            .vector_km(observer, first_body, state.epoch, None)
+            .map(|v| v * 1000.0)
+            .map_err(|msg| Error::Spice {
+                body: format!("camera observer of {}", scene.bodies[0].name),
+                naif_id: observer,
+                frame: "J2000".into(),
+                epoch: format!("{} ({} TDB s)", state.epoch, state.epoch.to_tdb_seconds()),
+                msg: format!(
+                    "camera position relative to NAIF {first_body}: {msg}; the loaded SPKs provide: {}",
+                    kernels
+                        .ephemeris_coverage()
+                        .iter()
+                        .map(|c| c.0.to_string())
+                        .collect::<Vec<_>>()
+                        .join(", ")
+                ),
+            })
     }
 
     /// The state at `step`, checked against the number of steps.

@@ -17,7 +17,8 @@ use super::reply::{ApiError, ApiResult};
 use super::scene_input::{bad_scene, check_files, SceneText};
 use crate::ephemeris::Ephemeris;
 use crate::illum::Direct;
-use crate::run::{build_ephemeris, build_world, load_kernels};
+use crate::prepare::assemble;
+use crate::progress::Timings;
 use crate::trace::TracerKind;
 use crate::world::World;
 use serde::{Deserialize, Serialize};
@@ -169,10 +170,8 @@ fn engine(dir: &Path, scene: &SceneText, asks: mpsc::Receiver<Ask>) {
 fn build(dir: &Path, text: &SceneText) -> ApiResult<(World, Box<dyn Ephemeris>)> {
     let scene = text.parse(dir)?;
     check_files(dir, &scene)?;
-    let kernels = load_kernels(&scene).map_err(|e| bad_scene(dir, &e))?;
-    let (world, _, _) = build_world(&scene, kernels.as_ref()).map_err(|e| bad_scene(dir, &e))?;
-    let ephemeris = build_ephemeris(&scene, kernels).map_err(|e| bad_scene(dir, &e))?;
-    Ok((world, ephemeris))
+    let assembly = assemble(&scene, &mut Timings::default()).map_err(|e| bad_scene(dir, &e))?;
+    Ok((assembly.world, assembly.ephemeris))
 }
 
 fn answer(

@@ -14,8 +14,9 @@ use super::catalogue::{check_joined, resolve};
 use super::limits::Limits;
 use super::reply::{ApiError, ApiResult};
 use crate::plan::Plan;
-use crate::run::{build_ephemeris, build_world, load_kernels};
-use crate::scene::{EphemerisSection, Scene, Shape};
+use crate::prepare::assemble;
+use crate::progress::Timings;
+use crate::scene::{EphemerisSection, Scene};
 use serde_json::Value;
 use std::path::{Path, PathBuf};
 
@@ -161,35 +162,26 @@ pub fn plan(dir: &Path, text: &SceneText, limits: &Limits) -> ApiResult<Planned>
     let scene = text.parse(dir)?;
     check_files(dir, &scene)?;
     check_spice_steps(&scene, limits)?;
-    let kernels = load_kernels(&scene).map_err(|e| bad_scene(dir, &e))?;
-    let (world, _, _) = build_world(&scene, kernels.as_ref()).map_err(|e| bad_scene(dir, &e))?;
-    let facets = world.facet_count();
+    let assembly = assemble(&scene, &mut Timings::default()).map_err(|e| bad_scene(dir, &e))?;
+    let facets = assembly.world.facet_count();
     if facets > limits.max_facets {
         return Err(over_limit("facets", facets, limits.max_facets));
     }
-    let steps = build_ephemeris(&scene, kernels)
-        .map_err(|e| bad_scene(dir, &e))?
-        .steps();
+    let steps = assembly.ephemeris.steps();
     if steps > limits.max_steps {
         return Err(over_limit("steps", steps, limits.max_steps));
     }
     Ok(Planned {
-        plan: Plan::new(&scene, &world, steps),
+        plan: Plan::new(&scene, &assembly.world, steps),
         name: scene.name,
     })
 }
 
-/// Every mesh and kernel the scene names must be a file inside the data folder.
+/// Every file the scene names ([`Scene::input_files`]) must be a file inside the data
+/// folder.
 pub fn check_files(dir: &Path, scene: &Scene) -> ApiResult<()> {
-    for (i, b) in scene.bodies.iter().enumerate() {
-        if let Shape::File { path, .. } = b.shape() {
-            check_joined(dir, &format!("body[{i}].mesh"), path)?;
-        }
-    }
-    if let EphemerisSection::Spice(s) = &scene.ephemeris {
-        for (i, k) in s.kernels.iter().enumerate() {
-            check_joined(dir, &format!("ephemeris.kernels[{i}]"), k)?;
-        }
+    for (key, path) in scene.input_files() {
+        check_joined(dir, &key, path)?;
     }
     Ok(())
 }

@@ -336,11 +336,6 @@ impl SpiceEphemeris {
         })
     }
 
-    /// The loaded kernels.
-    pub fn kernels(&self) -> &Kernels {
-        &self.kernels
-    }
-
     fn error(&self, body: &SpiceBody, epoch: Epoch, what: &str, cause: String) -> Error {
         let coverage = self.kernels.ephemeris_coverage();
         let window = |id: i32| {
@@ -408,6 +403,10 @@ impl Ephemeris for SpiceEphemeris {
 
     fn duration_s(&self) -> f64 {
         self.step_s * self.epochs.len() as f64
+    }
+
+    fn kernels(&self) -> Option<&Kernels> {
+        Some(&self.kernels)
     }
 
     fn state(&self, step: usize) -> Result<EpochState> {

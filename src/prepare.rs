@@ -1,0 +1,388 @@
+//! Prepare: everything a run needs, assembled once from a validated scene.
+//!
+//! In: a [`Scene`] (checked by [`Scene::load`]). Out: an [`Assembly`] — the loaded SPICE
+//! kernels inside the ephemeris, the [`World`] of bodies (metres, each in its own frame)
+//! with each mesh's inspection record and warnings, and the [`Ephemeris`]; and for a
+//! whole run a [`Prepared`] — that assembly plus every step's [`EpochState`], the
+//! scattered-light settings, the CDF bins (W/m²) and the [`Plan`].
+//!
+//! This is the only place where a scene becomes geometry: `slim run`, the service's job
+//! planning and point queries, `slim render` and `slim fit` all start here.
+
+use crate::ephemeris::fixed::{normalized_direction, FixedGeometry, FixedSun};
+use crate::ephemeris::spice::{parse_aberration, Kernels, SpiceBody, SpiceEphemeris, SpiceMember};
+use crate::ephemeris::spin::{Spin, SpinModel};
+use crate::ephemeris::synthetic::{CircularOrbit, SyntheticMotion};
+use crate::ephemeris::{flux_at, Ephemeris, EpochState};
+use crate::error::{Error, Result};
+use crate::mesh::generate::ellipsoid;
+use crate::mesh::inspect::inspect;
+use crate::mesh::projection::PolarStereographic;
+use crate::mesh::{read_mesh, LengthUnit, Mesh, RawMesh};
+use crate::output::record::{input_file, BodyRecord, InputFile};
+use crate::plan::Plan;
+use crate::progress::Timings;
+use crate::scatter::Settings as ScatterSettings;
+use crate::scene::{
+    BodySection, EphemerisSection, FixedSection, Orient, Scene, Shape, SpiceSection, SpinSection,
+};
+use crate::stats::Bins;
+use crate::world::{Body, Pose, World};
+use glam::{DMat3, DVec3};
+use rayon::prelude::*;
+
+/// A scene's bodies and ephemeris: what every use of a scene starts from.
+pub struct Assembly {
+    /// Every body's mesh, in scene order.
+    pub world: World,
+    /// Each body's mesh as loaded and inspected (for `run.json`).
+    pub bodies: Vec<BodyRecord>,
+    /// Problems found in the meshes and what was done about them, one line each.
+    pub warnings: Vec<String>,
+    /// Where the Sun and every body are at each step; a SPICE ephemeris owns the kernels.
+    pub ephemeris: Box<dyn Ephemeris>,
+}
+
+/// Loads the scene's kernels (SPICE scenes), builds every body's mesh and the ephemeris.
+/// `timings` gets the stages "kernels" and "mesh input".
+pub fn assemble(scene: &Scene, timings: &mut Timings) -> Result<Assembly> {
+    let kernels = timings.time("kernels", || load_kernels(scene))?;
+    let (world, bodies, warnings) =
+        timings.time("mesh input", || build_world(scene, kernels.as_ref()))?;
+    let ephemeris = build_ephemeris(scene, kernels)?;
+    Ok(Assembly {
+        world,
+        bodies,
+        warnings,
+        ephemeris,
+    })
+}
+
+impl Assembly {
+    /// The SHA-256 record of every kernel the ephemeris loaded (none without SPICE).
+    pub fn kernel_files(&self) -> Result<Vec<InputFile>> {
+        self.ephemeris
+            .kernels()
+            .map_or(&[][..], Kernels::files)
+            .iter()
+            .map(|f| input_file(f))
+            .collect()
+    }
+}
+
+/// Everything a run of the whole scene needs before its first step.
+pub struct Prepared {
+    pub assembly: Assembly,
+    /// The geometry of every step.
+    pub states: Vec<EpochState>,
+    /// Scattered light, when the scene asks for it.
+    pub scatter: Option<ScatterSettings>,
+    /// The CDF thresholds, covering the largest flux of the run.
+    pub bins: Bins,
+    /// What runs and what is left out, and why.
+    pub plan: Plan,
+}
+
+/// [`assemble`], then every step's geometry, the scattered-light settings, the CDF bins
+/// and the plan. `timings` also gets the stage "ephemeris".
+pub fn prepare(scene: &Scene, timings: &mut Timings) -> Result<Prepared> {
+    let assembly = assemble(scene, timings)?;
+    let states = timings.time("ephemeris", || epoch_states(assembly.ephemeris.as_ref()))?;
+    let scatter = ScatterSettings::from_scene(scene, &assembly.world)?;
+    let mut plan = Plan::new(scene, &assembly.world, states.len());
+    if let Some(settings) = &scatter {
+        plan.set_scatter(settings.decisions(&assembly.world, &states));
+    }
+    Ok(Prepared {
+        bins: bins_for(scene, &states),
+        assembly,
+        states,
+        scatter,
+        plan,
+    })
+}
+
+/// The scene's SPICE kernels, loaded, if it is a SPICE scene.
+pub fn load_kernels(scene: &Scene) -> Result<Option<Kernels>> {
+    match &scene.ephemeris {
+        EphemerisSection::Spice(s) => Kernels::load(&s.kernels).map(Some),
+        _ => Ok(None),
+    }
+}
+
+/// Loads or generates every body's mesh, applies the orientation option and inspects it.
+/// Ellipsoids without radii take them from the kernels' text PCK.
+pub fn build_world(
+    scene: &Scene,
+    kernels: Option<&Kernels>,
+) -> Result<(World, Vec<BodyRecord>, Vec<String>)> {
+    let mut world = World::default();
+    let mut records = Vec::new();
+    let mut warnings = Vec::new();
+    for (i, b) in scene.bodies.iter().enumerate() {
+        let (mut mesh, file, shape) = load_shape(scene, i, kernels)?;
+        let mut report = inspect(&mesh);
+        let flip = match b.orient {
+            Orient::AsIs => false,
+            Orient::Flip => true,
+            Orient::Outward if !report.closed => {
+                warnings.push(format!(
+                    "body '{}': orient = \"outward\" needs a closed mesh; left as it is",
+                    b.name
+                ));
+                false
+            }
+            Orient::Outward => report.signed_volume_m3 < 0.0,
+        };
+        if flip {
+            mesh = flipped(mesh);
+            report = inspect(&mesh);
+            warnings.push(format!(
+                "body '{}': every facet was flipped (orient option)",
+                b.name
+            ));
+        }
+        warnings.extend(
+            report
+                .problems()
+                .into_iter()
+                .map(|p| format!("body '{}': {p}", b.name)),
+        );
+        let convex = report.convex;
+        records.push(BodyRecord {
+            name: b.name.clone(),
+            mesh: file,
+            shape,
+            report,
+        });
+        world.bodies.push(Body::new(b.name.clone(), mesh, convex));
+    }
+    Ok((world, records, warnings))
+}
+
+/// Body `i`'s mesh, its file record (none when generated) and a description.
+fn load_shape(
+    scene: &Scene,
+    i: usize,
+    kernels: Option<&Kernels>,
+) -> Result<(Mesh, Option<InputFile>, String)> {
+    let b = &scene.bodies[i];
+    match b.shape() {
+        Shape::File {
+            path,
+            units,
+            format,
+        } => {
+            let mut raw = read_mesh(path, format)?;
+            if let Some(p) = &b.stereographic {
+                let projection = PolarStereographic {
+                    pole: p.pole,
+                    radius: p.radius_km * 1000.0 / units.metres(),
+                };
+                raw = projection.apply(raw);
+            }
+            let mesh = Mesh::from_raw(raw, units);
+            Ok((
+                mesh,
+                Some(input_file(path)?),
+                format!("mesh file {}", path.display()),
+            ))
+        }
+        Shape::Ellipsoid { radii_km, levels } => {
+            let radii = match (radii_km, b.naif_id, kernels) {
+                (Some(r), _, _) => DVec3::from_array(r),
+                (None, Some(id), Some(k)) => k.radii_km(id).ok_or_else(|| Error::Scene {
+                    path: scene.path.clone(),
+                    key: format!("body[{i}].ellipsoid.radii_km"),
+                    msg: format!("the loaded text PCKs give no BODY{id}_RADII; give radii_km"),
+                })?,
+                _ => {
+                    return Err(Error::Scene {
+                        path: scene.path.clone(),
+                        key: format!("body[{i}].ellipsoid.radii_km"),
+                        msg: "missing".into(),
+                    })
+                }
+            };
+            let mesh = Mesh::from_raw(ellipsoid(levels, radii), LengthUnit::Km);
+            let shape = format!(
+                "ellipsoid {} x {} x {} km, {} facets",
+                radii.x,
+                radii.y,
+                radii.z,
+                mesh.len()
+            );
+            Ok((mesh, None, shape))
+        }
+    }
+}
+
+fn flipped(mesh: Mesh) -> Mesh {
+    let raw = RawMesh {
+        vertices: mesh.vertices,
+        triangles: mesh.triangles.iter().map(|&[a, b, c]| [a, c, b]).collect(),
+    };
+    Mesh::from_raw(raw, LengthUnit::M)
+}
+
+/// The scene's ephemeris; a SPICE scene takes its loaded kernels (or loads them).
+pub fn build_ephemeris(scene: &Scene, kernels: Option<Kernels>) -> Result<Box<dyn Ephemeris>> {
+    Ok(match (&scene.ephemeris, kernels) {
+        (EphemerisSection::Spin(s), _) => Box::new(spin_model(scene, s)),
+        (EphemerisSection::Fixed(f), _) => Box::new(fixed_geometry(scene, f)),
+        (EphemerisSection::Spice(s), Some(k)) => Box::new(spice_ephemeris(scene, s, k)?),
+        (EphemerisSection::Spice(s), None) => {
+            Box::new(spice_ephemeris(scene, s, Kernels::load(&s.kernels)?)?)
+        }
+    })
+}
+fn spice_ephemeris(scene: &Scene, s: &SpiceSection, kernels: Kernels) -> Result<SpiceEphemeris> {
+    let members = scene
+        .bodies
+        .iter()
+        .map(|b| spice_member(b, &kernels))
+        .collect::<Result<Vec<_>>>()?;
+    let first_period_s = match &members[0] {
+        SpiceMember::Kernel(body) => body.rotation_period_s,
+        SpiceMember::Synthetic { .. } => None,
+    };
+    let (step_s, count) = match (scene.stop, s.step_s, s.spins) {
+        (Some(stop), Some(step), _) => (
+            step,
+            ((stop - scene.start).to_seconds() / step).ceil() as usize,
+        ),
+        (_, _, Some(spins)) => {
+            let per_spin = s.steps_per_spin.unwrap_or(360);
+            let period_s = match scene.bodies[0].spin_period_h {
+                Some(h) => h * 3600.0,
+                None => first_period_s.ok_or_else(|| Error::Scene {
+                    path: scene.path.clone(),
+                    key: "body[0].spin_period_h".into(),
+                    msg: "the PCK gives this body no rotation rate: set the spin period".into(),
+                })?,
+            };
+            (
+                period_s / per_spin as f64,
+                (per_spin as f64 * spins).round().max(1.0) as usize,
+            )
+        }
+        _ => unreachable!("validated by Scene::load"),
+    };
+    let epochs = (0..count)
+        .map(|k| scene.start + hifitime::Duration::from_seconds(step_s * k as f64))
+        .collect();
+    SpiceEphemeris::new(
+        kernels,
+        members,
+        epochs,
+        step_s,
+        parse_aberration(&s.aberration).flatten(),
+        s.solar_constant_w_m2,
+    )
+}
+
+/// A SPICE-mode body: placed by the kernels in its frame, or synthetically.
+fn spice_member(b: &BodySection, kernels: &Kernels) -> Result<SpiceMember> {
+    let motion = match (b.naif_id, &b.orbit) {
+        (Some(id), _) => {
+            let body = match &b.frame {
+                Some(frame) => SpiceBody::with_frame(kernels, &b.name, id, frame)?,
+                None => SpiceBody::new(kernels, &b.name, id)?,
+            };
+            return Ok(body.into());
+        }
+        (None, Some(o)) => SyntheticMotion::Orbit(CircularOrbit::new(
+            o.radius_km,
+            o.period_h * 3600.0,
+            o.pole_ra_deg,
+            o.pole_dec_deg,
+            o.phase_deg,
+        )),
+        (None, None) => SyntheticMotion::Fixed {
+            offset_km: DVec3::from_array(b.position_km),
+        },
+    };
+    Ok(SpiceMember::Synthetic {
+        name: b.name.clone(),
+        motion,
+    })
+}
+
+fn spin_model(scene: &Scene, s: &SpinSection) -> SpinModel {
+    let latitude = match (
+        s.subsolar_latitude_deg,
+        s.obliquity_deg,
+        s.solar_longitude_deg,
+    ) {
+        (Some(lat), _, _) => lat.to_radians(),
+        (None, Some(obl), Some(ls)) => (obl.to_radians().sin() * ls.to_radians().sin()).asin(),
+        _ => 0.0,
+    };
+    let hour = 3600.0;
+    let period_s = scene.bodies[0].spin_period_h.unwrap_or(1.0) * hour;
+    let steps = ((s.steps_per_period as f64 * s.periods).round() as usize).max(1);
+    SpinModel {
+        start: scene.start,
+        duration_s: period_s * s.periods,
+        steps,
+        sun_dir_scene: SpinModel::sun_dir_for_subsolar_latitude(latitude),
+        sun_distance_m: s.distance_au * crate::AU_M,
+        solar_constant_w_m2: s.solar_constant_w_m2,
+        bodies: scene
+            .bodies
+            .iter()
+            .map(|b| Spin {
+                period_s: b.spin_period_h.map(|p| p * hour),
+                initial_angle_rad: b.initial_rotation_deg.to_radians(),
+                position_m: DVec3::from_array(b.position_km) * 1000.0,
+            })
+            .collect(),
+    }
+}
+
+fn fixed_geometry(scene: &Scene, f: &FixedSection) -> FixedGeometry {
+    FixedGeometry {
+        start: scene.start,
+        step_s: f.step_s,
+        suns: f
+            .sun
+            .iter()
+            .map(|s| {
+                // A Sun given only by its flux has no distance: NaN, not a made-up one.
+                let distance_m = s.distance_au.map_or(f64::NAN, |au| au * crate::AU_M);
+                FixedSun {
+                    dir_scene: normalized_direction(s.direction).unwrap_or(DVec3::X),
+                    distance_m,
+                    flux_w_m2: s
+                        .flux_w_m2
+                        .unwrap_or_else(|| flux_at(f.solar_constant_w_m2, distance_m)),
+                }
+            })
+            .collect(),
+        poses: scene
+            .bodies
+            .iter()
+            .map(|b| Pose {
+                body_to_scene: DMat3::IDENTITY,
+                position_m: DVec3::from_array(b.position_km) * 1000.0,
+            })
+            .collect(),
+    }
+}
+
+/// Every step's geometry, computed in parallel.
+pub fn epoch_states(ephemeris: &dyn Ephemeris) -> Result<Vec<EpochState>> {
+    (0..ephemeris.steps())
+        .into_par_iter()
+        .map(|k| ephemeris.state(k))
+        .collect()
+}
+
+/// CDF bins covering the largest flux of the run.
+pub fn bins_for(scene: &Scene, states: &[EpochState]) -> Bins {
+    let max_flux = states
+        .iter()
+        .flat_map(|s| s.bodies.iter().map(|b| b.flux_w_m2))
+        .fold(0.0, f64::max);
+    Bins::covering(scene.run.bin_width_w_m2, max_flux)
+}

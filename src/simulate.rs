@@ -1,0 +1,188 @@
+//! Simulate: the step loop — direct sunlight, scattered light and statistics at every
+//! step.
+//!
+//! In: a [`World`] (metres, each body in its own frame), every step's [`EpochState`] and
+//! [`Options`] (tracer, CDF bins, optional scattered light and spectral bands). Out: a
+//! [`Simulation`] — streaming statistics of the total irradiance (W/m²) per facet, and
+//! with scattered light of its direct and scattered parts; each step's irradiance is
+//! handed to a callback as it is computed (global facet order), e.g. to stream history.
+
+use crate::bands::Bands;
+use crate::ephemeris::EpochState;
+use crate::error::{Error, Result};
+use crate::illum::{Direct, StepCounts};
+use crate::progress::{Progress, Silent, Timings};
+use crate::scatter::{Scatter, ScatterRecord, Settings as ScatterSettings, LANES};
+use crate::stats::{Bins, FacetStats};
+use crate::trace::TracerKind;
+use crate::world::World;
+
+/// How to step: the tracer, the CDF bins, and what besides direct sunlight to compute.
+pub struct Options<'a> {
+    pub tracer: TracerKind,
+    pub bins: Bins,
+    /// Scattered light (none: direct sunlight only).
+    pub scatter: Option<ScatterSettings>,
+    /// Spectral bands, which accumulate their own statistics (none: one broad band).
+    pub bands: Option<&'a mut Bands>,
+}
+
+impl Options<'_> {
+    /// Direct sunlight only, with `tracer` and `bins`.
+    pub fn direct(tracer: TracerKind, bins: Bins) -> Options<'static> {
+        Options {
+            tracer,
+            bins,
+            scatter: None,
+            bands: None,
+        }
+    }
+}
+
+/// The result of stepping through time: statistics and counters.
+pub struct Simulation {
+    /// Statistics of the total irradiance (direct plus scattered).
+    pub stats: FacetStats,
+    pub counts: StepCounts,
+    /// With scattering: statistics of the direct and the scattered parts, and what the
+    /// scattered-light stage did.
+    pub parts: Option<ScatterParts>,
+}
+
+/// Direct and scattered statistics of a run with scattered light.
+pub struct ScatterParts {
+    pub direct: FacetStats,
+    pub scattered: FacetStats,
+    pub record: ScatterRecord,
+}
+
+/// One step's irradiance (W/m², global facet order).
+#[derive(Debug, Clone, Copy)]
+pub struct StepIrradiance<'a> {
+    /// Direct plus scattered.
+    pub total: &'a [f64],
+    /// With scattering: (direct, scattered).
+    pub parts: Option<(&'a [f64], &'a [f64])>,
+}
+
+/// Computes the irradiance at every step and accumulates statistics: after the direct
+/// irradiance of each step, with scattered light its solve; statistics of the total and
+/// of both parts. `on_step` sees each step's irradiance (global facet order).
+pub fn simulate(
+    world: &World,
+    states: &[EpochState],
+    options: Options,
+    timings: &mut Timings,
+    progress: &dyn Progress,
+    mut on_step: impl FnMut(&EpochState, StepIrradiance) -> Result<()>,
+) -> Result<Simulation> {
+    let Options {
+        tracer,
+        bins,
+        scatter,
+        mut bands,
+    } = options;
+    let direct = timings.time("trace build", || Direct::new(world, tracer));
+    let mut scatter = scatter.map(|settings| {
+        timings.time("form factors", || {
+            let first = settings.first_bounce.scatterer();
+            Scatter::new(world, settings, first)
+        })
+    });
+    let n = world.facet_count();
+    let mut stats = FacetStats::new(n, bins);
+    let mut part_stats = scatter
+        .as_ref()
+        .map(|_| (FacetStats::new(n, bins), FacetStats::new(n, bins)));
+    // With scattered light on a single body, whose exchange areas are the same at every
+    // step, up to LANES steps are traced first and then solved together.
+    let batch = if scatter.is_some() && world.bodies.len() == 1 {
+        LANES
+    } else {
+        1
+    };
+    let mut directs = vec![vec![0.0; n]; batch];
+    let mut scattered = vec![vec![0.0; n]; batch];
+    let mut total = vec![0.0; n];
+    let mut counts = StepCounts::default();
+    progress.begin_steps(states.len() as u64);
+    for chunk in states.chunks(batch) {
+        for (state, irradiance) in chunk.iter().zip(directs.iter_mut()) {
+            if progress.cancelled() {
+                return Err(Error::Cancelled);
+            }
+            counts += timings.time("direct irradiance", || direct.compute(state, irradiance))?;
+        }
+        if let Some(stage) = scatter.as_mut() {
+            timings.time("scattered light", || {
+                let d: Vec<&[f64]> = directs.iter().map(Vec::as_slice).collect();
+                let mut s: Vec<&mut [f64]> = scattered.iter_mut().map(Vec::as_mut_slice).collect();
+                let lanes = chunk.len();
+                stage.step_many(chunk, &d[..lanes], &mut s[..lanes])
+            });
+        }
+        for ((state, irradiance), scattered) in chunk.iter().zip(&directs).zip(&scattered) {
+            let step = match part_stats.as_mut() {
+                Some((direct_stats, scattered_stats)) => {
+                    timings.time("statistics", || {
+                        total
+                            .iter_mut()
+                            .zip(irradiance.iter().zip(scattered))
+                            .for_each(|(t, (d, s))| *t = d + s);
+                        stats.add_step(&total);
+                        direct_stats.add_step(irradiance);
+                        scattered_stats.add_step(scattered);
+                    });
+                    StepIrradiance {
+                        total: &total,
+                        parts: Some((irradiance, scattered)),
+                    }
+                }
+                None => {
+                    timings.time("statistics", || stats.add_step(irradiance));
+                    StepIrradiance {
+                        total: irradiance,
+                        parts: None,
+                    }
+                }
+            };
+            if let Some(bands) = bands.as_deref_mut() {
+                timings.time("spectral bands", || {
+                    bands.add_step(state, irradiance, scatter.as_mut())
+                });
+            }
+            timings.time("history", || on_step(state, step))?;
+            progress.step_done();
+        }
+    }
+    progress.end_steps();
+    Ok(Simulation {
+        stats,
+        counts,
+        parts: scatter
+            .zip(part_stats)
+            .map(|(stage, (direct, scattered))| ScatterParts {
+                direct,
+                scattered,
+                record: stage.record,
+            }),
+    })
+}
+
+/// [`simulate`] of direct sunlight without timings, progress or per-step output: the
+/// statistics alone.
+pub fn statistics(
+    world: &World,
+    states: &[EpochState],
+    tracer: TracerKind,
+    bins: Bins,
+) -> Result<Simulation> {
+    simulate(
+        world,
+        states,
+        Options::direct(tracer, bins),
+        &mut Timings::default(),
+        &Silent,
+        |_, _| Ok(()),
+    )
+}
