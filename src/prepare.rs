@@ -24,7 +24,8 @@ use crate::plan::Plan;
 use crate::progress::Timings;
 use crate::scatter::Settings as ScatterSettings;
 use crate::scene::{
-    BodySection, EphemerisSection, FixedSection, Orient, Scene, Shape, SpiceSection, SpinSection,
+    BodySection, EphemerisSection, FixedSection, Orient, Scene, Shape, SpiceSection, SpiceSteps,
+    SpinSection,
 };
 use crate::stats::Bins;
 use crate::world::{Body, Pose, World};
@@ -246,13 +247,9 @@ fn spice_ephemeris(scene: &Scene, s: &SpiceSection, kernels: Kernels) -> Result<
         SpiceMember::Kernel(body) => body.rotation_period_s,
         SpiceMember::Synthetic { .. } => None,
     };
-    let (step_s, count) = match (scene.stop, s.step_s, s.spins) {
-        (Some(stop), Some(step), _) => (
-            step,
-            ((stop - scene.start).to_seconds() / step).ceil() as usize,
-        ),
-        (_, _, Some(spins)) => {
-            let per_spin = s.steps_per_spin.unwrap_or(360);
+    let step_s = match s.steps {
+        SpiceSteps::Window { step_s, .. } => step_s,
+        SpiceSteps::Spins { steps_per_spin, .. } => {
             let period_s = match scene.bodies[0].spin_period_h {
                 Some(h) => h * 3600.0,
                 None => first_period_s.ok_or_else(|| Error::Scene {
@@ -261,13 +258,10 @@ fn spice_ephemeris(scene: &Scene, s: &SpiceSection, kernels: Kernels) -> Result<
                     msg: "the PCK gives this body no rotation rate: set the spin period".into(),
                 })?,
             };
-            (
-                period_s / per_spin as f64,
-                (per_spin as f64 * spins).round().max(1.0) as usize,
-            )
+            period_s / steps_per_spin as f64
         }
-        _ => unreachable!("validated by Scene::load"),
     };
+    let count = s.steps.count(scene.start) as usize;
     let epochs = (0..count)
         .map(|k| scene.start + hifitime::Duration::from_seconds(step_s * k as f64))
         .collect();

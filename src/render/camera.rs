@@ -10,6 +10,7 @@
 //! camera-frame point (x, y, z), z > 0, projects to u = f·x/z + W/2, v = f·y/z + H/2.
 
 use crate::error::{Error, Result};
+use crate::scene::camera_size_problem;
 use crate::world::Pose;
 use glam::{DMat3, DVec3};
 
@@ -32,15 +33,8 @@ impl Camera {
     /// A camera at the scene origin looking along +z, with the field of view `fov_deg`
     /// across the image width.
     pub fn with_fov(width: usize, height: usize, fov_deg: f64) -> Result<Camera> {
-        if width == 0 || height == 0 || width * height > 1 << 26 {
-            return Err(Error::Usage(format!(
-                "camera size {width} × {height} must be between 1 and 2^26 pixels"
-            )));
-        }
-        if !(fov_deg > 0.0 && fov_deg < 180.0) {
-            return Err(Error::Usage(format!(
-                "field of view {fov_deg}° must be between 0 and 180 degrees"
-            )));
+        if let Some(problem) = camera_size_problem(width, height, fov_deg) {
+            return Err(Error::Usage(problem));
         }
         Ok(Camera {
             width,

@@ -16,11 +16,11 @@ pub fn facet_albedo(scene: &Scene, world: &World) -> Result<Option<Vec<f64>>> {
         return Ok(None);
     };
     let mut albedo = Vec::with_capacity(world.facet_count());
-    for (b, body) in scene.bodies.iter().zip(&world.bodies) {
+    for (i, (b, body)) in scene.bodies.iter().zip(&world.bodies).enumerate() {
         match (&b.albedo_file, b.albedo.or(section.albedo)) {
             (Some(path), _) => albedo.extend(read_albedo_file(path, body.mesh.len())?),
             (None, Some(a)) => albedo.extend(std::iter::repeat_n(a, body.mesh.len())),
-            (None, None) => unreachable!("validated by Scene::load"),
+            (None, None) => return Err(scene.err(format!("body[{i}].albedo"), "missing")),
         }
     }
     Ok(Some(albedo))

@@ -80,7 +80,7 @@ impl Default for NearField {
     /// "Scattered light").
     fn default() -> Self {
         NearField {
-            far_ratio: 16.0,
+            far_ratio: crate::scene::DEFAULT_NEAR_FIELD_RATIO,
             tolerance: 3e-4,
             max_depth: 3,
         }

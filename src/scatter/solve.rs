@@ -38,7 +38,7 @@
 //! would get alone.
 
 use super::csr::Lanes;
-use serde::{Deserialize, Serialize};
+use serde::Serialize;
 use std::array::from_fn;
 
 /// Exchange areas as an operator.
@@ -49,18 +49,8 @@ pub trait Exchange: Sync {
     fn areas(&self) -> &[f64];
 }
 
-/// Which method solves the multiple-scattering equation.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
-#[serde(rename_all = "lowercase")]
-pub enum SolverKind {
-    /// Jacobi when every albedo is at most 0.5, conjugate gradients otherwise.
-    #[default]
-    Auto,
-    /// The paper's iteration: iterate k holds scattering orders ≤ k.
-    Jacobi,
-    /// Conjugate gradients on the symmetric form (fast when albedo is near 1).
-    Cg,
-}
+/// Which method solves the multiple-scattering equation: the scene's choice.
+pub use crate::scene::SolverKind;
 
 /// Stopping rules.
 #[derive(Debug, Clone, Copy, PartialEq)]

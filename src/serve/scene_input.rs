@@ -191,11 +191,7 @@ fn check_spice_steps(scene: &Scene, limits: &Limits) -> ApiResult<()> {
     let EphemerisSection::Spice(s) = &scene.ephemeris else {
         return Ok(());
     };
-    let steps = match (scene.stop, s.step_s, s.spins) {
-        (Some(stop), Some(step), _) => (stop - scene.start).to_seconds() / step,
-        (_, _, Some(spins)) => s.steps_per_spin.unwrap_or(360) as f64 * spins,
-        _ => 0.0,
-    };
+    let steps = s.steps.count(scene.start);
     if steps > limits.max_steps as f64 {
         return Err(over_limit("steps", steps.ceil() as usize, limits.max_steps));
     }
