@@ -10,7 +10,7 @@
 //! Errors are printed as one line and the
 //! exit code is non-zero.
 
-use crate::compare::{compare_images, Bins};
+use crate::compare::{compare_images, ValueBins};
 use crate::error::{Error, Result};
 use crate::image::read_image;
 use crate::mesh::{inspect::inspect, read_mesh, LengthUnit, Mesh, MeshFormat};
@@ -451,7 +451,7 @@ fn execute(cli: Cli) -> Result<()> {
         } => {
             let (ia, ib) = (read_image(&a)?, read_image(&b)?);
             let end = end.unwrap_or_else(|| ia.max().max(ib.max()));
-            let bins = Bins::covering(start, end.max(start), bin_width)?;
+            let bins = ValueBins::covering(start, end.max(start), bin_width)?;
             let c = compare_images(&ia, &ib, bins, above)?;
             println!("bin_start,bin_end,count_a,count_b");
             for (k, (x, y)) in c.counts_a.iter().zip(&c.counts_b).enumerate() {

@@ -29,25 +29,25 @@
 use crate::error::{Error, Result};
 use crate::image::Image;
 
-/// Bins of equal width from `start`; values beyond the last bin go into the last one,
+/// Histogram bins over image values, of equal width from `start`; values beyond the last bin go into the last one,
 /// values below `start` into the first, non-finite values are left out.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Bins {
+pub struct ValueBins {
     pub start: f64,
     pub width: f64,
     pub count: usize,
 }
 
-impl Bins {
+impl ValueBins {
     /// Bins of `width` from `start` up to and including `end`.
-    pub fn covering(start: f64, end: f64, width: f64) -> Result<Bins> {
+    pub fn covering(start: f64, end: f64, width: f64) -> Result<ValueBins> {
         if !(width.is_finite() && width > 0.0 && start.is_finite() && end.is_finite()) {
             return Err(Error::Usage(format!(
                 "bins need a finite start, end and positive width, not {start}, {end}, {width}"
             )));
         }
         let count = (((end - start) / width).floor() as usize + 1).min(1_000_000);
-        Ok(Bins {
+        Ok(ValueBins {
             start,
             width,
             count,
@@ -117,7 +117,7 @@ pub fn chi_square_two_sample(r: &[u64], s: &[u64]) -> Result<ChiSquare> {
 /// A comparison of two images.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Comparison {
-    pub bins: Bins,
+    pub bins: ValueBins,
     pub counts_a: Vec<u64>,
     pub counts_b: Vec<u64>,
     pub chi_square: ChiSquare,
@@ -125,7 +125,12 @@ pub struct Comparison {
 
 /// Histograms of two images' pixels (optionally only pixels above `floor`, e.g. to leave
 /// out the black sky) and the χ² test between them.
-pub fn compare_images(a: &Image, b: &Image, bins: Bins, floor: Option<f64>) -> Result<Comparison> {
+pub fn compare_images(
+    a: &Image,
+    b: &Image,
+    bins: ValueBins,
+    floor: Option<f64>,
+) -> Result<Comparison> {
     let keep = |x: &f64| floor.is_none_or(|f| *x > f);
     let counts_a = bins.histogram(a.pixels.iter().copied().filter(keep));
     let counts_b = bins.histogram(b.pixels.iter().copied().filter(keep));
@@ -259,10 +264,10 @@ mod tests {
 
     #[test]
     fn bins_clamp_and_skip() {
-        let bins = Bins::covering(0.0, 30.0, 10.0).unwrap();
+        let bins = ValueBins::covering(0.0, 30.0, 10.0).unwrap();
         assert_eq!(bins.count, 4);
         let h = bins.histogram([-5.0, 0.0, 9.99, 10.0, 35.0, 1e9, f64::NAN].into_iter());
         assert_eq!(h, vec![3, 1, 0, 2]);
-        assert!(Bins::covering(0.0, 1.0, 0.0).is_err());
+        assert!(ValueBins::covering(0.0, 1.0, 0.0).is_err());
     }
 }

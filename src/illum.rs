@@ -19,7 +19,7 @@ use glam::DVec3;
 use rayon::prelude::*;
 
 /// Counts of what one step did.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, serde::Serialize)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 pub struct StepCounts {
     /// Facets facing away from the Sun (no ray needed).
     pub night: u64,

@@ -6,10 +6,10 @@
 
 use crate::scene::Scene;
 use crate::world::World;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 /// One decision of the plan.
-#[derive(Debug, Clone, Serialize, PartialEq)]
+#[derive(Debug, Clone, Default, Serialize, Deserialize, PartialEq)]
 pub struct Decision {
     /// The stage or piece of work.
     pub stage: String,
@@ -20,7 +20,7 @@ pub struct Decision {
 }
 
 /// The plan of a run.
-#[derive(Debug, Clone, Serialize, PartialEq)]
+#[derive(Debug, Clone, Default, Serialize, Deserialize, PartialEq)]
 pub struct Plan {
     pub bodies: usize,
     pub facets: usize,

@@ -108,10 +108,7 @@ pub fn run_scene(scene: &Scene, out_dir: &Path, progress: &dyn Progress) -> Resu
 fn prepare_output_dir(dir: &Path) -> Result<()> {
     std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
     let record = dir.join("run.json");
-    let listed = std::fs::read(&record)
-        .ok()
-        .and_then(|bytes| serde_json::from_slice::<PreviousRun>(&bytes).ok())
-        .map_or_else(Vec::new, |r| r.outputs);
+    let listed = RunRecord::read(dir).map_or_else(|_| Vec::new(), |r| r.outputs);
     let partial = std::fs::read_dir(dir)
         .map_err(|e| Error::io(dir, e))?
         .filter_map(|entry| entry.ok()?.file_name().into_string().ok())
@@ -126,12 +123,6 @@ fn prepare_output_dir(dir: &Path) -> Result<()> {
         }
     }
     remove_if_present(&record)
-}
-
-/// The part of an earlier `run.json` needed to clear its files.
-#[derive(serde::Deserialize)]
-struct PreviousRun {
-    outputs: Vec<String>,
 }
 
 fn remove_if_present(path: &Path) -> Result<()> {

@@ -14,7 +14,7 @@
 use rayon::prelude::*;
 
 /// CDF thresholds x_b = b·width, b = 0 … count−1, in W/m².
-#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Bins {
     /// Bin width, W/m².
     pub width_w_m2: f64,

@@ -7,7 +7,7 @@
 //! and on-demand queries that agree with the files, a JSON 4xx error for every bad input,
 //! tokens, limits, deletion, and jobs that survive a killed server.
 
-use slim::report::read::RunData;
+use slim::output::read::RunData;
 use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};

@@ -11,13 +11,13 @@
 
 use super::Mesh;
 use glam::DVec3;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 use std::collections::HashMap;
 use std::fmt;
 use std::hash::{BuildHasherDefault, Hasher};
 
 /// What [`inspect`] finds in a mesh.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Default, Serialize, Deserialize)]
 pub struct MeshReport {
     pub vertices: usize,
     pub facets: usize,

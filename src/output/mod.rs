@@ -16,6 +16,7 @@
 //! written last, so a folder holds a complete run exactly when it holds `run.json`.
 
 pub mod ply;
+pub mod read;
 pub mod record;
 pub mod table;
 
@@ -32,7 +33,7 @@ const FACETS_PER_BATCH: usize = 1 << 14;
 
 /// Named statistics beside the total: `direct` and `scattered` with scattered light,
 /// `band_NAME` and `bands` with spectral bands.
-pub type Parts<'a> = &'a [(String, &'a FacetStats)];
+pub type NamedStats<'a> = &'a [(String, &'a FacetStats)];
 
 /// Adds min, max, mean and std of `stats` for facets `global` as `PREFIXmin_w_m2`, …
 /// (`prefix` empty for the total, `NAME_` for a part).
@@ -58,7 +59,7 @@ pub fn write_summary(
     csv: bool,
     world: &World,
     stats: &FacetStats,
-    parts: Parts,
+    parts: NamedStats,
 ) -> Result<Vec<PathBuf>> {
     let mut writer = TableWriter::new(dir, "summary", csv);
     for_facet_batches(world, |body, range, offset| {
@@ -100,7 +101,7 @@ pub fn write_cdf(
     csv: bool,
     world: &World,
     stats: &FacetStats,
-    parts: Parts,
+    parts: NamedStats,
 ) -> Result<Vec<PathBuf>> {
     let mut writer = TableWriter::new(dir, "cdf", csv);
     let bins = stats.bins();

@@ -1,23 +1,24 @@
 //! `run.json`: the record of a run — program version, scene hash, input checksums, counts,
-//! stage timings, the plan, mesh reports, warnings and the files written.
+//! stage timings, the plan, mesh reports, warnings and the files written. One type,
+//! [`RunRecord`], is both written and read back.
 
 use crate::error::{Error, Result};
 use crate::illum::StepCounts;
 use crate::mesh::inspect::MeshReport;
 use crate::plan::Plan;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 use sha2::{Digest, Sha256};
 use std::path::{Path, PathBuf};
 
 /// An input file and its SHA-256.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Default, Serialize, Deserialize)]
 pub struct InputFile {
     pub path: PathBuf,
     pub sha256: String,
 }
 
 /// One body's mesh as loaded.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Default, Serialize, Deserialize)]
 pub struct BodyRecord {
     pub name: String,
     /// The mesh file (none for a generated shape).
@@ -27,8 +28,10 @@ pub struct BodyRecord {
     pub report: MeshReport,
 }
 
-/// Everything `run.json` holds.
-#[derive(Debug, Clone, Serialize)]
+/// Everything `run.json` holds: written by [`RunRecord::write`], read back by
+/// [`RunRecord::read`]. Keys missing from an older record read as their defaults.
+#[derive(Debug, Clone, Default, Serialize, Deserialize)]
+#[serde(default)]
 pub struct RunRecord {
     pub program: String,
     pub version: String,
@@ -71,6 +74,19 @@ pub fn input_file(path: &Path) -> Result<InputFile> {
 }
 
 impl RunRecord {
+    /// Reads `DIR/run.json`; a folder without one is not a finished run.
+    pub fn read(dir: &Path) -> Result<RunRecord> {
+        let path = dir.join("run.json");
+        if !path.is_file() {
+            return Err(Error::file(
+                dir,
+                "not a finished run: no run.json in this folder (run `slim run` first)",
+            ));
+        }
+        let bytes = std::fs::read(&path).map_err(|e| Error::io(&path, e))?;
+        serde_json::from_slice(&bytes).map_err(|e| Error::file(&path, e.to_string()))
+    }
+
     /// Writes `DIR/run.json` atomically.
     pub fn write(&self, dir: &Path) -> Result<PathBuf> {
         let path = dir.join("run.json");

@@ -9,9 +9,9 @@
 
 use super::colormap::Colormap;
 use super::figure::{legend, rgb, xy_chart, Axes, DrawResult, Figure};
-use super::read::RunData;
 use super::select::Chosen;
 use crate::error::Result;
+use crate::output::read::RunData;
 use crate::output::table::write_atomic;
 use plotters::coord::Shift;
 use plotters::prelude::*;

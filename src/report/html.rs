@@ -6,9 +6,9 @@
 //! SVGs and the numbers behind each figure linked by relative file name.
 
 use super::figure::short_number;
-use super::read::RunData;
 use super::summary::{Accuracy, GeometrySummary};
 use crate::error::{Error, Result};
+use crate::output::read::RunData;
 use crate::output::table::write_atomic;
 use base64::Engine;
 use std::fmt::Write;
@@ -46,9 +46,9 @@ pub fn write_index(
     notes: &[String],
 ) -> Result<PathBuf> {
     let geometry = GeometrySummary::new(run);
-    let accuracy = Accuracy::new(run.info.plan.steps, &geometry);
+    let accuracy = Accuracy::new(run.record.plan.steps, &geometry);
     let mut h = String::new();
-    let name = escape(&run.info.name);
+    let name = escape(&run.record.name);
     let _ = write!(
         h,
         "<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\">\
@@ -61,7 +61,7 @@ pub fn write_index(
     accuracy_section(&mut h, &accuracy);
     counts_section(&mut h, run);
     mesh_section(&mut h, run);
-    list_section(&mut h, "Warnings", &run.info.warnings);
+    list_section(&mut h, "Warnings", &run.record.warnings);
     list_section(&mut h, "Report notes", notes);
     figure_section(&mut h, figures)?;
     h.push_str("</body></html>\n");
@@ -80,7 +80,7 @@ fn key_values(h: &mut String, rows: &[(&str, String)]) {
 }
 
 fn run_section(h: &mut String, run: &RunData) {
-    let i = &run.info;
+    let i = &run.record;
     h.push_str("<h2>Run</h2>\n");
     key_values(
         h,
@@ -88,7 +88,7 @@ fn run_section(h: &mut String, run: &RunData) {
             ("program", format!("{} {}", i.program, i.version)),
             (
                 "scene",
-                format!("{} (SHA-256 {})", i.scene.path, i.scene.sha256),
+                format!("{} (SHA-256 {})", i.scene.path.display(), i.scene.sha256),
             ),
             ("run folder", run.dir.display().to_string()),
             (
@@ -120,7 +120,7 @@ fn run_section(h: &mut String, run: &RunData) {
 }
 
 fn plan_section(h: &mut String, run: &RunData) {
-    let p = &run.info.plan;
+    let p = &run.record.plan;
     let _ = writeln!(
         h,
         "<h2>Plan</h2>\n<p>bodies: {}, facets: {}, steps: {}, tracer: {}.</p>\n<table><tr><th>stage</th><th></th><th>why</th></tr>",
@@ -200,30 +200,37 @@ fn accuracy_section(h: &mut String, a: &Accuracy) {
 
 fn counts_section(h: &mut String, run: &RunData) {
     h.push_str("<h2>Counts</h2>\n");
-    let rows: Vec<(&str, String)> = run
-        .info
-        .counts
-        .iter()
-        .map(|(k, v)| (k.as_str(), v.to_string()))
-        .collect();
-    key_values(h, &rows);
+    key_values_of(h, &run.record.counts);
 }
 
 fn mesh_section(h: &mut String, run: &RunData) {
     h.push_str("<h2>Meshes</h2>\n");
-    for b in &run.info.bodies {
+    for b in &run.record.bodies {
         let source = match &b.mesh {
-            Some(file) => format!("{} (SHA-256 {})", escape(&file.path), escape(&file.sha256)),
+            Some(file) => format!(
+                "{} (SHA-256 {})",
+                escape(&file.path.display().to_string()),
+                escape(&file.sha256)
+            ),
             None => escape(&b.shape),
         };
         let _ = writeln!(h, "<h3>{}</h3><p>{source}</p>", escape(&b.name));
-        let rows: Vec<(&str, String)> = b
-            .report
-            .iter()
-            .map(|(k, v)| (k.as_str(), v.to_string()))
-            .collect();
-        key_values(h, &rows);
+        key_values_of(h, &b.report);
     }
+}
+
+/// The fields of a recorded struct as key–value rows, keys in alphabetical order and
+/// values as JSON writes them.
+fn key_values_of(h: &mut String, value: &impl serde::Serialize) {
+    let fields = match serde_json::to_value(value) {
+        Ok(serde_json::Value::Object(map)) => map,
+        _ => serde_json::Map::new(),
+    };
+    let rows: Vec<(&str, String)> = fields
+        .iter()
+        .map(|(k, v)| (k.as_str(), v.to_string()))
+        .collect();
+    key_values(h, &rows);
 }
 
 fn list_section(h: &mut String, title: &str, items: &[String]) {

@@ -16,9 +16,9 @@ use super::figure::{rgb, short_number, text, write_png, DrawResult, Figure};
 use super::raster::{
     equirectangular, is_patch, orthographic, overhead_view, Framing, IdRaster, VIEWS,
 };
-use super::read::{Facets, RunData};
 use crate::error::{Error, Result};
 use crate::mesh::Mesh;
+use crate::output::read::{Facets, RunData};
 use crate::output::table::write_atomic;
 use plotters::coord::Shift;
 use plotters::prelude::*;

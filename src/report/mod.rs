@@ -19,15 +19,14 @@ pub mod html;
 pub mod maps;
 pub mod minmaxmean;
 pub mod raster;
-pub mod read;
 pub mod select;
 pub mod summary;
 
 use crate::error::{Error, Result};
+use crate::output::read::RunData;
 use colormap::Colormap;
 use figure::{write_png_and_svg, Figure};
 use html::FigureEntry;
-use read::RunData;
 use select::{FacetRef, LatLon};
 use std::path::{Path, PathBuf};
 
@@ -151,7 +150,7 @@ fn cdf_figure(run: &RunData, options: &ReportOptions, out: &mut Written) -> Resu
         colormap: options.colormap,
         title: format!(
             "F(x): share of time a facet receives at most x ({})",
-            run.info.name
+            run.record.name
         ),
     };
     let data = cdf_plot::write_csv(&curves, &out.dir)?;

@@ -6,8 +6,8 @@
 //! their centroid latitude/longitude. Without requests, a spread: brightest, darkest lit,
 //! median mean, most polar, most equatorial (a facet chosen twice is listed once).
 
-use super::read::{BodyData, RunData};
 use crate::error::{Error, Result};
+use crate::output::read::{BodyData, RunData};
 use std::str::FromStr;
 
 /// A facet named by body and id: `BODY:ID`.

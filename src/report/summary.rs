@@ -9,7 +9,7 @@
 //! n = 48, S = 1361 W/m²), several times more on rough terrain — with n the steps per turn
 //! of the Sun in the body's sky (or the run's steps when the Sun does not turn).
 
-use super::read::{GeometryRow, RunData};
+use crate::output::read::{GeometryRow, RunData};
 
 /// The Sun as seen from one body over the run.
 #[derive(Debug, Clone)]

@@ -42,8 +42,9 @@ use crate::world::{FrameTransform, World};
 use csr::{Csr, Lanes};
 use form_factor::NearField;
 use rayon::prelude::*;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 use solve::{Exchange, SolveReport, SolverKind, Stopping};
+use std::borrow::Cow;
 use std::time::Instant;
 use visibility::{cross_block, facets, own_block, Occluder, SAME_FRAME};
 
@@ -297,7 +298,7 @@ impl Exchange for Blocks<'_> {
 }
 
 /// A body's own form factors, as built.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct FormFactorReport {
     pub body: String,
     pub facets: usize,
@@ -312,13 +313,13 @@ pub struct FormFactorReport {
 }
 
 /// What the stage did over a run (stored in `run.json`).
-#[derive(Debug, Clone, Serialize, Default)]
+#[derive(Debug, Clone, Serialize, Deserialize, Default)]
 pub struct ScatterRecord {
     pub form_factors: Vec<FormFactorReport>,
     /// Solves done (steps).
     pub solves: u64,
-    /// Method of the last solve.
-    pub method: &'static str,
+    /// Method of the last solve ("jacobi" or "cg").
+    pub method: Cow<'static, str>,
     pub iterations_total: u64,
     pub iterations_max: u32,
     pub residual_max: f64,
@@ -333,7 +334,7 @@ pub struct ScatterRecord {
 impl ScatterRecord {
     fn add(&mut self, report: &SolveReport) {
         self.solves += 1;
-        self.method = report.method;
+        self.method = Cow::Borrowed(report.method);
         self.iterations_total += report.iterations as u64;
         self.iterations_max = self.iterations_max.max(report.iterations);
         self.residual_max = self.residual_max.max(report.residual);

@@ -206,7 +206,7 @@ fn answer(
             .iter()
             .map(|&(b, i)| {
                 let body = &world.bodies[b];
-                let (lat_deg, lon_deg) = crate::report::read::lat_lon_deg(body.mesh.centroids[i]);
+                let (lat_deg, lon_deg) = crate::output::read::lat_lon_deg(body.mesh.centroids[i]);
                 Series {
                     body: body.name.clone(),
                     facet: i,

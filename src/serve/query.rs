@@ -1,6 +1,6 @@
 //! Query: facet statistics, CDFs and nearest facets of a finished job, from its files.
 //!
-//! In: a succeeded job's result folder (read once through [`crate::report::read`] and kept
+//! In: a succeeded job's result folder (read once through [`crate::output::read`] and kept
 //! in memory) and a body with facet ids, a body-fixed point (metres) or a planetocentric
 //! latitude/east longitude (degrees). Out: per facet its area (m²), centroid (m, body
 //! frame), normal, latitude/longitude (degrees), min/max/mean irradiance (W/m²), lit
@@ -8,7 +8,7 @@
 
 use super::reply::{ApiError, ApiResult};
 use super::AppState;
-use crate::report::read::{BodyData, RunData};
+use crate::output::read::{BodyData, RunData};
 use glam::DVec3;
 use serde::{Deserialize, Serialize};
 use std::collections::HashMap;
@@ -66,9 +66,9 @@ pub struct FacetsQuery {
     pub cdf: bool,
 }
 
-/// One facet's statistics.
+/// One facet's row of a facets answer: its geometry and statistics.
 #[derive(Debug, Serialize)]
-pub struct FacetStats {
+pub struct FacetRow {
     pub facet: usize,
     pub area_m2: f64,
     pub centroid_m: [f64; 3],
@@ -88,7 +88,7 @@ pub struct FacetStats {
 #[derive(Debug, Serialize)]
 pub struct FacetsAnswer {
     pub body: String,
-    pub facets: Vec<FacetStats>,
+    pub facets: Vec<FacetRow>,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub cdf_thresholds_w_m2: Option<Vec<f64>>,
 }
@@ -103,7 +103,7 @@ pub fn facets(run: &RunData, q: &FacetsQuery, max_targets: usize) -> ApiResult<F
             check_facet(&body.name, body.facets.len(), k)?;
             let f = &body.facets;
             let (lat_deg, lon_deg) = f.lat_lon_deg(k);
-            Ok(FacetStats {
+            Ok(FacetRow {
                 facet: k,
                 area_m2: f.area_m2[k],
                 centroid_m: f.centroid_m[k].to_array(),

@@ -248,7 +248,7 @@ async fn windows(
             format!("job {id} kept no history: submit the scene with [output] history = true"),
         ));
     }
-    let step_s = run.info.duration_s / run.info.plan.steps.max(1) as f64;
+    let step_s = run.record.duration_s / run.record.plan.steps.max(1) as f64;
     let (dir, name, facet) = (run.dir.clone(), body.name.clone(), q.facet as u32);
     let samples = blocking(move || {
         facet_history(&dir, &name, facet)

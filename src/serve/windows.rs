@@ -10,7 +10,7 @@
 //! its last sample's step and its energy is Σ E·Δt.
 
 use super::reply::{ApiError, ApiResult};
-use crate::report::read::{batches, column};
+use crate::output::read::{batches, column};
 use arrow::array::{Float64Array, StringArray, UInt32Array};
 use hifitime::{Epoch, TimeScale};
 use serde::{Deserialize, Serialize};

@@ -1,88 +1,24 @@
 //! Reading a finished run back: `run.json`, `summary`, `cdf` and `geometry` Parquet
-//! tables and each body's PLY.
+//! tables and each body's PLY — the files the rest of [`crate::output`] writes, read with
+//! the same types.
 //!
-//! In: a run folder. Out: [`RunData`] — the run record, per body the facet table
+//! In: a run folder. Out: [`RunData`] — the run record ([`RunRecord`], as written), per body the facet table
 //! (areas m², centroids and normals in the body frame, metres; min/max/mean W/m²; lit
 //! fraction), the CDF F(x) per facet at the run's thresholds (W/m²), the mesh (metres,
 //! from `BODY.ply`, when written) and the geometry rows. Nothing is recomputed. A folder
 //! without `run.json` is refused; missing or malformed tables are errors naming the file,
 //! never panics.
 
+use super::record::RunRecord;
 use crate::error::{Error, Result};
 use crate::mesh::{read_mesh, LengthUnit, Mesh, MeshFormat};
+use crate::stats::Bins;
 use arrow::array::{Array, Float64Array, StringArray, UInt32Array, UInt64Array};
 use arrow::record_batch::RecordBatch;
 use glam::DVec3;
 use parquet::arrow::arrow_reader::ParquetRecordBatchReaderBuilder;
-use serde::Deserialize;
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
-
-/// The parts of `run.json` a report shows. Fields missing from an older record default.
-#[derive(Debug, Clone, Default, Deserialize)]
-#[serde(default)]
-pub struct RunInfo {
-    pub program: String,
-    pub version: String,
-    pub name: String,
-    pub scene: FileInfo,
-    pub bodies: Vec<BodyInfo>,
-    pub plan: PlanInfo,
-    pub counts: serde_json::Map<String, serde_json::Value>,
-    pub bins_w_m2: BinsInfo,
-    pub duration_s: f64,
-    pub threads: usize,
-    pub timings_s: Vec<(String, f64)>,
-    pub warnings: Vec<String>,
-    pub outputs: Vec<String>,
-}
-
-/// An input file and its checksum.
-#[derive(Debug, Clone, Default, Deserialize)]
-#[serde(default)]
-pub struct FileInfo {
-    pub path: String,
-    pub sha256: String,
-}
-
-/// A body as recorded: name, mesh file (none for a generated shape), where the shape came
-/// from, and the mesh inspection report.
-#[derive(Debug, Clone, Default, Deserialize)]
-#[serde(default)]
-pub struct BodyInfo {
-    pub name: String,
-    pub mesh: Option<FileInfo>,
-    pub shape: String,
-    pub report: serde_json::Map<String, serde_json::Value>,
-}
-
-/// The plan: sizes and the stages that ran or were skipped, with reasons.
-#[derive(Debug, Clone, Default, Deserialize)]
-#[serde(default)]
-pub struct PlanInfo {
-    pub bodies: usize,
-    pub facets: usize,
-    pub steps: usize,
-    pub tracer: String,
-    pub decisions: Vec<DecisionInfo>,
-}
-
-/// One stage of the plan.
-#[derive(Debug, Clone, Default, Deserialize)]
-#[serde(default)]
-pub struct DecisionInfo {
-    pub stage: String,
-    pub runs: bool,
-    pub reason: String,
-}
-
-/// The CDF thresholds: x_b = b · width, b = 0 … count − 1.
-#[derive(Debug, Clone, Copy, Default, Deserialize)]
-#[serde(default)]
-pub struct BinsInfo {
-    pub width_w_m2: f64,
-    pub count: usize,
-}
 
 /// One body's `summary` rows, indexed by facet id (NaN where a row is missing).
 #[derive(Debug, Clone, Default)]
@@ -180,7 +116,8 @@ pub struct GeometryRow {
 #[derive(Debug, Clone)]
 pub struct RunData {
     pub dir: PathBuf,
-    pub info: RunInfo,
+    /// `run.json`.
+    pub record: RunRecord,
     pub bodies: Vec<BodyData>,
     pub geometry: Vec<GeometryRow>,
 }
@@ -188,25 +125,16 @@ pub struct RunData {
 impl RunData {
     /// Reads the finished run in `dir`.
     pub fn read(dir: &Path) -> Result<RunData> {
-        let record = dir.join("run.json");
-        if !record.is_file() {
-            return Err(Error::file(
-                dir,
-                "not a finished run: no run.json in this folder (run `slim run` first)",
-            ));
-        }
-        let bytes = std::fs::read(&record).map_err(|e| Error::io(&record, e))?;
-        let info: RunInfo =
-            serde_json::from_slice(&bytes).map_err(|e| Error::file(&record, e.to_string()))?;
-        let mut bodies = read_summary(dir, &info)?;
-        read_cdf(dir, &info.bins_w_m2, &mut bodies)?;
+        let record = RunRecord::read(dir)?;
+        let mut bodies = read_summary(dir, &record)?;
+        read_cdf(dir, &record.bins_w_m2, &mut bodies)?;
         for body in &mut bodies {
             body.mesh = read_body_mesh(dir, &body.name, body.facets.len());
         }
         let geometry = read_geometry(dir)?;
         Ok(RunData {
             dir: dir.to_path_buf(),
-            info,
+            record,
             bodies,
             geometry,
         })
@@ -245,7 +173,7 @@ pub(crate) fn column<'a, T: Array + 'static>(
 }
 
 /// Reads `summary.parquet` into one [`BodyData`] per body (run.json's order first).
-fn read_summary(dir: &Path, info: &RunInfo) -> Result<Vec<BodyData>> {
+fn read_summary(dir: &Path, record: &RunRecord) -> Result<Vec<BodyData>> {
     let path = dir.join("summary.parquet");
     let batches = read_batches(&path)?;
     let mut rows: Vec<(String, usize, [f64; 11])> = Vec::new();
@@ -277,7 +205,7 @@ fn read_summary(dir: &Path, info: &RunInfo) -> Result<Vec<BodyData>> {
     if rows.is_empty() {
         return Err(Error::file(&path, "the table holds no facets"));
     }
-    let order = body_order(info, rows.iter().map(|(b, _, _)| b.as_str()));
+    let order = body_order(record, rows.iter().map(|(b, _, _)| b.as_str()));
     let mut bodies: Vec<BodyData> = order
         .iter()
         .map(|name| {
@@ -314,9 +242,9 @@ fn read_summary(dir: &Path, info: &RunInfo) -> Result<Vec<BodyData>> {
 }
 
 /// Body names: those of run.json in its order, then any others met in the table.
-fn body_order<'a>(info: &'a RunInfo, names: impl Iterator<Item = &'a str>) -> Vec<String> {
+fn body_order<'a>(record: &'a RunRecord, names: impl Iterator<Item = &'a str>) -> Vec<String> {
     let mut order: Vec<String> = Vec::new();
-    let known = info.bodies.iter().map(|b| b.name.as_str());
+    let known = record.bodies.iter().map(|b| b.name.as_str());
     for name in known.chain(names) {
         if !order.iter().any(|n| n == name) {
             order.push(name.to_string());
@@ -326,7 +254,7 @@ fn body_order<'a>(info: &'a RunInfo, names: impl Iterator<Item = &'a str>) -> Ve
 }
 
 /// Reads `cdf.parquet` into each body's [`Cdf`] (thresholds from run.json's bins).
-fn read_cdf(dir: &Path, bins: &BinsInfo, bodies: &mut [BodyData]) -> Result<()> {
+fn read_cdf(dir: &Path, bins: &Bins, bodies: &mut [BodyData]) -> Result<()> {
     let path = dir.join("cdf.parquet");
     if bins.width_w_m2.is_nan() || bins.width_w_m2 <= 0.0 || bins.count == 0 {
         return Err(Error::file(
