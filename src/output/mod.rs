@@ -15,7 +15,10 @@
 //! Every file is written under a `.partial` name and renamed when complete; `run.json` is
 //! written last, so a folder holds a complete run exactly when it holds `run.json`.
 
+#[cfg(feature = "parquet")]
+mod parquet_file;
 pub mod ply;
+#[cfg(feature = "parquet")]
 pub mod read;
 pub mod record;
 pub mod table;

@@ -1,21 +1,18 @@
 //! Tables written as Parquet and CSV from one description, in batches.
 //!
 //! In: batches of named columns ([`Table`]). Out: `NAME.parquet` (Snappy-compressed, one
-//! row group per batch up to a size limit) and optionally `NAME.csv` with the same columns
-//! and values. Files are written as `NAME.ext.partial` and renamed only by
-//! [`TableWriter::finish`], so an interrupted run never leaves a file that looks complete.
+//! row group per batch up to a size limit; see `parquet_file`) and optionally
+//! `NAME.csv` with the same columns and values. A build without the `parquet` feature
+//! writes the CSV alone, whatever the scene asks. Files are written as
+//! `NAME.ext.partial` and renamed only by [`TableWriter::finish`], so an interrupted run
+//! never leaves a file that looks complete.
 
+#[cfg(feature = "parquet")]
+use super::parquet_file::ParquetFile;
 use crate::error::{Error, Result};
-use arrow::array::{ArrayRef, Float64Array, StringArray, UInt32Array, UInt64Array};
-use arrow::datatypes::{DataType, Field, Schema, SchemaRef};
-use arrow::record_batch::RecordBatch;
-use parquet::arrow::ArrowWriter;
-use parquet::basic::Compression;
-use parquet::file::properties::WriterProperties;
 use std::fs::File;
 use std::io::{BufWriter, Write};
 use std::path::{Path, PathBuf};
-use std::sync::Arc;
 
 /// One column of a batch.
 #[derive(Debug, Clone, PartialEq)]
@@ -27,30 +24,12 @@ pub enum Values {
 }
 
 impl Values {
-    fn len(&self) -> usize {
+    pub(super) fn len(&self) -> usize {
         match self {
             Values::F64(v) => v.len(),
             Values::U32(v) => v.len(),
             Values::U64(v) => v.len(),
             Values::Str(v) => v.len(),
-        }
-    }
-
-    fn data_type(&self) -> DataType {
-        match self {
-            Values::F64(_) => DataType::Float64,
-            Values::U32(_) => DataType::UInt32,
-            Values::U64(_) => DataType::UInt64,
-            Values::Str(_) => DataType::Utf8,
-        }
-    }
-
-    fn to_arrow(&self) -> ArrayRef {
-        match self {
-            Values::F64(v) => Arc::new(Float64Array::from(v.clone())),
-            Values::U32(v) => Arc::new(UInt32Array::from(v.clone())),
-            Values::U64(v) => Arc::new(UInt64Array::from(v.clone())),
-            Values::Str(v) => Arc::new(StringArray::from(v.clone())),
         }
     }
 
@@ -89,50 +68,30 @@ impl Table {
     pub fn rows(&self) -> usize {
         self.columns.first().map_or(0, |(_, v)| v.len())
     }
-
-    fn schema(&self) -> SchemaRef {
-        Arc::new(Schema::new(
-            self.columns
-                .iter()
-                .map(|(n, v)| Field::new(n.as_str(), v.data_type(), false))
-                .collect::<Vec<_>>(),
-        ))
-    }
-
-    fn to_record_batch(&self, schema: SchemaRef) -> std::result::Result<RecordBatch, String> {
-        RecordBatch::try_new(
-            schema,
-            self.columns.iter().map(|(_, v)| v.to_arrow()).collect(),
-        )
-        .map_err(|e| e.to_string())
-    }
 }
-
-/// Largest row group written, rows.
-const ROW_GROUP_ROWS: usize = 1 << 20;
 
 /// Writes one table as Parquet (and CSV if asked), batch by batch.
 pub struct TableWriter {
-    parquet_path: PathBuf,
-    parquet: Option<ArrowWriter<File>>,
-    schema: Option<SchemaRef>,
+    #[cfg(feature = "parquet")]
+    parquet: ParquetFile,
     csv_path: Option<PathBuf>,
     csv: Option<BufWriter<File>>,
 }
 
-fn partial(path: &Path) -> PathBuf {
+pub(super) fn partial(path: &Path) -> PathBuf {
     let mut p = path.as_os_str().to_owned();
     p.push(".partial");
     PathBuf::from(p)
 }
 
 impl TableWriter {
-    /// A writer for `DIR/NAME.parquet` and, if `csv`, `DIR/NAME.csv`.
+    /// A writer for `DIR/NAME.parquet` and, if `csv` (or without Parquet support),
+    /// `DIR/NAME.csv`.
     pub fn new(dir: &Path, name: &str, csv: bool) -> TableWriter {
+        let csv = csv || !cfg!(feature = "parquet");
         TableWriter {
-            parquet_path: dir.join(format!("{name}.parquet")),
-            parquet: None,
-            schema: None,
+            #[cfg(feature = "parquet")]
+            parquet: ParquetFile::new(dir.join(format!("{name}.parquet"))),
             csv_path: csv.then(|| dir.join(format!("{name}.csv"))),
             csv: None,
         }
@@ -140,54 +99,23 @@ impl TableWriter {
 
     /// Appends a batch (the first batch fixes the columns).
     pub fn write(&mut self, batch: &Table) -> Result<()> {
-        if self.schema.is_none() {
-            self.open(batch)?;
-        }
-        let schema = self.schema.clone().expect("opened above");
-        let pq_err = |e: String| Error::output(&partial(&self.parquet_path), e);
-        let record = batch.to_record_batch(schema).map_err(pq_err)?;
-        if let Some(w) = self.parquet.as_mut() {
-            w.write(&record).map_err(|e| pq_err(e.to_string()))?;
-        }
-        if let (Some(out), Some(path)) = (self.csv.as_mut(), self.csv_path.as_ref()) {
+        #[cfg(feature = "parquet")]
+        self.parquet.write(batch)?;
+        if let Some(path) = &self.csv_path {
+            if self.csv.is_none() {
+                self.csv = Some(create_csv(path, batch)?);
+            }
+            let out = self.csv.as_mut().expect("created above");
             write_csv_rows(batch, out).map_err(|e| Error::io(&partial(path), e))?;
         }
-        Ok(())
-    }
-
-    fn open(&mut self, first: &Table) -> Result<()> {
-        let schema = first.schema();
-        let path = partial(&self.parquet_path);
-        let file = File::create(&path).map_err(|e| Error::io(&path, e))?;
-        let props = WriterProperties::builder()
-            .set_compression(Compression::SNAPPY)
-            .set_max_row_group_row_count(Some(ROW_GROUP_ROWS))
-            .set_created_by(format!("slim {}", env!("CARGO_PKG_VERSION")))
-            .build();
-        self.parquet = Some(
-            ArrowWriter::try_new(file, schema.clone(), Some(props))
-                .map_err(|e| Error::output(&path, e))?,
-        );
-        if let Some(csv_path) = &self.csv_path {
-            let path = partial(csv_path);
-            let mut out = BufWriter::new(File::create(&path).map_err(|e| Error::io(&path, e))?);
-            let header: Vec<&str> = first.columns.iter().map(|(n, _)| n.as_str()).collect();
-            writeln!(out, "{}", header.join(",")).map_err(|e| Error::io(&path, e))?;
-            self.csv = Some(out);
-        }
-        self.schema = Some(schema);
         Ok(())
     }
 
     /// Closes the files and moves them into place. Returns the paths written.
     pub fn finish(mut self) -> Result<Vec<PathBuf>> {
         let mut written = Vec::new();
-        if let Some(w) = self.parquet.take() {
-            let tmp = partial(&self.parquet_path);
-            w.close().map_err(|e| Error::output(&tmp, e))?;
-            commit(&tmp, &self.parquet_path)?;
-            written.push(self.parquet_path.clone());
-        }
+        #[cfg(feature = "parquet")]
+        written.extend(self.parquet.finish()?);
         if let (Some(mut out), Some(path)) = (self.csv.take(), self.csv_path.clone()) {
             let tmp = partial(&path);
             out.flush().map_err(|e| Error::io(&tmp, e))?;
@@ -197,6 +125,15 @@ impl TableWriter {
         }
         Ok(written)
     }
+}
+
+/// `path` under its temporary name, with the header line of `first`'s columns.
+fn create_csv(path: &Path, first: &Table) -> Result<BufWriter<File>> {
+    let tmp = partial(path);
+    let mut out = BufWriter::new(File::create(&tmp).map_err(|e| Error::io(&tmp, e))?);
+    let header: Vec<&str> = first.columns.iter().map(|(n, _)| n.as_str()).collect();
+    writeln!(out, "{}", header.join(",")).map_err(|e| Error::io(&tmp, e))?;
+    Ok(out)
 }
 
 fn write_csv_rows(batch: &Table, out: &mut impl Write) -> std::io::Result<()> {

@@ -400,7 +400,7 @@ pub struct BodySection {
 }
 
 impl BodySection {
-    /// The body's shape source (valid after [`Scene::load`]).
+    /// The body's shape source (valid after [`super::Scene::load`]).
     pub fn shape(&self) -> Shape<'_> {
         match (&self.mesh, &self.ellipsoid) {
             (Some(path), _) => Shape::File {

@@ -1,0 +1,99 @@
+//! Parquet files from [`Table`] batches, through arrow (the `parquet` feature).
+//!
+//! In: batches of named columns, the first fixing the schema. Out: one Snappy-compressed
+//! Parquet file, one row group per batch up to [`ROW_GROUP_ROWS`] rows, written under its
+//! `.partial` name and renamed when finished.
+
+use super::table::{commit, partial, Table, Values};
+use crate::error::{Error, Result};
+use arrow::array::{ArrayRef, Float64Array, StringArray, UInt32Array, UInt64Array};
+use arrow::datatypes::{DataType, Field, Schema, SchemaRef};
+use arrow::record_batch::RecordBatch;
+use parquet::arrow::ArrowWriter;
+use parquet::basic::Compression;
+use parquet::file::properties::WriterProperties;
+use std::fs::File;
+use std::path::PathBuf;
+use std::sync::Arc;
+
+/// Largest row group written, rows.
+const ROW_GROUP_ROWS: usize = 1 << 20;
+
+/// One Parquet file being written.
+pub(super) struct ParquetFile {
+    path: PathBuf,
+    writer: Option<(ArrowWriter<File>, SchemaRef)>,
+}
+
+impl ParquetFile {
+    pub(super) fn new(path: PathBuf) -> ParquetFile {
+        ParquetFile { path, writer: None }
+    }
+
+    /// Appends a batch (the first batch fixes the columns).
+    pub(super) fn write(&mut self, batch: &Table) -> Result<()> {
+        let tmp = partial(&self.path);
+        if self.writer.is_none() {
+            let schema = schema(batch);
+            let file = File::create(&tmp).map_err(|e| Error::io(&tmp, e))?;
+            let props = WriterProperties::builder()
+                .set_compression(Compression::SNAPPY)
+                .set_max_row_group_row_count(Some(ROW_GROUP_ROWS))
+                .set_created_by(format!("slim {}", env!("CARGO_PKG_VERSION")))
+                .build();
+            let writer = ArrowWriter::try_new(file, schema.clone(), Some(props))
+                .map_err(|e| Error::output(&tmp, e))?;
+            self.writer = Some((writer, schema));
+        }
+        let (writer, schema) = self.writer.as_mut().expect("opened above");
+        let record = record_batch(batch, schema.clone()).map_err(|e| Error::output(&tmp, e))?;
+        writer.write(&record).map_err(|e| Error::output(&tmp, e))
+    }
+
+    /// Closes the file and moves it into place; the path, if anything was written.
+    pub(super) fn finish(self) -> Result<Option<PathBuf>> {
+        let Some((writer, _)) = self.writer else {
+            return Ok(None);
+        };
+        let tmp = partial(&self.path);
+        writer.close().map_err(|e| Error::output(&tmp, e))?;
+        commit(&tmp, &self.path)?;
+        Ok(Some(self.path))
+    }
+}
+
+fn data_type(values: &Values) -> DataType {
+    match values {
+        Values::F64(_) => DataType::Float64,
+        Values::U32(_) => DataType::UInt32,
+        Values::U64(_) => DataType::UInt64,
+        Values::Str(_) => DataType::Utf8,
+    }
+}
+
+fn to_arrow(values: &Values) -> ArrayRef {
+    match values {
+        Values::F64(v) => Arc::new(Float64Array::from(v.clone())),
+        Values::U32(v) => Arc::new(UInt32Array::from(v.clone())),
+        Values::U64(v) => Arc::new(UInt64Array::from(v.clone())),
+        Values::Str(v) => Arc::new(StringArray::from(v.clone())),
+    }
+}
+
+fn schema(table: &Table) -> SchemaRef {
+    Arc::new(Schema::new(
+        table
+            .columns
+            .iter()
+            .map(|(n, v)| Field::new(n.as_str(), data_type(v), false))
+            .collect::<Vec<_>>(),
+    ))
+}
+
+fn record_batch(table: &Table, schema: SchemaRef) -> std::result::Result<RecordBatch, String> {
+    RecordBatch::try_new(
+        schema,
+        table.columns.iter().map(|(_, v)| to_arrow(v)).collect(),
+    )
+    .map_err(|e| e.to_string())
+}
