@@ -7,7 +7,11 @@
 //! touching a cell face is found from both sides. A query walks the cells the ray crosses,
 //! from the cell holding the origin (or the ray's entry into the box) until it leaves the
 //! box, and tests the facets listed there with the shared exact predicate.
+//!
+//! The cells are coarsened only if the facets would fill more entries than `u32` offsets
+//! address (see [`super::cells`]); no real mesh comes near.
 
+use super::cells::{CellLists, Cover, TooManyEntries};
 use super::ray::{blocks, DepthPlane, RayFrame};
 use super::{caster_facets, ShadowQuery, Tracer};
 use crate::mesh::Mesh;
@@ -18,14 +22,13 @@ const FACETS_PER_CELL: f64 = 2.0;
 /// Largest number of cells along one axis.
 const MAX_CELLS_PER_AXIS: i32 = 1024;
 
-/// A uniform 3-D grid of facet lists (compressed rows: `cell_start[c]..cell_start[c+1]`).
+/// A uniform 3-D grid of facet lists.
 pub struct UniformGrid<'m> {
     mesh: &'m Mesh,
     lo: DVec3,
     cell: DVec3,
     dims: IVec3,
-    cell_start: Vec<u32>,
-    cell_facets: Vec<u32>,
+    facets: CellLists<u32>,
 }
 
 impl<'m> UniformGrid<'m> {
@@ -36,52 +39,41 @@ impl<'m> UniformGrid<'m> {
         let extent = (hi - lo).max(DVec3::splat(1e-9 * (hi - lo).max_element().max(1e-9)));
         let pad = extent * 1e-9;
         let (lo, extent) = (lo - pad, extent + 2.0 * pad);
-        let dims = grid_dims(extent, casters.len());
-        let cell = extent / dims.as_dvec3();
-        let mut grid = UniformGrid {
-            mesh,
-            lo,
-            cell,
-            dims,
-            cell_start: Vec::new(),
-            cell_facets: Vec::new(),
-        };
-        grid.bin(&casters);
-        grid
+        let mut dims = grid_dims(extent, casters.len());
+        loop {
+            let mut grid = UniformGrid {
+                mesh,
+                lo,
+                cell: extent / dims.as_dvec3(),
+                dims,
+                facets: CellLists::default(),
+            };
+            // With one cell every facet is one entry, which always fits.
+            if grid.bin(&casters).is_ok() || dims == IVec3::ONE {
+                return grid;
+            }
+            dims = (dims + 1) / 2;
+        }
     }
 
-    fn bin(&mut self, casters: &[u32]) {
-        let ranges: Vec<(IVec3, IVec3)> = casters
+    /// Lists every caster in each cell its padded bounding box overlaps.
+    fn bin(&mut self, casters: &[u32]) -> Result<(), TooManyEntries> {
+        let boxes: Vec<CellBox> = casters
             .iter()
             .map(|&f| {
                 let [a, b, c] = self.mesh.corners(f as usize);
                 let (lo, hi) = (a.min(b).min(c), a.max(b).max(c));
                 let pad = (hi - lo).max_element() * 1e-9 + self.cell.min_element() * 1e-9;
-                (
-                    self.cell_of(lo - DVec3::splat(pad)),
-                    self.cell_of(hi + DVec3::splat(pad)),
-                )
+                CellBox {
+                    lo: self.cell_of(lo - DVec3::splat(pad)),
+                    hi: self.cell_of(hi + DVec3::splat(pad)),
+                    dims: self.dims,
+                }
             })
             .collect();
         let n_cells = (self.dims.x * self.dims.y * self.dims.z) as usize;
-        let mut counts = vec![0u32; n_cells + 1];
-        for (lo, hi) in &ranges {
-            for_cells(*lo, *hi, |c| counts[self.index(c) + 1] += 1);
-        }
-        for i in 1..counts.len() {
-            counts[i] += counts[i - 1];
-        }
-        let mut fill = counts.clone();
-        let mut facets = vec![0u32; counts[n_cells] as usize];
-        for (&f, (lo, hi)) in casters.iter().zip(&ranges) {
-            for_cells(*lo, *hi, |c| {
-                let slot = &mut fill[self.index(c)];
-                facets[*slot as usize] = f;
-                *slot += 1;
-            });
-        }
-        self.cell_start = counts;
-        self.cell_facets = facets;
+        self.facets
+            .build(n_cells, casters.len(), |k| boxes[k], |k| casters[k])
     }
 
     fn cell_of(&self, p: DVec3) -> IVec3 {
@@ -89,13 +81,8 @@ impl<'m> UniformGrid<'m> {
         IVec3::new(c.x as i32, c.y as i32, c.z as i32).clamp(IVec3::ZERO, self.dims - 1)
     }
 
-    fn index(&self, c: IVec3) -> usize {
-        ((c.z * self.dims.y + c.y) * self.dims.x + c.x) as usize
-    }
-
     fn facets_in(&self, c: IVec3) -> &[u32] {
-        let i = self.index(c);
-        &self.cell_facets[self.cell_start[i] as usize..self.cell_start[i + 1] as usize]
+        self.facets.cell(cell_index(self.dims, c))
     }
 
     /// Parameter range `[t_enter, t_exit]` of the ray inside the grid box, if it meets it.
@@ -126,13 +113,32 @@ fn grid_dims(extent: DVec3, facets: usize) -> IVec3 {
         .clamp(IVec3::ONE, IVec3::splat(MAX_CELLS_PER_AXIS))
 }
 
-fn for_cells(lo: IVec3, hi: IVec3, mut f: impl FnMut(IVec3)) {
-    for z in lo.z..=hi.z {
-        for y in lo.y..=hi.y {
-            for x in lo.x..=hi.x {
-                f(IVec3::new(x, y, z));
-            }
-        }
+/// Index of cell `c` in a grid of `dims` cells, x fastest.
+fn cell_index(dims: IVec3, c: IVec3) -> usize {
+    ((c.z * dims.y + c.y) * dims.x + c.x) as usize
+}
+
+/// The cells `lo..=hi` (inclusive on every axis) of a grid of `dims` cells.
+#[derive(Clone, Copy)]
+struct CellBox {
+    lo: IVec3,
+    hi: IVec3,
+    dims: IVec3,
+}
+
+impl Cover for CellBox {
+    fn cell_count(&self) -> u64 {
+        let n = (self.hi - self.lo + 1).max(IVec3::ZERO).to_array();
+        n.iter().map(|&side| side as u64).product()
+    }
+
+    fn cells(&self) -> impl Iterator<Item = usize> {
+        let CellBox { lo, hi, dims } = *self;
+        (lo.z..=hi.z).flat_map(move |z| {
+            (lo.y..=hi.y).flat_map(move |y| {
+                (lo.x..=hi.x).map(move |x| cell_index(dims, IVec3::new(x, y, z)))
+            })
+        })
     }
 }
 

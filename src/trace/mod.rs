@@ -14,9 +14,11 @@
 //!
 //! Both decide a hit with the same exact predicate ([`ray::blocks`]), evaluated in a
 //! frame that depends only on the ray direction, so they classify every ray identically;
-//! they differ only in which facets they test.
+//! they differ only in which facets they test. Both keep their per-cell facet lists in the
+//! same compressed form, built by [`cells`].
 
 pub mod bvh;
+mod cells;
 pub mod grid;
 pub mod ray;
 pub mod sunview;

@@ -14,9 +14,13 @@
 //! The per-step buffers (tens of MB for large meshes) are kept between steps: allocating
 //! them afresh made the kernel zero new pages every step.
 //!
+//! The cells are coarsened only if the casters would fill more entries than `u32` offsets
+//! address (see [`super::cells`]); no real mesh comes near.
+//!
 //! In: a mesh (metres, body frame) and a unit Sun direction. Out: [`ShadowQuery`] answers
 //! computed with the same predicate and projection as the reference grid.
 
+use super::cells::{CellLists, Cover, TooManyEntries};
 use super::ray::{blocks, DepthPlane, RayFrame};
 use super::{caster_facets, ShadowQuery, Tracer};
 use crate::mesh::Mesh;
@@ -68,12 +72,9 @@ struct Buffers {
     /// Per caster: its projected corners and depth plane, in one record so a candidate
     /// costs one memory access.
     projected: Vec<Projected>,
-    /// Compressed rows: entries of cell c are `items[start[c]..start[c + 1]]`.
-    start: Vec<u32>,
-    fill: Vec<u32>,
-    /// Per entry: the facet's largest depth (candidates behind the ray's origin are
-    /// rejected on it alone) and the caster's index.
-    items: Vec<(f64, u32)>,
+    /// Per cell, per caster listed there: the facet's largest depth (candidates behind
+    /// the ray's origin are rejected on it alone) and the caster's index.
+    items: CellLists<(f64, u32)>,
     /// Per cell, the largest depth of any facet listed there: a ray starting nearer the
     /// Sun than that is unblocked without looking at the facets.
     cell_max_depth: Vec<f64>,
@@ -116,21 +117,45 @@ impl<'v, 'm> SunGrid<'v, 'm> {
             ((extent.x / side).ceil() as usize).clamp(1, MAX_CELLS_PER_AXIS),
             ((extent.y / side).ceil() as usize).clamp(1, MAX_CELLS_PER_AXIS),
         ];
-        let cell = (extent.x / dims[0] as f64).max(extent.y / dims[1] as f64);
         let mut grid = SunGrid {
             view,
             frame,
             lo,
-            inv_cell: 1.0 / cell,
+            inv_cell: 0.0,
             dims,
             buf,
         };
-        grid.bin(cell);
-        grid
+        grid.project_casters();
+        loop {
+            let cell = (extent.x / grid.dims[0] as f64).max(extent.y / grid.dims[1] as f64);
+            grid.inv_cell = 1.0 / cell;
+            // With one cell every caster is one entry, which always fits.
+            if grid.bin(cell).is_ok() || grid.dims == [1, 1] {
+                return grid;
+            }
+            grid.dims = grid.dims.map(|n| n.div_ceil(2));
+        }
+    }
+
+    /// Every caster's corners and depth plane in the ray frame.
+    fn project_casters(&mut self) {
+        let (mesh, frame, vertices) = (self.view.mesh, self.frame, &self.buf.vertices);
+        self.view
+            .casters
+            .par_iter()
+            .map(|&f| {
+                let corners = corners(mesh, vertices, f);
+                let normal = frame.project(mesh.normals[f as usize]);
+                Projected {
+                    corners,
+                    plane: DepthPlane::new(normal, corners[0]),
+                }
+            })
+            .collect_into_vec(&mut self.buf.projected);
     }
 
     /// Lists every caster in each cell its padded 2-D bounding box overlaps.
-    fn bin(&mut self, cell: f64) {
+    fn bin(&mut self, cell: f64) -> Result<(), TooManyEntries> {
         let mesh = self.view.mesh;
         let mut buf = std::mem::take(&mut self.buf);
         let vertices = &buf.vertices;
@@ -151,44 +176,28 @@ impl<'v, 'm> SunGrid<'v, 'm> {
                 )
             })
             .collect_into_vec(&mut buf.ranges);
-        let frame = self.frame;
-        self.view
-            .casters
-            .par_iter()
-            .map(|&f| {
-                let corners = corners(mesh, vertices, f);
-                let normal = frame.project(mesh.normals[f as usize]);
-                Projected {
-                    corners,
-                    plane: DepthPlane::new(normal, corners[0]),
-                }
-            })
-            .collect_into_vec(&mut buf.projected);
         let width = self.dims[0];
         let n_cells = self.dims[0] * self.dims[1];
-        let cells_of = move |r: [u32; 4]| {
-            (r[1] as usize..=r[3] as usize)
-                .flat_map(move |y| (r[0] as usize..=r[2] as usize).map(move |x| y * width + x))
-        };
-        reset(&mut buf.start, n_cells + 1, 0);
-        for (r, _) in &buf.ranges {
-            cells_of(*r).for_each(|c| buf.start[c + 1] += 1);
-        }
-        for i in 1..buf.start.len() {
-            buf.start[i] += buf.start[i - 1];
-        }
-        buf.fill.clear();
-        buf.fill.extend_from_slice(&buf.start);
-        reset(&mut buf.items, buf.start[n_cells] as usize, (0.0, 0));
-        reset(&mut buf.cell_max_depth, n_cells, f64::NEG_INFINITY);
-        for (k, &(r, depth)) in buf.ranges.iter().enumerate() {
-            for c in cells_of(r) {
-                buf.items[buf.fill[c] as usize] = (depth, k as u32);
-                buf.fill[c] += 1;
-                buf.cell_max_depth[c] = buf.cell_max_depth[c].max(depth);
-            }
-        }
+        let ranges = &buf.ranges;
+        let built = buf.items.build(
+            n_cells,
+            ranges.len(),
+            |k| CellRect {
+                range: ranges[k].0,
+                width,
+            },
+            |k| (ranges[k].1, k as u32),
+        );
+        let items = &buf.items;
+        buf.cell_max_depth.clear();
+        buf.cell_max_depth.extend((0..n_cells).map(|c| {
+            items
+                .cell(c)
+                .iter()
+                .fold(f64::NEG_INFINITY, |max, &(depth, _)| max.max(depth))
+        }));
         self.buf = buf;
+        built
     }
 
     fn cell_of(&self, p: DVec2) -> (usize, usize) {
@@ -229,10 +238,24 @@ fn bounds_2d(points: [DVec3; 3]) -> (DVec2, DVec2) {
     })
 }
 
-/// Sets `v` to `len` copies of `value`, keeping its allocation.
-fn reset<T: Copy>(v: &mut Vec<T>, len: usize, value: T) {
-    v.clear();
-    v.resize(len, value);
+/// The cells `[x0, y0, x1, y1]` (inclusive) of a grid `width` cells wide, x fastest.
+#[derive(Clone, Copy)]
+struct CellRect {
+    range: [u32; 4],
+    width: usize,
+}
+
+impl Cover for CellRect {
+    fn cell_count(&self) -> u64 {
+        let [x0, y0, x1, y1] = self.range.map(u64::from);
+        (x1 + 1).saturating_sub(x0) * (y1 + 1).saturating_sub(y0)
+    }
+
+    fn cells(&self) -> impl Iterator<Item = usize> {
+        let [x0, y0, x1, y1] = self.range.map(|i| i as usize);
+        let width = self.width;
+        (y0..=y1).flat_map(move |y| (x0..=x1).map(move |x| y * width + x))
+    }
 }
 
 impl ShadowQuery for SunGrid<'_, '_> {
@@ -249,8 +272,7 @@ impl ShadowQuery for SunGrid<'_, '_> {
         if self.buf.cell_max_depth[i] + slack <= nearest_useful {
             return false;
         }
-        let items = &self.buf.items[self.buf.start[i] as usize..self.buf.start[i + 1] as usize];
-        items.iter().any(|&(max_depth, k)| {
+        self.buf.items.cell(i).iter().any(|&(max_depth, k)| {
             max_depth + slack > nearest_useful && {
                 let p = &self.buf.projected[k as usize];
                 Some(self.view.casters[k as usize]) != skip
