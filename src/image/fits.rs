@@ -9,7 +9,7 @@
 
 use super::{Card, Image, Value};
 use crate::error::{Error, Result};
-use crate::output::table::write_atomic;
+use crate::output::atomic::write_atomic;
 use std::path::Path;
 
 const BLOCK: usize = 2880;

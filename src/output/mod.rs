@@ -15,6 +15,8 @@
 //! Every file is written under a `.partial` name and renamed when complete; `run.json` is
 //! written last, so a folder holds a complete run exactly when it holds `run.json`.
 
+pub mod atomic;
+pub mod columns;
 #[cfg(feature = "parquet")]
 mod parquet_file;
 pub mod ply;
@@ -28,8 +30,9 @@ use crate::error::Result;
 use crate::simulate::StepIrradiance;
 use crate::stats::FacetStats;
 use crate::world::World;
+use columns::{Table, Values};
 use std::path::{Path, PathBuf};
-use table::{Table, TableWriter, Values};
+use table::TableWriter;
 
 /// Rows per batch when writing the per-facet tables.
 const FACETS_PER_BATCH: usize = 1 << 14;

@@ -1,10 +1,11 @@
-//! Parquet files from [`Table`] batches, through arrow (the `parquet` feature).
+//! Parquet files from [`super::columns::Table`] batches, through arrow (the `parquet` feature).
 //!
 //! In: batches of named columns, the first fixing the schema. Out: one Snappy-compressed
 //! Parquet file, one row group per batch up to [`ROW_GROUP_ROWS`] rows, written under its
 //! `.partial` name and renamed when finished.
 
-use super::table::{commit, partial, Table, Values};
+use super::atomic::{commit, partial};
+use super::columns::{Table, Values};
 use crate::error::{Error, Result};
 use arrow::array::{ArrayRef, Float64Array, StringArray, UInt32Array, UInt64Array};
 use arrow::datatypes::{DataType, Field, Schema, SchemaRef};

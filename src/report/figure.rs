@@ -6,7 +6,7 @@
 //! renderer, so no system font or library is needed.
 
 use crate::error::{Error, Result};
-use crate::output::table::write_atomic;
+use crate::output::atomic::write_atomic;
 use plotters::coord::types::RangedCoordf64;
 use plotters::coord::Shift;
 use plotters::prelude::*;

@@ -8,8 +8,8 @@
 use super::figure::short_number;
 use super::summary::{Accuracy, GeometrySummary};
 use crate::error::{Error, Result};
+use crate::output::atomic::write_atomic;
 use crate::output::read::RunData;
-use crate::output::table::write_atomic;
 use base64::Engine;
 use std::fmt::Write;
 use std::path::{Path, PathBuf};

@@ -18,8 +18,8 @@ use super::raster::{
 };
 use crate::error::{Error, Result};
 use crate::mesh::Mesh;
+use crate::output::atomic::write_atomic;
 use crate::output::read::{Facets, RunData};
-use crate::output::table::write_atomic;
 use plotters::coord::Shift;
 use plotters::prelude::*;
 use plotters::style::text_anchor::{HPos, Pos, VPos};

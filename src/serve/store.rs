@@ -7,7 +7,7 @@
 //! are complete exactly when the record says `succeeded` (`run.json` is written last).
 
 use crate::error::{Error, Result};
-use crate::output::table::write_atomic;
+use crate::output::atomic::write_atomic;
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 

@@ -1,0 +1,36 @@
+//! Atomic files: every result is written under a `.partial` name and renamed into place
+//! only when complete, so an interrupted run never leaves a file that looks complete.
+//!
+//! In: a final path and the bytes (or a stream) for it. Out: the file at that path, or
+//! nothing there but a `NAME.partial` that the next run clears.
+
+use crate::error::{Error, Result};
+use std::fs::File;
+use std::io::BufWriter;
+use std::path::{Path, PathBuf};
+
+/// The temporary name a file is written under: `NAME.partial`.
+pub fn partial(path: &Path) -> PathBuf {
+    let mut p = path.as_os_str().to_owned();
+    p.push(".partial");
+    PathBuf::from(p)
+}
+
+/// Moves a finished temporary file to its final name.
+pub fn commit(tmp: &Path, path: &Path) -> Result<()> {
+    std::fs::rename(tmp, path).map_err(|e| Error::io(path, e))
+}
+
+/// Writes `bytes` to `path` atomically (temporary file, then rename).
+pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
+    let tmp = partial(path);
+    std::fs::write(&tmp, bytes).map_err(|e| Error::io(&tmp, e))?;
+    commit(&tmp, path)
+}
+
+/// Creates an output file for streaming writes under its temporary name.
+pub fn create_partial(path: &Path) -> Result<(PathBuf, BufWriter<File>)> {
+    let tmp = partial(path);
+    let file = File::create(&tmp).map_err(|e| Error::io(&tmp, e))?;
+    Ok((tmp, BufWriter::new(file)))
+}

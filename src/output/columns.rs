@@ -1,0 +1,49 @@
+//! Tables as named columns: the one description every table file is written from.
+//!
+//! In: the values of each column, as built by [`super`] (names carry units:
+//! `mean_w_m2`). Out: a [`Table`] batch that the CSV and Parquet writers read alike.
+
+/// One column of a batch.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Values {
+    F64(Vec<f64>),
+    U32(Vec<u32>),
+    U64(Vec<u64>),
+    Str(Vec<String>),
+}
+
+impl Values {
+    /// Number of values (rows).
+    pub fn len(&self) -> usize {
+        match self {
+            Values::F64(v) => v.len(),
+            Values::U32(v) => v.len(),
+            Values::U64(v) => v.len(),
+            Values::Str(v) => v.len(),
+        }
+    }
+
+    /// True when the column holds no values.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+}
+
+/// A batch of rows: named columns of equal length. Names carry units (`mean_w_m2`).
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Table {
+    pub columns: Vec<(String, Values)>,
+}
+
+impl Table {
+    /// Adds a column.
+    pub fn with(mut self, name: impl Into<String>, values: Values) -> Table {
+        self.columns.push((name.into(), values));
+        self
+    }
+
+    /// Number of rows.
+    pub fn rows(&self) -> usize {
+        self.columns.first().map_or(0, |(_, v)| v.len())
+    }
+}
