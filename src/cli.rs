@@ -18,13 +18,15 @@ use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use slim::compare::{compare_images, ValueBins};
 use slim::error::{Error, Result};
 #[cfg(feature = "imaging")]
+use slim::fit::job::fit_scene;
+#[cfg(feature = "imaging")]
 use slim::image::read_image;
 use slim::mesh::{inspect::inspect, read_mesh, LengthUnit, Mesh, MeshFormat};
 use slim::photometry::hapke::HFunction;
 use slim::photometry::{i_over_f, Angles, Material, Reflectance};
 use slim::progress::Progress;
 #[cfg(feature = "imaging")]
-use slim::render::job::{fit_scene, render_scene};
+use slim::render::job::render_scene;
 #[cfg(feature = "report")]
 use slim::report::colormap::Colormap;
 #[cfg(feature = "report")]

@@ -8,17 +8,15 @@
 //! geometry: epoch, step, band and its flux share, camera position and axes, focal length,
 //! Sun direction and flux per body.
 //!
-//! [`fit_scene`] is `slim fit`: observed images matched to the scene's steps and bands by
-//! their `STEP` and `BAND` header keywords, modelled with the scene's camera, fitted with
-//! [`crate::fit::fit`], residual images written as `NAME_residual_K.fits`.
+//! `slim fit` models its images with the same view, bands and cameras (see
+//! `crate::fit::job`).
 
 use super::camera::Camera;
 use super::{GeometryImage, Renderer};
 use crate::ephemeris::{Ephemeris, EpochState};
 use crate::error::{Error, Result};
-use crate::fit::{fit, FitResult, Observation};
 use crate::image::png::Stretch;
-use crate::image::{fits, png, read_image, Image, Value};
+use crate::image::{fits, png, Image, Value};
 use crate::photometry::{Material, Reflectance};
 use crate::prepare::assemble;
 use crate::progress::Timings;
@@ -365,90 +363,4 @@ fn describe(
         text("row 1 = bottom"),
         "first stored row is the image bottom",
     );
-}
-
-/// Fits parameters `names` of body `body_name` (default: the first body) to the observed
-/// `images`; writes the residual images into `out_dir`.
-pub fn fit_scene(
-    scene: &Scene,
-    images: &[PathBuf],
-    names: &[String],
-    body_name: Option<&str>,
-    out_dir: &Path,
-) -> Result<(FitResult, Vec<PathBuf>)> {
-    let section = camera_section(scene)?;
-    let body = match body_name {
-        None => 0,
-        Some(n) => scene
-            .bodies
-            .iter()
-            .position(|b| b.name == n)
-            .ok_or_else(|| Error::Usage(format!("--body: no body is named '{n}'")))?,
-    };
-    let view = View::load(scene)?;
-    let renderer = Renderer::new(&view.world, scene.run.tracer);
-    let all_bands = bands(scene);
-    let mut observed = Vec::new();
-    let mut geometries = Vec::new();
-    let mut setups = Vec::new();
-    for path in images {
-        let image = read_image(path)?;
-        let step = image
-            .number("STEP")
-            .filter(|s| *s >= 0.0 && s.fract() == 0.0)
-            .ok_or_else(|| {
-                Error::file(
-                    path,
-                    "no STEP keyword: say which scene step the image shows",
-                )
-            })? as usize;
-        let band_name = image.text("BAND").unwrap_or("all").to_string();
-        let band = all_bands
-            .iter()
-            .find(|b| b.name == band_name)
-            .ok_or_else(|| {
-                Error::file(
-                    path,
-                    format!("BAND '{band_name}' is not a band of the scene"),
-                )
-            })?
-            .clone();
-        let state = view.state(scene, step)?;
-        let camera = camera(scene, section, &view, &state)?;
-        geometries.push(renderer.geometry(&state, &camera)?);
-        setups.push((band.flux_scale, materials(scene, &band)?));
-        observed.push(image);
-    }
-    let observations: Vec<Observation<'_>> = geometries
-        .iter()
-        .zip(&observed)
-        .zip(&setups)
-        .map(
-            |((geometry, observed), (flux_scale, materials))| Observation {
-                geometry,
-                observed,
-                flux_scale: *flux_scale,
-                materials,
-            },
-        )
-        .collect();
-    let start = &setups
-        .first()
-        .ok_or_else(|| Error::Usage("give at least one image".into()))?
-        .1[body];
-    let result = fit(&observations, body, start, names)?;
-    std::fs::create_dir_all(out_dir).map_err(|e| Error::io(out_dir, e))?;
-    let mut files = Vec::new();
-    for (k, residual) in result.residuals.iter().enumerate() {
-        let path = out_dir.join(format!("{}_residual_{k}.fits", scene.name));
-        let mut image = residual.clone();
-        image.set(
-            "FITTED",
-            Value::Text(result.material.describe()),
-            "fitted material",
-        );
-        fits::write(&path, &image)?;
-        files.push(path);
-    }
-    Ok((result, files))
 }

@@ -18,6 +18,8 @@
 //! of JᵀJ has an eigenvalue below 1e-7, i.e. correlations within ~1e-7 of ±1), is an
 //! error that names the parameters, instead of a fit with meaningless uncertainties.
 
+pub mod job;
+
 use crate::error::{Error, Result};
 use crate::image::Image;
 use crate::photometry::{i_over_f, Material, Reflectance};
