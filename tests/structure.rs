@@ -1,0 +1,137 @@
+//! The module structure: the library's top-level modules (the pipeline stages and their
+//! helpers) form no import circle. Read from the source text: every `crate::NAME` a file
+//! under `src/NAME2` mentions outside comments is an edge NAME2 → NAME. A circle would mean two stages that
+//! cannot be understood, tested or built (Cargo features) one without the other.
+
+use std::collections::{BTreeMap, BTreeSet};
+use std::path::{Path, PathBuf};
+
+fn src() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("src")
+}
+
+/// Every `.rs` file below `dir`.
+fn rust_files(dir: &Path, out: &mut Vec<PathBuf>) {
+    for entry in std::fs::read_dir(dir).unwrap() {
+        let path = entry.unwrap().path();
+        if path.is_dir() {
+            rust_files(&path, out);
+        } else if path.extension().is_some_and(|e| e == "rs") {
+            out.push(path);
+        }
+    }
+}
+
+/// The top-level module a file belongs to (`scene/schema.rs` → `scene`), or none for the
+/// crate roots and the binary's command line.
+fn module_of(file: &Path) -> Option<String> {
+    let relative = file.strip_prefix(src()).unwrap();
+    let first = relative.components().next()?.as_os_str().to_str()?;
+    let name = first.trim_end_matches(".rs");
+    (!matches!(name, "lib" | "main" | "cli")).then(|| name.to_string())
+}
+
+/// The names that follow `crate::` in `text`, comments and doc comments left out (a doc
+/// link is a reference for the reader, not a dependency).
+fn crate_paths(text: &str) -> BTreeSet<String> {
+    text.lines()
+        .map(|line| line.split("//").next().unwrap_or(""))
+        .flat_map(|code| {
+            code.match_indices("crate::").map(move |(at, _)| {
+                code[at + "crate::".len()..]
+                    .chars()
+                    .take_while(|c| c.is_ascii_alphanumeric() || *c == '_')
+                    .collect::<String>()
+            })
+        })
+        .collect()
+}
+
+/// Module → the other top-level modules it names.
+fn module_graph() -> BTreeMap<String, BTreeSet<String>> {
+    let mut files = Vec::new();
+    rust_files(&src(), &mut files);
+    let modules: BTreeSet<String> = files.iter().filter_map(|f| module_of(f)).collect();
+    let mut graph: BTreeMap<String, BTreeSet<String>> = BTreeMap::new();
+    for file in &files {
+        let Some(from) = module_of(file) else {
+            continue;
+        };
+        let text = std::fs::read_to_string(file).unwrap();
+        let edges = graph.entry(from.clone()).or_default();
+        for to in crate_paths(&text) {
+            if to != from && modules.contains(&to) {
+                edges.insert(to);
+            }
+        }
+    }
+    graph
+}
+
+/// A circle through `node`, if the depth-first walk from it finds one.
+fn circle_from(
+    node: &str,
+    graph: &BTreeMap<String, BTreeSet<String>>,
+    path: &mut Vec<String>,
+    done: &mut BTreeSet<String>,
+) -> Option<Vec<String>> {
+    if let Some(at) = path.iter().position(|n| n == node) {
+        let mut circle = path[at..].to_vec();
+        circle.push(node.to_string());
+        return Some(circle);
+    }
+    if done.contains(node) {
+        return None;
+    }
+    path.push(node.to_string());
+    for next in graph.get(node).into_iter().flatten() {
+        if let Some(circle) = circle_from(next, graph, path, done) {
+            return Some(circle);
+        }
+    }
+    path.pop();
+    done.insert(node.to_string());
+    None
+}
+
+#[test]
+fn the_top_level_modules_import_no_circle() {
+    let graph = module_graph();
+    assert!(graph.len() > 20, "read {} modules", graph.len());
+    let mut done = BTreeSet::new();
+    for node in graph.keys() {
+        let circle = circle_from(node, &graph, &mut Vec::new(), &mut done);
+        assert!(
+            circle.is_none(),
+            "import circle: {}",
+            circle.unwrap().join(" → ")
+        );
+    }
+}
+
+#[test]
+fn the_scene_names_no_stage_that_runs() {
+    let graph = module_graph();
+    let scene = &graph["scene"];
+    for stage in [
+        "prepare", "simulate", "run", "scatter", "render", "fit", "output", "serve", "report",
+        "plan", "bands", "illum",
+    ] {
+        assert!(!scene.contains(stage), "scene imports {stage}: {scene:?}");
+    }
+}
+
+#[test]
+fn the_circle_finder_finds_a_planted_circle() {
+    let graph: BTreeMap<String, BTreeSet<String>> = [
+        ("a", vec!["b"]),
+        ("b", vec!["c"]),
+        ("c", vec!["a"]),
+        ("d", vec!["a"]),
+    ]
+    .into_iter()
+    .map(|(k, v)| (k.to_string(), v.into_iter().map(String::from).collect()))
+    .collect();
+    let circle = circle_from("d", &graph, &mut Vec::new(), &mut BTreeSet::new()).unwrap();
+    assert_eq!(circle, ["a", "b", "c", "a"]);
+}
