@@ -81,7 +81,7 @@ enum Command {
         #[command(flatten)]
         options: ReportArgs,
     },
-    /// Serve jobs, result files and facet queries over HTTP (README: "Service").
+    /// Serve jobs, result files and facet queries over HTTP (docs/service.md).
     #[cfg(feature = "serve")]
     Serve(ServeArgs),
     /// Load a mesh and report its size, topology and orientation.

@@ -260,7 +260,7 @@ fn plotted_cdf_equals_the_run_cdf_table() {
 /// it; that facet's normal lies within the facet's angular radius of the pixel's direction
 /// (level-3 icosphere: edges ≤ 8°, so circumradius < 5°; `NEIGHBOURHOOD_DEG` = 6° adds
 /// margin), and with 48 steps its mean differs from the closed form at its own latitude by
-/// at most ≈ 0.92·S/n² ≈ 0.55 W/m² (README table). So the true value lies in the closed
+/// at most ≈ 0.92·S/n² ≈ 0.55 W/m² (docs/accuracy.md table). So the true value lies in the closed
 /// form's range over φ ± 6°, widened by 1 W/m². The colour then adds quantisation: half a
 /// colour step for rounding plus one step because a few neighbouring 8-bit viridis entries
 /// coincide (the nearest-colour search returns the first), i.e. 1.5 · range/255.

@@ -181,7 +181,7 @@ fn sphere_interior_rows_sum_to_one_and_reciprocity_is_exact() {
     for (i, s) in sums.iter().enumerate() {
         let f = s / mesh.areas[i];
         worst = worst.max((f - 1.0).abs());
-        // Quadrature at 3e-4 relative per split, measured 3.5e-7 worst (README); the
+        // Quadrature at 3e-4 relative per split, measured 3.5e-7 worst (docs/accuracy.md); the
         // stage caps rows above 1 before solving.
         assert!(f <= 1.0 + 1e-4, "row {i} sums to {f}");
     }

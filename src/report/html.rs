@@ -189,7 +189,7 @@ fn accuracy_section(h: &mut String, a: &Accuracy) {
     };
     let _ = writeln!(
         h,
-        "<h2>Accuracy from the step count</h2>\n<p>{n} Following the README's error table: F(x) is a share of \
+        "<h2>Accuracy from the step count</h2>\n<p>{n} Following the error table of docs/accuracy.md: F(x) is a share of \
          steps, so its error is about 1/n = {:.2} %; the mean converges as 1/n², about 0.92·S/n² = {} W/m² on \
          a smooth body (several times more on rough terrain: Phobos has 0.75 W/m² at 360 steps); the maximum \
          converges slowly where brief glints can fall between steps. More steps per turn reduce all three.</p>",

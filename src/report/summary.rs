@@ -4,8 +4,8 @@
 //! In: the `geometry` rows (Sun unit vectors in each body frame, distances in km, flux in
 //! W/m²) and the plan's step count. Out: [`GeometrySummary`] (epochs, per body the Sun
 //! distance and flux ranges and how far the Sun moves in body longitude per step) and
-//! [`Accuracy`]: the README's error rule — F(x) error ≈ 1/n (one step's share of time) and
-//! mean error ≈ 0.92·S/n² on a smooth body (the README's sphere table: 0.55 W/m² at
+//! [`Accuracy`]: the error rule of docs/accuracy.md — F(x) error ≈ 1/n (one step's share
+//! of time) and mean error ≈ 0.92·S/n² on a smooth body (its sphere table: 0.55 W/m² at
 //! n = 48, S = 1361 W/m²), several times more on rough terrain — with n the steps per turn
 //! of the Sun in the body's sky (or the run's steps when the Sun does not turn).
 
@@ -93,7 +93,7 @@ pub struct Accuracy {
     pub mean_error_w_m2: f64,
 }
 
-/// The README's smooth-sphere constant: mean error · n² / S.
+/// The smooth-sphere constant of docs/accuracy.md: mean error · n² / S.
 const MEAN_ERROR_CONSTANT: f64 = 0.92;
 
 impl Accuracy {

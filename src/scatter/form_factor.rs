@@ -76,8 +76,8 @@ impl Default for NearField {
     /// Point formula beyond 16 sizes, splits to 3e-4 relative, at most 3 splits (64
     /// sub-triangles): rows of a 1,280-facet sphere interior then sum to 1 within 3.5e-7,
     /// and Howell's catalogue cases (tests/scatter.rs) come within 1.9e-4. The point
-    /// formula from 8 sizes on instead leaves 1.2e-3 in the sphere's rows (README,
-    /// "Scattered light").
+    /// formula from 8 sizes on instead leaves 1.2e-3 in the sphere's rows
+    /// (docs/accuracy.md).
     fn default() -> Self {
         NearField {
             far_ratio: crate::scene::DEFAULT_NEAR_FIELD_RATIO,
