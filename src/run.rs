@@ -14,9 +14,10 @@ use crate::output::{self, HistoryWriter};
 use crate::prepare::{prepare, Prepared};
 use crate::progress::{Progress, Timings};
 use crate::scene::Scene;
-use crate::simulate::{simulate, Options};
+use crate::simulate::{simulate, Options, Simulation};
 use crate::stats::FacetStats;
-use std::path::Path;
+use crate::world::World;
+use std::path::{Path, PathBuf};
 
 /// Runs `scene`, writing results into `out_dir`.
 pub fn run_scene(scene: &Scene, out_dir: &Path, progress: &dyn Progress) -> Result<RunRecord> {
@@ -50,27 +51,17 @@ pub fn run_scene(scene: &Scene, out_dir: &Path, progress: &dyn Progress) -> Resu
     let sim = simulate(world, &states, options, &mut timings, progress, |s, e| {
         history.as_mut().map_or(Ok(()), |h| h.write_step(s, e))
     })?;
-    let mut named: Vec<(String, &FacetStats)> = Vec::new();
-    if let Some(p) = &sim.parts {
-        named.push(("direct".into(), &p.direct));
-        named.push(("scattered".into(), &p.scattered));
-    }
     let band_parts = bands.map(Bands::into_parts).unwrap_or_default();
-    named.extend(band_parts.iter().map(|(name, stats)| (name.clone(), stats)));
-    let parts = &named[..];
+    let parts = named_parts(&sim, &band_parts);
     let mut outputs = timings.time("output", || -> Result<Vec<_>> {
-        let mut files = output::write_summary(out_dir, csv, world, &sim.stats, parts)?;
-        files.extend(output::write_cdf(out_dir, csv, world, &sim.stats, parts)?);
+        let mut files = output::write_summary(out_dir, csv, world, &sim.stats, &parts)?;
+        files.extend(output::write_cdf(out_dir, csv, world, &sim.stats, &parts)?);
         files.extend(output::write_geometry(out_dir, csv, world, &states)?);
         if let Some(h) = history.take() {
             files.extend(h.finish()?);
         }
         if scene.output.ply {
-            for (b, offset) in world.offsets().into_iter().enumerate() {
-                let path = out_dir.join(format!("{}.ply", world.bodies[b].name));
-                output::ply::write_ply(&path, &world.bodies[b].mesh, &sim.stats, offset)?;
-                files.push(path);
-            }
+            files.extend(write_plys(out_dir, world, &sim.stats)?);
         }
         Ok(files)
     })?;
@@ -100,6 +91,34 @@ pub fn run_scene(scene: &Scene, out_dir: &Path, progress: &dyn Progress) -> Resu
     };
     record.write(out_dir)?;
     Ok(record)
+}
+
+/// The statistics written beside the total: `direct` and `scattered` with scattered
+/// light, then each band's.
+fn named_parts<'a>(
+    sim: &'a Simulation,
+    bands: &'a [(String, FacetStats)],
+) -> Vec<(String, &'a FacetStats)> {
+    let scatter = sim.parts.iter().flat_map(|p| {
+        [
+            ("direct".to_string(), &p.direct),
+            ("scattered".to_string(), &p.scattered),
+        ]
+    });
+    scatter
+        .chain(bands.iter().map(|(name, stats)| (name.clone(), stats)))
+        .collect()
+}
+
+/// One `BODY.ply` per body with its facets' statistics.
+fn write_plys(out_dir: &Path, world: &World, stats: &FacetStats) -> Result<Vec<PathBuf>> {
+    let mut files = Vec::new();
+    for (body, offset) in world.bodies.iter().zip(world.offsets()) {
+        let path = out_dir.join(format!("{}.ply", body.name));
+        output::ply::write_ply(&path, &body.mesh, stats, offset)?;
+        files.push(path);
+    }
+    Ok(files)
 }
 
 /// Creates the output folder and clears a previous run out of it: the files its
