@@ -90,10 +90,7 @@ pub fn simulate(
         })
     });
     let n = world.facet_count();
-    let mut stats = FacetStats::new(n, bins);
-    let mut part_stats = scatter
-        .as_ref()
-        .map(|_| (FacetStats::new(n, bins), FacetStats::new(n, bins)));
+    let mut acc = Accumulators::new(n, bins, scatter.is_some());
     // With scattered light on a single body, whose exchange areas are the same at every
     // step, up to LANES steps are traced first and then solved together.
     let batch = if scatter.is_some() && world.bodies.len() == 1 {
@@ -103,7 +100,6 @@ pub fn simulate(
     };
     let mut directs = vec![vec![0.0; n]; batch];
     let mut scattered = vec![vec![0.0; n]; batch];
-    let mut total = vec![0.0; n];
     let mut counts = StepCounts::default();
     progress.begin_steps(states.len() as u64);
     for chunk in states.chunks(batch) {
@@ -122,30 +118,7 @@ pub fn simulate(
             });
         }
         for ((state, irradiance), scattered) in chunk.iter().zip(&directs).zip(&scattered) {
-            let step = match part_stats.as_mut() {
-                Some((direct_stats, scattered_stats)) => {
-                    timings.time("statistics", || {
-                        total
-                            .iter_mut()
-                            .zip(irradiance.iter().zip(scattered))
-                            .for_each(|(t, (d, s))| *t = d + s);
-                        stats.add_step(&total);
-                        direct_stats.add_step(irradiance);
-                        scattered_stats.add_step(scattered);
-                    });
-                    StepIrradiance {
-                        total: &total,
-                        parts: Some((irradiance, scattered)),
-                    }
-                }
-                None => {
-                    timings.time("statistics", || stats.add_step(irradiance));
-                    StepIrradiance {
-                        total: irradiance,
-                        parts: None,
-                    }
-                }
-            };
+            let step = timings.time("statistics", || acc.add_step(irradiance, scattered));
             if let Some(bands) = bands.as_deref_mut() {
                 timings.time("spectral bands", || {
                     bands.add_step(state, irradiance, scatter.as_mut())
@@ -157,16 +130,64 @@ pub fn simulate(
     }
     progress.end_steps();
     Ok(Simulation {
-        stats,
+        stats: acc.total_stats,
         counts,
         parts: scatter
-            .zip(part_stats)
+            .zip(acc.part_stats)
             .map(|(stage, (direct, scattered))| ScatterParts {
                 direct,
                 scattered,
                 record: stage.record,
             }),
     })
+}
+
+/// The statistics a run accumulates step by step: of the total, and with scattered light
+/// of its direct and scattered parts.
+struct Accumulators {
+    total_stats: FacetStats,
+    /// With scattered light: (direct, scattered).
+    part_stats: Option<(FacetStats, FacetStats)>,
+    /// The step's total irradiance when it is a sum of parts.
+    total: Vec<f64>,
+}
+
+impl Accumulators {
+    fn new(facets: usize, bins: Bins, with_parts: bool) -> Accumulators {
+        Accumulators {
+            total_stats: FacetStats::new(facets, bins),
+            part_stats: with_parts
+                .then(|| (FacetStats::new(facets, bins), FacetStats::new(facets, bins))),
+            total: if with_parts {
+                vec![0.0; facets]
+            } else {
+                Vec::new()
+            },
+        }
+    }
+
+    /// Adds one step's direct and (with parts) scattered irradiance; returns the step's
+    /// irradiance as the history sees it.
+    fn add_step<'a>(&'a mut self, direct: &'a [f64], scattered: &'a [f64]) -> StepIrradiance<'a> {
+        let Some((direct_stats, scattered_stats)) = self.part_stats.as_mut() else {
+            self.total_stats.add_step(direct);
+            return StepIrradiance {
+                total: direct,
+                parts: None,
+            };
+        };
+        self.total
+            .iter_mut()
+            .zip(direct.iter().zip(scattered))
+            .for_each(|(t, (d, s))| *t = d + s);
+        self.total_stats.add_step(&self.total);
+        direct_stats.add_step(direct);
+        scattered_stats.add_step(scattered);
+        StepIrradiance {
+            total: &self.total,
+            parts: Some((direct, scattered)),
+        }
+    }
 }
 
 /// [`simulate`] of direct sunlight without timings, progress or per-step output: the
