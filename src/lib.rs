@@ -102,6 +102,13 @@ pub(crate) fn lowercase_extension(path: &std::path::Path) -> String {
         .unwrap_or_default()
 }
 
+/// `bytes` without a leading UTF-8 byte-order mark: what the text readers read (text
+/// meshes and headers, text kernels, albedo files; the TOML reader skips the mark
+/// itself), so that a file saved "with BOM" is read like the same file without it.
+pub(crate) fn without_bom(bytes: &[u8]) -> &[u8] {
+    bytes.strip_prefix(b"\xEF\xBB\xBF").unwrap_or(bytes)
+}
+
 /// A seeded xorshift generator for unit tests' random cases: reproducible, and not the
 /// code under test.
 #[cfg(test)]

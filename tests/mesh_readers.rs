@@ -1160,3 +1160,25 @@ fn real_shapes_have_the_measured_topology() {
         assert_eq!(r.closed, boundary == 0 && non_manifold == 0, "{file}");
     }
 }
+
+/// A text file saved with a UTF-8 byte-order mark reads exactly like the same file
+/// without it: an OBJ used to lose its first vertex line and run with the wrong geometry.
+#[test]
+fn every_text_mesh_reads_the_same_with_a_byte_order_mark() {
+    let dir = temp_dir("bom");
+    let (vertices, plates) = pds_rows(false, 0);
+    let texts = [
+        ("obj", obj_text(&tetrahedron()).into_bytes()),
+        ("ply", ply_tetrahedron("ascii")),
+        ("stl", stl_ascii(&tetrahedron()).into_bytes()),
+        ("txt", format!("4 4\n{vertices}{plates}").into_bytes()),
+    ];
+    for (ext, text) in texts {
+        let plain = read(&write(&dir, &format!("plain.{ext}"), &text));
+        let mut marked = b"\xEF\xBB\xBF".to_vec();
+        marked.extend(&text);
+        let with_bom = read(&write(&dir, &format!("bom.{ext}"), marked));
+        assert_eq!(with_bom, plain, "{ext}");
+        assert_eq!(with_bom.vertices.len(), 4, "{ext}");
+    }
+}

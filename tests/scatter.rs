@@ -874,3 +874,14 @@ fn band_albedos_must_name_a_band() {
         "{err}"
     );
 }
+
+/// A per-facet albedo file saved with a UTF-8 byte-order mark reads like the same file
+/// without it (its first value used to be "not a number").
+#[test]
+fn an_albedo_file_with_a_byte_order_mark_reads_the_same() {
+    let dir = TempDir::new("albedo-bom");
+    let path = dir.0.join("albedo.txt");
+    std::fs::write(&path, "\u{feff}0.25\n# comment\n0.5\n").unwrap();
+    let albedo = slim::scatter::albedo::read_albedo_file(&path, 2).expect("reads");
+    assert_eq!(albedo, [0.25, 0.5]);
+}

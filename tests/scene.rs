@@ -833,3 +833,18 @@ fn stereographic_terrain_needs_a_mesh_file_and_a_positive_radius() {
     );
     assert_rejected(&ellipsoid, &["body[0].stereographic", "mesh files only"]);
 }
+
+/// A scene file saved with a UTF-8 byte-order mark loads like the same file without it
+/// (the TOML reader skips the mark itself; this guards it).
+#[test]
+fn a_byte_order_mark_before_the_scene_is_ignored() {
+    let dir = std::env::temp_dir().join(format!("slim-scene-bom-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join("bom.toml");
+    std::fs::write(&path, format!("\u{feff}{SPIN}")).unwrap();
+    let scene = Scene::load(&path);
+    std::fs::remove_dir_all(&dir).unwrap();
+    let scene = scene.expect("a scene with a byte-order mark loads");
+    assert_eq!(scene.bodies[0].name, "rock");
+    assert_eq!(scene.run.bin_width_w_m2, 10.0);
+}

@@ -575,3 +575,16 @@ fn an_iau_frame_name_picks_its_own_body() {
         .to_string();
     assert!(e.contains("NOWHERE") && e.contains("NAIF_BODY_NAME"), "{e}");
 }
+
+/// A text kernel saved with a UTF-8 byte-order mark reads like the same file without it
+/// (here the mark stands right before `\begindata`, which it used to hide).
+#[test]
+fn a_text_kernel_with_a_byte_order_mark_reads_the_same() {
+    let dir = std::env::temp_dir().join(format!("slim-spice-bom-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join("radii.tpc");
+    std::fs::write(&path, "\u{feff}\\begindata\nBODY999_RADII = ( 3 2 1 )\n").unwrap();
+    let kernels = Kernels::load(std::slice::from_ref(&path)).expect("kernel loads");
+    std::fs::remove_dir_all(&dir).ok();
+    assert_eq!(kernels.radii_km(999), Some(DVec3::new(3.0, 2.0, 1.0)));
+}

@@ -93,11 +93,14 @@ pub fn read_mesh(path: &Path, format: Option<MeshFormat>) -> Result<RawMesh> {
         )
         })?;
     let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+    let text = crate::without_bom(&bytes);
     let mesh = match format {
-        MeshFormat::Obj => obj::parse(path, &bytes)?,
-        MeshFormat::Ply => ply::parse(path, &bytes)?,
+        MeshFormat::Obj => obj::parse(path, text)?,
+        MeshFormat::Ply => ply::parse(path, text)?,
+        // A binary STL's 80-byte header may begin with anything: only an ASCII one loses
+        // its byte-order mark.
         MeshFormat::Stl => stl::parse(path, &bytes)?,
-        MeshFormat::Pds => pds::parse(path, &bytes)?,
+        MeshFormat::Pds => pds::parse(path, text)?,
     };
     if mesh.triangles.is_empty() {
         return Err(Error::file(path, "the file holds no facets"));

@@ -27,10 +27,11 @@ pub(super) fn parse(path: &Path, bytes: &[u8]) -> Result<RawMesh> {
     if bytes.is_empty() {
         return Err(Error::file(path, "the file is empty"));
     }
-    if is_exact_binary(bytes) || !looks_like_ascii(bytes) {
+    let text = crate::without_bom(bytes);
+    if is_exact_binary(bytes) || !looks_like_ascii(text) {
         parse_binary(path, bytes)
     } else {
-        parse_ascii(path, bytes)
+        parse_ascii(path, text)
     }
 }
 

@@ -40,7 +40,9 @@ pub fn band_albedo(scene: &Scene, world: &World, band: &str, broadband: &[f64]) 
 
 /// Reads a per-facet albedo file of exactly `facets` values.
 pub fn read_albedo_file(path: &Path, facets: usize) -> Result<Vec<f64>> {
-    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+    let text = std::str::from_utf8(crate::without_bom(&bytes))
+        .map_err(|e| Error::file(path, format!("not UTF-8 text: {e}")))?;
     let mut values = Vec::with_capacity(facets);
     for (n, line) in text.lines().enumerate() {
         let content = line.split('#').next().unwrap_or("").trim();

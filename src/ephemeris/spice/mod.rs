@@ -73,7 +73,7 @@ impl Kernels {
             }
             "tpc" | "tf" | "tls" => {
                 let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
-                let text = String::from_utf8_lossy(&bytes);
+                let text = String::from_utf8_lossy(crate::without_bom(&bytes));
                 self.text.parse_into(path, &text)?;
             }
             other => {
