@@ -11,6 +11,7 @@
 //! Errors are printed as one line and the exit code is non-zero. Commands whose Cargo
 //! feature is off (`serve`, `report`, `imaging`) are not built in.
 
+use clap::error::ErrorKind;
 use clap::{Parser, Subcommand, ValueEnum};
 #[cfg(feature = "terminal")]
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
@@ -37,6 +38,9 @@ use slim::run::run_scene;
 use slim::scene::Scene;
 #[cfg(feature = "serve")]
 use slim::serve::{self, limits::Limits};
+#[cfg(feature = "imaging")]
+use std::fmt::Write as _;
+use std::io::Write as _;
 use std::path::PathBuf;
 
 #[derive(Parser, Debug)]
@@ -280,7 +284,10 @@ impl ServeArgs {
             token,
             protect_reads: self.protect_reads,
             workers: self.workers.max(1),
-            job_threads: self.job_threads.unwrap_or(cores.saturating_sub(1)).max(1),
+            job_threads: match self.job_threads {
+                Some(n) => checked_threads("--job-threads", n)?,
+                None => cores.saturating_sub(1).max(1),
+            },
             limits: Limits {
                 max_body_bytes: self.max_body_bytes,
                 max_facets: self.max_facets,
@@ -337,16 +344,56 @@ enum Format {
     Pds,
 }
 
-/// Entry point of the binary: returns the process exit code.
+/// Entry point of the binary: returns the process exit code. Every error, a mistyped
+/// argument included, is one line on stderr and exit code 1; `--help` and `--version`
+/// print as usual. Output cut short by a closed pipe (`slim info MESH | head -1`) ends
+/// the program quietly.
 pub fn main() -> std::process::ExitCode {
-    let cli = Cli::parse();
+    let cli = match Cli::try_parse() {
+        Ok(cli) => cli,
+        Err(e) if matches!(e.kind(), ErrorKind::DisplayHelp | ErrorKind::DisplayVersion) => {
+            let _ = e.print();
+            return std::process::ExitCode::SUCCESS;
+        }
+        Err(e) => return fail(&usage_error(&e)),
+    };
     match execute(cli) {
         Ok(()) => std::process::ExitCode::SUCCESS,
-        Err(e) => {
-            eprintln!("slim: error: {e}");
-            std::process::ExitCode::FAILURE
+        Err(Error::Io { source, .. }) if source.kind() == std::io::ErrorKind::BrokenPipe => {
+            std::process::ExitCode::SUCCESS
         }
+        Err(e) => fail(&e.to_string()),
     }
+}
+
+fn fail(message: &str) -> std::process::ExitCode {
+    eprintln!("slim: error: {message}");
+    std::process::ExitCode::FAILURE
+}
+
+/// A command-line mistake as one line: clap's message, the usage line and where to look.
+fn usage_error(e: &clap::Error) -> String {
+    let rendered = e.render().to_string();
+    let mut lines = rendered.lines().map(str::trim).filter(|l| !l.is_empty());
+    let message = lines
+        .next()
+        .unwrap_or("invalid arguments")
+        .trim_start_matches("error:")
+        .trim();
+    let usage = lines.find_map(|l| l.strip_prefix("Usage:")).map(str::trim);
+    match usage {
+        Some(usage) => format!("{message} (usage: {usage}; more with --help)"),
+        None => format!("{message} (more with --help)"),
+    }
+}
+
+/// Writes `text` to stdout. A reader that has gone away (a closed pipe) is an
+/// [`Error::Io`] of kind `BrokenPipe`, which [`main`] ends on quietly.
+fn emit(text: &str) -> Result<()> {
+    let mut out = std::io::stdout().lock();
+    out.write_all(text.as_bytes())
+        .and_then(|()| out.flush())
+        .map_err(|e| Error::io(std::path::Path::new("standard output"), e))
 }
 
 fn execute(cli: Cli) -> Result<()> {
@@ -419,9 +466,7 @@ fn execute(cli: Cli) -> Result<()> {
             };
             let raw = read_mesh(&mesh, format)?;
             let report = inspect(&Mesh::from_raw(raw, unit));
-            println!("{}", mesh.display());
-            println!("{report}");
-            Ok(())
+            emit(&format!("{}\n{report}\n", mesh.display()))
         }
         #[cfg(feature = "imaging")]
         Command::Render {
@@ -451,20 +496,25 @@ fn execute(cli: Cli) -> Result<()> {
             let out =
                 output.unwrap_or_else(|| PathBuf::from("results").join(&scene.name).join("fit"));
             let (r, files) = fit_scene(&scene, &images, &params, body.as_deref(), &out)?;
-            println!(
-                "fitted {} pixels in {} iterations; residual RMS {:.6e}",
+            let mut text = format!(
+                "fitted {} pixels in {} iterations; residual RMS {:.6e}\n",
                 r.pixels, r.iterations, r.rms
             );
             for (j, name) in r.names.iter().enumerate() {
                 let bound = if r.at_bound[j] { "  (at a bound)" } else { "" };
-                println!("{name} = {:.6} ± {:.6}{bound}", r.values[j], r.sigmas[j]);
+                let _ = writeln!(
+                    text,
+                    "{name} = {:.6} ± {:.6}{bound}",
+                    r.values[j], r.sigmas[j]
+                );
             }
-            println!("correlations:");
+            text.push_str("correlations:\n");
             for (name, row) in r.names.iter().zip(&r.correlation) {
                 let cells: Vec<String> = row.iter().map(|c| format!("{c:+.3}")).collect();
-                println!("  {name:>14} {}", cells.join(" "));
+                let _ = writeln!(text, "  {name:>14} {}", cells.join(" "));
             }
-            println!("{}", r.material.describe());
+            let _ = writeln!(text, "{}", r.material.describe());
+            emit(&text)?;
             eprintln!("wrote {} residual images to {}", files.len(), out.display());
             Ok(())
         }
@@ -481,18 +531,19 @@ fn execute(cli: Cli) -> Result<()> {
             let end = end.unwrap_or_else(|| ia.max().max(ib.max()));
             let bins = ValueBins::covering(start, end.max(start), bin_width)?;
             let c = compare_images(&ia, &ib, bins, above)?;
-            println!("bin_start,bin_end,count_a,count_b");
+            let mut text = String::from("bin_start,bin_end,count_a,count_b\n");
             for (k, (x, y)) in c.counts_a.iter().zip(&c.counts_b).enumerate() {
                 let lo = bins.start + k as f64 * bins.width;
-                println!("{lo},{},{x},{y}", lo + bins.width);
+                let _ = writeln!(text, "{lo},{},{x},{y}", lo + bins.width);
             }
             let t = c.chi_square;
-            println!(
+            let _ = writeln!(
+                text,
                 "chi2 = {:.6e}, dof = {}, p = {:.6e}  (H0: both histograms come from the same \
                  distribution; p < 0.05 rejects it)",
                 t.statistic, t.dof, t.p_value
             );
-            Ok(())
+            emit(&text)
         }
         Command::Photometry {
             model,
@@ -504,19 +555,36 @@ fn execute(cli: Cli) -> Result<()> {
             let material = params.material(&model)?;
             let angles = Angles::from_degrees(incidence, emission, phase)?;
             let r = material.reflectance(&angles);
-            println!("{}", material.describe());
-            println!("i={incidence} e={emission} g={phase} (degrees)");
-            println!("r = {r:.9e} sr^-1");
-            println!("I/F = {:.9e}", i_over_f(r));
-            Ok(())
+            emit(&format!(
+                "{}\ni={incidence} e={emission} g={phase} (degrees)\nr = {r:.9e} sr^-1\n\
+                 I/F = {:.9e}\n",
+                material.describe(),
+                i_over_f(r)
+            ))
         }
     }
 }
 
-fn set_threads(n: usize) -> Result<()> {
-    if n == 0 {
-        return Err(Error::Usage("--threads must be at least 1".into()));
+/// The most worker threads a run may ask for: eight per core. More only add memory and
+/// scheduling (results are the same for any count), and an absurd count would spawn
+/// threads without end.
+fn thread_limit() -> usize {
+    8 * std::thread::available_parallelism().map_or(1, |n| n.get())
+}
+
+/// `n` worker threads, or an error naming `flag` when `n` is 0 or over [`thread_limit`].
+fn checked_threads(flag: &str, n: usize) -> Result<usize> {
+    let max = thread_limit();
+    if n == 0 || n > max {
+        return Err(Error::Usage(format!(
+            "{flag} {n}: give 1 to {max} (eight per core on this machine)"
+        )));
     }
+    Ok(n)
+}
+
+fn set_threads(n: usize) -> Result<()> {
+    let n = checked_threads("--threads", n)?;
     rayon::ThreadPoolBuilder::new()
         .num_threads(n)
         .build_global()

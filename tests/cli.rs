@@ -288,8 +288,59 @@ fn zero_threads_is_a_one_line_error() {
     assert!(!dir.join("out").exists());
 }
 
+/// An absurd thread count is refused before any thread is spawned (it used to spawn
+/// threads without end), with the largest count this machine allows.
+#[test]
+fn a_huge_thread_count_is_a_one_line_error() {
+    let dir = TempDir::new("huge-threads");
+    let scene = write_scene(&dir, "ito.toml");
+    let out = slim(
+        &["run", s(&scene), "-o", "out", "--threads", "100000"],
+        &dir.0,
+    );
+    let line = assert_one_line_error(&out, &["--threads 100000", "give 1 to"]);
+    assert!(line.contains("per core"), "{line}");
+    assert!(!dir.join("out").exists());
+}
+
+/// A mistyped argument or subcommand is one line and exit code 1, as every other error
+/// (clap's own message was several lines and exit code 2); help still prints and exits 0.
+#[test]
+fn command_line_mistakes_are_one_line_errors_with_the_usage() {
+    let dir = TempDir::new("usage");
+    let line = assert_one_line_error(&slim(&["run", "--bogus"], &dir.0), &["--bogus"]);
+    assert!(line.contains("usage: slim run"), "{line}");
+    assert_one_line_error(&slim(&["frobnicate"], &dir.0), &["frobnicate", "--help"]);
+    assert_one_line_error(&slim(&[], &dir.0), &["--help"]);
+    assert_one_line_error(&slim(&["info"], &dir.0), &["MESH"]);
+    let help = slim(&["run", "--help"], &dir.0);
+    assert!(help.status.success());
+    assert!(text(&help.stdout).contains("--threads"));
+}
+
 // ---------------------------------------------------------------------------------------
 // slim info
+
+/// `slim info MESH | head -1`: a reader that closes the pipe early ends slim quietly
+/// (it used to panic on the broken pipe).
+#[test]
+fn info_into_a_closed_pipe_ends_quietly() {
+    let dir = TempDir::new("pipe");
+    let mut child = Command::new(env!("CARGO_BIN_EXE_slim"))
+        .args(["info", s(&itokawa())])
+        .current_dir(&dir.0)
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .expect("run slim");
+    // Close the reading end before slim has read its mesh, let alone printed.
+    drop(child.stdout.take());
+    let out = child.wait_with_output().expect("slim ends");
+    let stderr = text(&out.stderr);
+    assert!(!stderr.contains("panicked"), "{stderr}");
+    assert!(out.status.success(), "exit {:?}: {stderr}", out.status);
+    assert!(stderr.is_empty(), "{stderr}");
+}
 
 #[test]
 fn info_reports_facets_and_vertices() {
