@@ -105,7 +105,7 @@ fn phobos_table() -> Result<(), Error> {
         }
         let t0 = Instant::now();
         let states = epoch_states(build_ephemeris(&s, None)?.as_ref())?;
-        let bins = bins_for(&s, &states);
+        let bins = bins_for(&s, &states)?;
         let sim = statistics(&world, &states, TracerKind::Sunview, bins)?;
         Ok((sim.stats, t0.elapsed().as_secs_f64()))
     };

@@ -95,7 +95,7 @@ pub fn prepare(scene: &Scene, timings: &mut Timings) -> Result<Prepared> {
         plan.set_scatter(settings.decisions(&assembly.world, &states));
     }
     Ok(Prepared {
-        bins: bins_for(scene, &states),
+        bins: bins_for(scene, &states)?,
         assembly,
         states,
         scatter,
@@ -372,11 +372,30 @@ pub fn epoch_states(ephemeris: &dyn Ephemeris) -> Result<Vec<EpochState>> {
         .collect()
 }
 
-/// CDF bins covering the largest flux of the run.
-pub fn bins_for(scene: &Scene, states: &[EpochState]) -> Bins {
+/// The most CDF thresholds a run may have. Each facet keeps a count per threshold, so
+/// this bounds the CDF's memory per facet; a million thresholds is 0.1 W/m² bins up to
+/// 100 kW/m², far beyond any solar flux in the solar system's airless bodies.
+pub const MAX_BINS: usize = 1_000_000;
+
+/// CDF bins covering the largest flux of the run, or an error naming
+/// `run.bin_width_w_m2` when they would be more than [`MAX_BINS`] (an absurdly small
+/// width, or an absurd flux).
+pub fn bins_for(scene: &Scene, states: &[EpochState]) -> Result<Bins> {
     let max_flux = states
         .iter()
         .flat_map(|s| s.bodies.iter().map(|b| b.flux_w_m2))
         .fold(0.0, f64::max);
-    Bins::covering(scene.run.bin_width_w_m2, max_flux)
+    let width = scene.run.bin_width_w_m2;
+    let count = (max_flux / width).ceil() + 1.0;
+    if count.is_nan() || count > MAX_BINS as f64 {
+        return Err(scene.err(
+            "run.bin_width_w_m2",
+            format!(
+                "{width} W/m² bins up to the run's largest flux, {max_flux:e} W/m², are \
+                 {count:e} CDF thresholds; at most {MAX_BINS}: use wider bins (or check the \
+                 solar constant and fluxes)"
+            ),
+        ));
+    }
+    Ok(Bins::covering(width, max_flux))
 }

@@ -27,7 +27,7 @@ impl Bins {
     pub fn covering(width_w_m2: f64, max_w_m2: f64) -> Bins {
         Bins {
             width_w_m2,
-            count: (max_w_m2.max(0.0) / width_w_m2).ceil() as usize + 1,
+            count: ((max_w_m2.max(0.0) / width_w_m2).ceil() as usize).saturating_add(1),
         }
     }
 

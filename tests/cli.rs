@@ -288,6 +288,30 @@ fn zero_threads_is_a_one_line_error() {
     assert!(!dir.join("out").exists());
 }
 
+/// Absurd numbers that would make the CDF's bin count overflow are refused with the key
+/// to change (they used to panic: "chunk_size must not be zero").
+#[test]
+fn absurd_bins_and_fluxes_are_one_line_errors_naming_the_bin_width() {
+    let dir = TempDir::new("absurd-bins");
+    let scene = write_scene(&dir, "ito.toml");
+    let toml = std::fs::read_to_string(&scene).unwrap();
+    let cases = [
+        format!("[run]\nbin_width_w_m2 = 1e-300\n{toml}"),
+        toml.replace("[ephemeris]", "[ephemeris]\nsolar_constant_w_m2 = 1e308"),
+        "[ephemeris]\nmode = \"fixed\"\n[[ephemeris.sun]]\ndirection = [1, 0, 0]\n\
+         flux_w_m2 = 1e308\n\n[[body]]\nname = \"rock\"\nunits = \"km\"\nmesh = "
+            .to_string()
+            + &format!("{:?}\n", itokawa().display().to_string()),
+    ];
+    for (k, case) in cases.iter().enumerate() {
+        let path = dir.join(&format!("absurd{k}.toml"));
+        std::fs::write(&path, case).unwrap();
+        let out = slim(&["run", s(&path), "-o", "out", "-q"], &dir.0);
+        assert_one_line_error(&out, &["run.bin_width_w_m2", "at most 1000000"]);
+        assert!(!dir.join("out/run.json").exists());
+    }
+}
+
 /// An absurd thread count is refused before any thread is spawned (it used to spawn
 /// threads without end), with the largest count this machine allows.
 #[test]
