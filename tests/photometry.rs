@@ -413,3 +413,29 @@ fn cli_prints_r_and_i_over_f() {
     assert!(!bad.status.success());
     assert!(String::from_utf8_lossy(&bad.stderr).contains("impossible"));
 }
+
+/// Light that arrives along or beyond the horizon (incidence ≥ 90°) is not reflected:
+/// every model gives exactly 0, whatever the emission. At i = e = 90°, g = 180°
+/// Lommel–Seeliger and Hapke used to give I/F = 0.0625, the limit of
+/// cos i / (cos i + cos e) for the rounding residue cos(90°) ≈ 6e-17.
+#[test]
+fn grazing_incidence_or_emission_reflects_nothing() {
+    let models: Vec<(&str, Box<dyn Reflectance>)> = vec![
+        ("lambert", Box::new(Lambert { albedo: 0.7 })),
+        ("lommel_seeliger", Box::new(LommelSeeliger { w: 0.9 })),
+        (
+            "hapke",
+            Box::new(hapke(0.5, 1.0, 0.05, PhaseFunction::Isotropic, 20.0)),
+        ),
+    ];
+    for (i, e, g) in [(90.0, 90.0, 180.0), (90.0, 0.0, 90.0), (120.0, 30.0, 150.0)] {
+        let angles = Angles::from_degrees(i, e, g).unwrap();
+        for (name, model) in &models {
+            assert_eq!(
+                model.reflectance(&angles),
+                0.0,
+                "{name} at i={i} e={e} g={g}"
+            );
+        }
+    }
+}

@@ -41,6 +41,13 @@ pub struct Angles {
     pub cos_g: f64,
 }
 
+/// cos x for x in degrees, as sin(90° − x): exactly 0 at 90° (cos of the rounded π/2 is
+/// 6e-17, which would leave a surface lit by light along its horizon) and exactly ±1 at
+/// 0° and 180°.
+fn cos_deg(x: f64) -> f64 {
+    (90.0 - x).to_radians().sin()
+}
+
 impl Angles {
     /// The geometry for angles in degrees; the phase angle must be possible for the given
     /// i and e (|i − e| ≤ g ≤ min(i + e, 360° − i − e)).
@@ -62,9 +69,9 @@ impl Angles {
             )));
         }
         Ok(Angles {
-            cos_i: incidence.to_radians().cos(),
-            cos_e: emission.to_radians().cos(),
-            cos_g: phase.to_radians().cos(),
+            cos_i: cos_deg(incidence),
+            cos_e: cos_deg(emission),
+            cos_g: cos_deg(phase),
         })
     }
 
