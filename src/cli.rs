@@ -366,8 +366,19 @@ pub fn main() -> std::process::ExitCode {
     }
 }
 
+/// Prints `message` as one line and returns the failure exit code. Control characters
+/// (from a broken file's bytes, or a line break) are written as escapes, so that a bad
+/// file can neither drive the terminal nor split the line.
 fn fail(message: &str) -> std::process::ExitCode {
-    eprintln!("slim: error: {message}");
+    let mut line = String::with_capacity(message.len());
+    for c in message.chars() {
+        if c.is_control() {
+            line.extend(c.escape_default());
+        } else {
+            line.push(c);
+        }
+    }
+    eprintln!("slim: error: {line}");
     std::process::ExitCode::FAILURE
 }
 

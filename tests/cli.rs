@@ -425,6 +425,21 @@ fn info_on_a_broken_file_is_a_one_line_error_with_the_line() {
     assert_one_line_error(&out, &["bad.obj", "line 3"]);
 }
 
+/// Raw control bytes from a bad file are shown as escapes: they neither drive the terminal
+/// nor break the one-line error (they used to be echoed as they were).
+#[test]
+fn control_bytes_of_a_bad_file_are_escaped_in_the_error() {
+    let dir = TempDir::new("info-control");
+    std::fs::write(
+        dir.join("bad.obj"),
+        "v 0 0 0\nv 1 0 0\nv 0 1 \x1b[2J\x07zero\nf 1 2 3\n",
+    )
+    .unwrap();
+    let out = slim(&["info", "bad.obj"], &dir.0);
+    let line = assert_one_line_error(&out, &["bad.obj", "line 3", "\\u{1b}[2J\\u{7}zero"]);
+    assert!(!line.contains('\x1b') && !line.contains('\x07'), "{line:?}");
+}
+
 #[test]
 fn unknown_ephemeris_key_is_a_one_line_error_naming_the_key() {
     let dir = TempDir::new("bad-ephemeris");

@@ -1182,3 +1182,17 @@ fn every_text_mesh_reads_the_same_with_a_byte_order_mark() {
         assert_eq!(with_bom.vertices.len(), 4, "{ext}");
     }
 }
+
+/// Finite coordinates so large that areas and normals overflow (1e200) are refused with
+/// the vertex, instead of a mesh with NaN areas and normals that runs to exit 0.
+#[test]
+fn coordinates_whose_squares_overflow_are_refused() {
+    let dir = temp_dir("huge-coordinates");
+    let mut mesh = tetrahedron();
+    mesh.vertices[2].y = 1e200;
+    let message = expect_error(&dir, "far.obj", obj_text(&mesh), &["vertex 3", "1e100"]);
+    assert!(message.contains("overflow"), "{message}");
+    mesh.vertices[2].y = 1e90;
+    let near_enough = read(&write(&dir, "near.obj", obj_text(&mesh)));
+    assert_eq!(near_enough.vertices[2].y, 1e90);
+}

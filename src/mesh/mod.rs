@@ -105,7 +105,30 @@ pub fn read_mesh(path: &Path, format: Option<MeshFormat>) -> Result<RawMesh> {
     if mesh.triangles.is_empty() {
         return Err(Error::file(path, "the file holds no facets"));
     }
+    check_coordinates(path, &mesh)?;
     Ok(mesh)
+}
+
+/// Largest coordinate magnitude accepted, in the file's unit. Areas and normals square
+/// the coordinates, so beyond about 1e154 they overflow to infinity or NaN; 1e100 keeps a
+/// wide margin and is still far beyond any body's distance from its origin in km or m.
+pub const MAX_COORDINATE: f64 = 1e100;
+
+/// Every vertex coordinate must be finite and within ±[`MAX_COORDINATE`].
+fn check_coordinates(path: &Path, mesh: &RawMesh) -> Result<()> {
+    let outside = |v: &glam::DVec3| !v.is_finite() || v.abs().max_element() > MAX_COORDINATE;
+    match mesh.vertices.iter().position(outside) {
+        Some(i) => Err(Error::file(
+            path,
+            format!(
+                "vertex {} at {:?} lies beyond ±{MAX_COORDINATE:e}: its facets' areas and \
+                 normals would overflow",
+                i + 1,
+                mesh.vertices[i].to_array()
+            ),
+        )),
+        None => Ok(()),
+    }
 }
 
 /// A mesh ready for the engine: metres, body-fixed frame, per-facet geometry precomputed.
