@@ -23,6 +23,7 @@ use std::path::{Path, PathBuf};
 pub fn run_scene(scene: &Scene, out_dir: &Path, progress: &dyn Progress) -> Result<RunRecord> {
     let mut timings = Timings::default();
     prepare_output_dir(out_dir)?;
+    refuse_foreign_files(out_dir, scene)?;
     let Prepared {
         assembly,
         states,
@@ -142,6 +143,26 @@ fn prepare_output_dir(dir: &Path) -> Result<()> {
         }
     }
     remove_if_present(&record)
+}
+
+/// Refuses to start when a file this run would write is already in the folder: after
+/// [`prepare_output_dir`], no `run.json` of slim lists it, so slim did not write it (an
+/// input mesh named like a body's PLY, say) and will not overwrite it.
+fn refuse_foreign_files(dir: &Path, scene: &Scene) -> Result<()> {
+    let bodies: Vec<&str> = scene.bodies.iter().map(|b| b.name.as_str()).collect();
+    let o = &scene.output;
+    for name in output::file_names(o.csv, o.history, o.ply, &bodies) {
+        let path = dir.join(&name);
+        if path.exists() {
+            return Err(Error::file(
+                &path,
+                "is in the output folder but no run.json of slim lists it: slim does not \
+                 overwrite a file it did not write; choose another output folder (-o) or \
+                 move the file",
+            ));
+        }
+    }
+    Ok(())
 }
 
 fn remove_if_present(path: &Path) -> Result<()> {

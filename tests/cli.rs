@@ -312,6 +312,46 @@ fn absurd_bins_and_fluxes_are_one_line_errors_naming_the_bin_width() {
     }
 }
 
+/// A file in the output folder that no run.json of slim lists is never overwritten: here
+/// the input mesh itself, named like the body's result PLY, with `-o` pointing at the
+/// mesh's folder (it used to be replaced by the result and deleted by the next run).
+#[test]
+fn a_file_slim_did_not_write_is_never_overwritten() {
+    let dir = TempDir::new("foreign");
+    let mesh = dir.join("itokawa.ply");
+    let original = b"ply\nformat ascii 1.0\nthis is the user's own file\n";
+    std::fs::write(&mesh, original).unwrap();
+    let scene = write_scene(&dir, "ito.toml");
+    let out = slim(&["run", s(&scene), "-o", s(&dir.0), "-q"], &dir.0);
+    assert_one_line_error(&out, &["itokawa.ply", "does not overwrite"]);
+    assert_eq!(std::fs::read(&mesh).unwrap(), original);
+    assert!(!dir.join("run.json").exists());
+}
+
+/// The files a run writes are exactly the ones `output::file_names` predicts, which is the
+/// list checked for foreign files before a run starts.
+#[test]
+fn the_predicted_output_names_are_the_files_a_run_writes() {
+    let dir = TempDir::new("names");
+    let scene = write_scene(&dir, "ito.toml");
+    let out_dir = dir.join("out");
+    let out = slim(&["run", s(&scene), "-o", s(&out_dir), "-q"], &dir.0);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let record: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out_dir.join("run.json")).unwrap()).unwrap();
+    let mut written: Vec<String> = record["outputs"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_str().unwrap().to_string())
+        .filter(|n| n != "run.json")
+        .collect();
+    let mut predicted = slim::output::file_names(true, true, true, &["itokawa"]);
+    written.sort();
+    predicted.sort();
+    assert_eq!(written, predicted);
+}
+
 /// An absurd thread count is refused before any thread is spawned (it used to spawn
 /// threads without end), with the largest count this machine allows.
 #[test]

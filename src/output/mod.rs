@@ -34,6 +34,19 @@ use columns::{Table, Values};
 use std::path::{Path, PathBuf};
 use table::TableWriter;
 
+/// The names of the files a run writes into its folder, `run.json` aside: the tables
+/// (`history` when asked for), and a PLY per body when asked for.
+pub fn file_names(csv: bool, history: bool, ply: bool, bodies: &[&str]) -> Vec<String> {
+    let tables = ["summary", "cdf", "geometry"]
+        .into_iter()
+        .chain(history.then_some("history"));
+    let plys = bodies.iter().filter(|_| ply).map(|b| format!("{b}.ply"));
+    tables
+        .flat_map(|t| table::file_names(t, csv))
+        .chain(plys)
+        .collect()
+}
+
 /// Rows per batch when writing the per-facet tables.
 const FACETS_PER_BATCH: usize = 1 << 14;
 

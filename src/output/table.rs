@@ -24,6 +24,14 @@ pub struct TableWriter {
     csv: Option<BufWriter<File>>,
 }
 
+/// The files a [`TableWriter`] for table `name` writes: `NAME.parquet` with the `parquet`
+/// feature, and `NAME.csv` when `csv` is asked for or Parquet is not built in.
+pub fn file_names(name: &str, csv: bool) -> Vec<String> {
+    let parquet = cfg!(feature = "parquet").then(|| format!("{name}.parquet"));
+    let csv = (csv || !cfg!(feature = "parquet")).then(|| format!("{name}.csv"));
+    parquet.into_iter().chain(csv).collect()
+}
+
 impl TableWriter {
     /// A writer for `DIR/NAME.parquet` and, if `csv` (or without Parquet support),
     /// `DIR/NAME.csv`.
