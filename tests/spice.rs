@@ -588,3 +588,23 @@ fn a_text_kernel_with_a_byte_order_mark_reads_the_same() {
     std::fs::remove_dir_all(&dir).ok();
     assert_eq!(kernels.radii_km(999), Some(DVec3::new(3.0, 2.0, 1.0)));
 }
+
+/// A text PCK whose phase-angle degree is absurd (1e30) is refused when it is loaded,
+/// naming the file and the variable (the degree + 1 used to overflow and panic when a
+/// rotation model was built).
+#[test]
+fn an_absurd_phase_angle_degree_is_refused_with_the_file() {
+    let dir = std::env::temp_dir().join(format!("slim-spice-degree-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join("crafted.tpc");
+    let text = "\\begindata\nBODY4_MAX_PHASE_DEGREE = 1e30\nBODY4_NUT_PREC_ANGLES = ( 1 2 )\n\
+                BODY401_POLE_RA = ( 0 0 0 )\nBODY401_POLE_DEC = ( 90 0 0 )\nBODY401_PM = ( 0 1 0 )\n";
+    std::fs::write(&path, text).unwrap();
+    let loaded = Kernels::load(std::slice::from_ref(&path));
+    std::fs::remove_dir_all(&dir).ok();
+    let e = loaded.err().expect("refused").to_string();
+    assert!(
+        e.contains("crafted.tpc") && e.contains("BODY4_MAX_PHASE_DEGREE"),
+        "{e}"
+    );
+}

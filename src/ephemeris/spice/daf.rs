@@ -35,7 +35,9 @@ pub fn to_little_endian(path: &Path, bytes: &[u8]) -> Result<Vec<u8>> {
     let records = bytes.len() / RECORD;
     let mut kind = vec![Kind::Doubles; records + 1];
     kind[1] = Kind::Done;
-    (2..fward as usize).for_each(|r| kind[r.min(records)] = Kind::Text);
+    // Records past the file's end all land on its last slot: bound the walk by the file,
+    // not by FWARD, which a crafted file sets near 2³¹.
+    (2..(fward as usize).min(records + 1)).for_each(|r| kind[r] = Kind::Text);
     let summary_size = nd as usize + (ni as usize).div_ceil(2);
     let mut next = fward as usize;
     while next != 0 {
@@ -51,7 +53,10 @@ pub fn to_little_endian(path: &Path, bytes: &[u8]) -> Result<Vec<u8>> {
             )
         };
         let (following, count) = (double(0) as usize, double(2) as usize);
-        if 3 + count * summary_size > RECORD / 8 {
+        let doubles = count
+            .checked_mul(summary_size)
+            .and_then(|n| n.checked_add(3));
+        if doubles.is_none_or(|n| n > RECORD / 8) {
             return Err(bad("a summary record claims more summaries than fit"));
         }
         swap_summary_record(
@@ -95,5 +100,39 @@ fn swap_summary_record(record: &mut [u8], nd: usize, ni: usize, count: usize, si
         record[ints..ints + 4 * ni]
             .chunks_exact_mut(4)
             .for_each(<[u8]>::reverse);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A big-endian DAF of `records` records with the given file record.
+    fn big_endian(records: usize, nd: i32, ni: i32, fward: i32) -> Vec<u8> {
+        let mut bytes = vec![0u8; records * RECORD];
+        bytes[8..12].copy_from_slice(&nd.to_be_bytes());
+        bytes[12..16].copy_from_slice(&ni.to_be_bytes());
+        bytes[76..80].copy_from_slice(&fward.to_be_bytes());
+        bytes[88..96].copy_from_slice(b"BIG-IEEE");
+        bytes
+    }
+
+    /// A summary record whose count saturates the integer conversion (1e300) is refused:
+    /// the size arithmetic used to wrap and the byte swap to index past the record.
+    #[test]
+    fn a_saturated_summary_count_is_an_error() {
+        let mut bytes = big_endian(3, 2, 6, 2);
+        bytes[RECORD + 16..RECORD + 24].copy_from_slice(&1e300f64.to_be_bytes());
+        let e = to_little_endian(Path::new("k.bsp"), &bytes).unwrap_err();
+        assert!(e.to_string().contains("more summaries than fit"), "{e}");
+    }
+
+    /// A forward pointer near 2³¹ is a broken chain, found without walking two billion
+    /// records.
+    #[test]
+    fn a_huge_forward_pointer_is_an_error() {
+        let bytes = big_endian(2, 2, 6, i32::MAX);
+        let e = to_little_endian(Path::new("k.bsp"), &bytes).unwrap_err();
+        assert!(e.to_string().contains("broken summary record chain"), "{e}");
     }
 }

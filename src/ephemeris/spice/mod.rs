@@ -75,6 +75,7 @@ impl Kernels {
                 let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
                 let text = String::from_utf8_lossy(crate::without_bom(&bytes));
                 self.text.parse_into(path, &text)?;
+                pck::check_phase_degrees(&self.text, path)?;
             }
             other => {
                 let kind = match other {

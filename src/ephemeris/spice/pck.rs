@@ -15,7 +15,9 @@
 //! Phobos's prime meridian by about 1e-4 rad.
 
 use super::text_kernel::TextKernel;
+use crate::error::{Error, Result};
 use glam::{DMat3, DVec3};
+use std::path::Path;
 
 const SECONDS_PER_DAY: f64 = 86_400.0;
 const DAYS_PER_CENTURY: f64 = 36_525.0;
@@ -31,6 +33,27 @@ pub struct RotationModel {
     nut_pm: Vec<f64>,
     /// System angles, one polynomial in T (degrees) each.
     angles: Vec<Vec<f64>>,
+}
+
+/// The highest degree of the nutation–precession angle polynomials slim reads. The IAU
+/// models use 1 (linear angles); higher values only come from a damaged or crafted file.
+pub const MAX_PHASE_DEGREE: usize = 20;
+
+/// Every `BODYnnn_MAX_PHASE_DEGREE` in `kernel` must be a whole number from 0 to
+/// [`MAX_PHASE_DEGREE`]; `path` is the file just read, named in the error.
+pub fn check_phase_degrees(kernel: &TextKernel, path: &Path) -> Result<()> {
+    for name in kernel.names().filter(|n| n.ends_with("_MAX_PHASE_DEGREE")) {
+        let degree = kernel.numbers(name).and_then(|d| d.first().copied());
+        let whole =
+            degree.filter(|d| d.fract() == 0.0 && (0.0..=MAX_PHASE_DEGREE as f64).contains(d));
+        if whole.is_none() {
+            return Err(Error::file(
+                path,
+                format!("{name} = {degree:?}: must be a whole number from 0 to {MAX_PHASE_DEGREE}"),
+            ));
+        }
+    }
+    Ok(())
 }
 
 impl RotationModel {
