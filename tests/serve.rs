@@ -933,6 +933,16 @@ fn the_token_guards_mutating_endpoints_and_optionally_reads() {
             .call(),
     );
     assert_eq!(status, 200);
+    // The scheme name is case-insensitive (RFC 9110): "bearer" was refused.
+    for scheme in ["bearer", "BEARER"] {
+        let (status, body) = json(
+            agent()
+                .get(&server.url(&format!("/v1/jobs/{id}")))
+                .header("Authorization", &format!("{scheme} s3cret"))
+                .call(),
+        );
+        assert_eq!(status, 200, "{scheme}: {body}");
+    }
 }
 
 // ---------------------------------------------------------------------------------------

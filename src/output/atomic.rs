@@ -16,9 +16,30 @@ pub fn partial(path: &Path) -> PathBuf {
     PathBuf::from(p)
 }
 
-/// Moves a finished temporary file to its final name.
+/// Moves a finished temporary file to its final name, durably: the file's content is
+/// flushed to disk before the rename and the folder's entry after it, so that a machine
+/// crash leaves either the old state or the complete file, never a renamed empty one.
 pub fn commit(tmp: &Path, path: &Path) -> Result<()> {
-    std::fs::rename(tmp, path).map_err(|e| Error::io(path, e))
+    File::open(tmp)
+        .and_then(|f| f.sync_all())
+        .map_err(|e| Error::io(tmp, e))?;
+    std::fs::rename(tmp, path).map_err(|e| Error::io(path, e))?;
+    sync_folder(path)
+}
+
+/// Flushes the folder holding `path` (its entries, after a rename). Only Unix can open a
+/// folder to sync it; elsewhere the rename is left to the file system.
+fn sync_folder(path: &Path) -> Result<()> {
+    if cfg!(unix) {
+        let folder = match path.parent() {
+            Some(p) if !p.as_os_str().is_empty() => p,
+            _ => Path::new("."),
+        };
+        File::open(folder)
+            .and_then(|f| f.sync_all())
+            .map_err(|e| Error::io(folder, e))?;
+    }
+    Ok(())
 }
 
 /// Writes `bytes` to `path` atomically (temporary file, then rename).

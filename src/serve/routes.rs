@@ -114,7 +114,7 @@ async fn require_token(State(app): State<AppState>, request: Request, next: Next
         .headers()
         .get(header::AUTHORIZATION)
         .and_then(|v| v.to_str().ok())
-        .and_then(|v| v.strip_prefix("Bearer "));
+        .and_then(bearer_credentials);
     if given.is_some_and(|g| same_bytes(g.trim().as_bytes(), token.as_bytes())) {
         return next.run(request).await;
     }
@@ -128,6 +128,13 @@ async fn require_token(State(app): State<AppState>, request: Request, next: Next
         .headers_mut()
         .insert(header::WWW_AUTHENTICATE, HeaderValue::from_static("Bearer"));
     response
+}
+
+/// The credentials of an `Authorization` value in the Bearer scheme, whose name is
+/// case-insensitive (RFC 9110, section 11.1): `bearer TOKEN` is as good as `Bearer TOKEN`.
+fn bearer_credentials(value: &str) -> Option<&str> {
+    let (scheme, credentials) = value.split_once(' ')?;
+    scheme.eq_ignore_ascii_case("bearer").then_some(credentials)
 }
 
 /// Equality that takes the same time wherever the first difference is.
