@@ -54,6 +54,8 @@
 //! the engine alone (and a `slim run` that writes CSV). The `slim` command line lives in
 //! the binary (`src/main.rs`, `src/cli.rs`), not in this library.
 
+#![forbid(unsafe_code)]
+
 pub mod analytic;
 pub mod bands;
 #[cfg(feature = "imaging")]

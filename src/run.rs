@@ -52,6 +52,16 @@ pub fn run_scene(scene: &Scene, out_dir: &Path, progress: &dyn Progress) -> Resu
     let sim = simulate(world, &states, options, &mut timings, progress, |s, e| {
         history.as_mut().map_or(Ok(()), |h| h.write_step(s, e))
     })?;
+    let mut warnings = assembly.warnings;
+    let unconverged = sim
+        .parts
+        .as_ref()
+        .zip(scene.scatter.as_ref())
+        .and_then(|(p, s)| p.record.convergence_warning(s.max_orders, s.tolerance));
+    if let Some(w) = unconverged {
+        progress.note(&format!("warning: {w}"));
+        warnings.push(w);
+    }
     let band_parts = bands.map(Bands::into_parts).unwrap_or_default();
     let parts = named_parts(&sim, &band_parts);
     let mut outputs = timings.time("output", || -> Result<Vec<_>> {
@@ -84,7 +94,7 @@ pub fn run_scene(scene: &Scene, out_dir: &Path, progress: &dyn Progress) -> Resu
         duration_s: assembly.ephemeris.duration_s(),
         threads: rayon::current_num_threads(),
         timings_s: timings.0,
-        warnings: assembly.warnings,
+        warnings,
         outputs: outputs
             .iter()
             .filter_map(|p| Some(p.file_name()?.to_string_lossy().into_owned()))

@@ -885,3 +885,38 @@ fn an_albedo_file_with_a_byte_order_mark_reads_the_same() {
     let albedo = slim::scatter::albedo::read_albedo_file(&path, 2).expect("reads");
     assert_eq!(albedo, [0.25, 0.5]);
 }
+
+/// A solve that stops at max_orders above its tolerance is reported as a warning with its
+/// residual (in run.json and on the terminal), not only as a count in the record.
+#[test]
+fn solves_that_stop_above_the_tolerance_are_a_warning() {
+    let dir = TempDir::new("not-converged");
+    let path = bowl_scene(
+        &dir.0,
+        "albedo = 0.9\n[scatter]\nsolver = \"jacobi\"\nmax_orders = 1\ntolerance = 1e-9",
+    );
+    let scene = slim::scene::Scene::load(&path).unwrap();
+    let record = slim::run::run_scene(&scene, &dir.0.join("out"), &slim::progress::Silent).unwrap();
+    let rec = record.scatter.as_ref().expect("scatter record");
+    assert!(rec.not_converged > 0);
+    let warning = record
+        .warnings
+        .iter()
+        .find(|w| w.contains("max_orders = 1"))
+        .unwrap_or_else(|| panic!("no warning among {:?}", record.warnings));
+    assert!(
+        warning.contains("residual") && warning.contains("1e-9"),
+        "{warning}"
+    );
+
+    // A converged run warns of nothing of the kind.
+    let path = bowl_scene(&dir.0, "albedo = 0.1\n[scatter]");
+    let scene = slim::scene::Scene::load(&path).unwrap();
+    let record =
+        slim::run::run_scene(&scene, &dir.0.join("out2"), &slim::progress::Silent).unwrap();
+    assert!(
+        !record.warnings.iter().any(|w| w.contains("max_orders")),
+        "{:?}",
+        record.warnings
+    );
+}

@@ -332,6 +332,19 @@ pub struct ScatterRecord {
 }
 
 impl ScatterRecord {
+    /// A warning when some solves stopped at the iteration cap above the tolerance: their
+    /// scattered light is less accurate than asked for, which the counts alone hide.
+    pub fn convergence_warning(&self, max_orders: u32, tolerance: f64) -> Option<String> {
+        (self.not_converged > 0).then(|| {
+            format!(
+                "scattered light: {} of {} solves ({}) stopped at max_orders = {max_orders} \
+                 above the tolerance {tolerance:e} (largest relative residual {:.3e}); raise \
+                 [scatter] max_orders, or use solver = \"cg\" for albedos near 1",
+                self.not_converged, self.solves, self.method, self.residual_max
+            )
+        })
+    }
+
     fn add(&mut self, report: &SolveReport) {
         self.solves += 1;
         self.method = Cow::Borrowed(report.method);
