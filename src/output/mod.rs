@@ -40,7 +40,10 @@ pub fn file_names(csv: bool, history: bool, ply: bool, bodies: &[&str]) -> Vec<S
     let tables = ["summary", "cdf", "geometry"]
         .into_iter()
         .chain(history.then_some("history"));
-    let plys = bodies.iter().filter(|_| ply).map(|b| format!("{b}.ply"));
+    let plys = ply
+        .then(|| bodies.iter().map(|b| format!("{b}.ply")))
+        .into_iter()
+        .flatten();
     tables
         .flat_map(|t| table::file_names(t, csv))
         .chain(plys)

@@ -2,8 +2,8 @@
 //!
 //! In: batches of named columns ([`super::columns::Table`]). Out: `NAME.parquet`
 //! (Snappy-compressed, one row group per batch up to a size limit; see `parquet_file`)
-//! and optionally `NAME.csv` with the same columns and values. A build without the `parquet` feature
-//! writes the CSV alone, whatever the scene asks. Files are written as
+//! and optionally `NAME.csv` with the same columns and values. A build without the
+//! `parquet` feature writes the CSV alone, whatever the scene asks. Files are written as
 //! `NAME.ext.partial` and renamed only by [`TableWriter::finish`], so an interrupted run
 //! never leaves a file that looks complete.
 
