@@ -15,6 +15,7 @@ use clap::error::ErrorKind;
 use clap::{Parser, Subcommand, ValueEnum};
 #[cfg(feature = "terminal")]
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
+use slim::budget::{parse_bytes, Budget};
 #[cfg(feature = "imaging")]
 use slim::compare::{compare_images, ValueBins};
 use slim::error::{Error, Result};
@@ -66,6 +67,11 @@ enum Command {
         /// Worker threads (default: all cores). Results are identical for any number.
         #[arg(long)]
         threads: Option<usize>,
+        /// Most memory the run may hold, e.g. 8G or 512M (default: three quarters of the
+        /// machine's memory). The plan prints the estimate; a run above it is refused
+        /// before it starts, naming what to change.
+        #[arg(long, value_name = "SIZE", value_parser = size)]
+        max_memory: Option<u64>,
         /// Print nothing but errors.
         #[arg(short, long)]
         quiet: bool,
@@ -252,6 +258,13 @@ struct ServeArgs {
     /// Most facets per job.
     #[arg(long, default_value_t = Limits::default().max_facets)]
     max_facets: usize,
+    /// Most bodies per job.
+    #[arg(long, default_value_t = Limits::default().max_bodies)]
+    max_bodies: usize,
+    /// Most memory one job may hold, e.g. 4G (default: three eighths of the machine's
+    /// memory). Jobs whose estimate is above it are refused with 422.
+    #[arg(long, value_name = "SIZE", value_parser = size)]
+    max_job_memory: Option<u64>,
     /// Most time steps per job.
     #[arg(long, default_value_t = Limits::default().max_steps)]
     max_steps: usize,
@@ -291,6 +304,10 @@ impl ServeArgs {
             limits: Limits {
                 max_body_bytes: self.max_body_bytes,
                 max_facets: self.max_facets,
+                max_bodies: self.max_bodies,
+                max_job_memory_bytes: self
+                    .max_job_memory
+                    .unwrap_or(Limits::default().max_job_memory_bytes),
                 max_steps: self.max_steps,
                 max_query_targets: self.max_query_targets,
                 max_query_values: self.max_query_values,
@@ -413,6 +430,7 @@ fn execute(cli: Cli) -> Result<()> {
             scene,
             output,
             threads,
+            max_memory,
             quiet,
             #[cfg(feature = "report")]
             report,
@@ -423,7 +441,14 @@ fn execute(cli: Cli) -> Result<()> {
             let scene = Scene::load(&scene)?;
             let out = output.unwrap_or_else(|| PathBuf::from("results").join(&scene.name));
             let progress = TerminalProgress::new(quiet);
-            let record = run_scene(&scene, &out, &progress)?;
+            let budget = match max_memory {
+                Some(max_bytes) => Budget {
+                    max_bytes,
+                    source: "--max-memory",
+                },
+                None => Budget::machine(),
+            };
+            let record = run_scene(&scene, &out, &budget, &progress)?;
             if !quiet {
                 eprintln!(
                     "wrote {} files to {} ({} facets, {} steps, {} shadow rays)",
@@ -574,6 +599,11 @@ fn execute(cli: Cli) -> Result<()> {
             ))
         }
     }
+}
+
+/// A memory size from the command line (`8G`, `512M`, bytes), see [`parse_bytes`].
+fn size(text: &str) -> std::result::Result<u64, String> {
+    parse_bytes(text).ok_or_else(|| format!("'{text}' is not a size such as 8G, 512M or 1000000"))
 }
 
 /// The most worker threads a run may ask for: eight per core. More only add memory and

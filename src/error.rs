@@ -58,6 +58,10 @@ pub enum Error {
     /// A command-line argument is invalid.
     #[error("{0}")]
     Usage(String),
+    /// A run would need more memory than it may use: how much, for what, and the knob
+    /// that shrinks it.
+    #[error("{0}")]
+    OverBudget(String),
     /// The run was stopped on request before it finished (a cancelled service job).
     #[error("the run was cancelled")]
     Cancelled,

@@ -34,6 +34,7 @@
 //! | bodies | [`world`] | meshes and poses in the scene frame |
 //! | geometry | [`ephemeris`] | epochs → Sun direction (unit), distance (m), flux (W/m²), poses |
 //! | decisions | [`plan`] | scene and world → the stages that run and why |
+//! | memory | [`budget`] | counts (facets, steps, bins, pairs) → bytes, checked before allocating |
 //! | shadows | [`trace`] | exact shadow rays: uniform grid, Sun-view grid, BVH |
 //! | direct light | [`illum`] | one epoch → W/m² per facet, with shadows |
 //! | reflectance | [`photometry`] | Lambert, Lommel–Seeliger, Hapke: r (sr⁻¹), I/F |
@@ -58,6 +59,7 @@
 
 pub mod analytic;
 pub mod bands;
+pub mod budget;
 #[cfg(feature = "imaging")]
 pub mod compare;
 pub mod ephemeris;

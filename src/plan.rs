@@ -4,6 +4,7 @@
 //! that run, the ones left out and why — printed by the CLI and stored in `run.json`. A
 //! scene pays only for what it needs.
 
+use crate::budget::Estimate;
 use crate::scene::Scene;
 use crate::world::World;
 use serde::{Deserialize, Serialize};
@@ -27,6 +28,10 @@ pub struct Plan {
     pub steps: usize,
     pub tracer: String,
     pub decisions: Vec<Decision>,
+    /// The memory the run will hold, estimated before it is allocated (empty in a plan
+    /// made without the step geometry, and in records older than the estimate).
+    #[serde(default)]
+    pub memory: Estimate,
 }
 
 impl Plan {
@@ -99,6 +104,7 @@ impl Plan {
             steps,
             tracer: format!("{:?}", scene.run.tracer).to_lowercase(),
             decisions,
+            memory: Estimate::default(),
         }
     }
 }
@@ -129,6 +135,9 @@ impl std::fmt::Display for Plan {
         for d in &self.decisions {
             let mark = if d.runs { "run " } else { "skip" };
             writeln!(f, "  {mark} {}: {}", d.stage, d.reason)?;
+        }
+        if !self.memory.items.is_empty() {
+            writeln!(f, "  memory: {}", self.memory)?;
         }
         Ok(())
     }

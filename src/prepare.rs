@@ -9,6 +9,7 @@
 //! This is the only place where a scene becomes geometry: `slim run`, the service's job
 //! planning and point queries, `slim render` and `slim fit` all start here.
 
+use crate::budget::{Budget, Demand};
 use crate::ephemeris::fixed::{normalized_direction, FixedGeometry, FixedSun};
 use crate::ephemeris::spice::{parse_aberration, Kernels, SpiceBody, SpiceEphemeris, SpiceMember};
 use crate::ephemeris::spin::{Spin, SpinModel};
@@ -44,9 +45,11 @@ pub struct Assembly {
     pub ephemeris: Box<dyn Ephemeris>,
 }
 
-/// Loads the scene's kernels (SPICE scenes), builds every body's mesh and the ephemeris.
-/// `timings` gets the stages "kernels" and "mesh input".
-pub fn assemble(scene: &Scene, timings: &mut Timings) -> Result<Assembly> {
+/// Loads the scene's kernels (SPICE scenes), builds every body's mesh and the ephemeris,
+/// after checking what the scene alone asks for (generated facets, steps) against
+/// `budget`. `timings` gets the stages "kernels" and "mesh input".
+pub fn assemble(scene: &Scene, budget: &Budget, timings: &mut Timings) -> Result<Assembly> {
+    budget.check(&scene_demand(scene).estimate())?;
     let kernels = timings.time("kernels", || load_kernels(scene))?;
     let (world, bodies, warnings) =
         timings.time("mesh input", || build_world(scene, kernels.as_ref()))?;
@@ -85,22 +88,87 @@ pub struct Prepared {
 }
 
 /// [`assemble`], then every step's geometry, the scattered-light settings, the CDF bins
-/// and the plan. `timings` also gets the stage "ephemeris".
-pub fn prepare(scene: &Scene, timings: &mut Timings) -> Result<Prepared> {
-    let assembly = assemble(scene, timings)?;
+/// and the plan with the memory estimate; each allocation is checked against `budget`
+/// first. `timings` also gets the stage "ephemeris".
+pub fn prepare(scene: &Scene, budget: &Budget, timings: &mut Timings) -> Result<Prepared> {
+    let assembly = assemble(scene, budget, timings)?;
+    let world = &assembly.world;
+    let mut demand = Demand {
+        facets: world.facet_count() as f64,
+        ..scene_demand(scene)
+    };
+    budget.check(&demand.estimate())?;
     let states = timings.time("ephemeris", || epoch_states(assembly.ephemeris.as_ref()))?;
-    let scatter = ScatterSettings::from_scene(scene, &assembly.world)?;
-    let mut plan = Plan::new(scene, &assembly.world, states.len());
+    let bins = bins_for(scene, &states)?;
+    let scatter = ScatterSettings::from_scene(scene, world)?;
+    demand.bins = bins.count as f64;
+    demand.form_factor_entries = scatter
+        .as_ref()
+        .map_or(0.0, |s| s.estimated_entries(world, &states));
+    let memory = demand.estimate();
+    budget.check(&memory)?;
+    let mut plan = Plan::new(scene, world, states.len());
     if let Some(settings) = &scatter {
-        plan.set_scatter(settings.decisions(&assembly.world, &states));
+        plan.set_scatter(settings.decisions(world, &states));
     }
+    plan.memory = memory;
     Ok(Prepared {
-        bins: bins_for(scene, &states)?,
+        bins,
         assembly,
         states,
         scatter,
         plan,
     })
+}
+
+/// The facets of the scene's generated ellipsoids (20·4^levels each), known before any
+/// mesh is built; mesh files count once they are read.
+pub fn generated_facets(scene: &Scene) -> f64 {
+    scene
+        .bodies
+        .iter()
+        .map(|b| match b.shape() {
+            Shape::Ellipsoid { levels, .. } => 20.0 * 4f64.powi(levels as i32),
+            Shape::File { .. } => 0.0,
+        })
+        .sum()
+}
+
+/// What the scene asks for before any file is read: generated facets, steps and the sets
+/// of statistics.
+fn scene_demand(scene: &Scene) -> Demand {
+    let scatter = scene.scatter.as_ref().is_some_and(|s| s.enabled);
+    let bands = scene.bands.len() as f64;
+    Demand {
+        facets: generated_facets(scene),
+        bodies: scene.bodies.len() as f64,
+        steps: scene.step_count(),
+        bins: 0.0,
+        stat_sets: 1.0
+            + if scatter { 2.0 } else { 0.0 }
+            + if bands > 0.0 { bands + 1.0 } else { 0.0 },
+        batch: if scatter && scene.bodies.len() == 1 {
+            crate::scatter::LANES as f64
+        } else {
+            1.0
+        },
+        history: scene.output.history,
+        form_factor_entries: 0.0,
+        kernel_bytes: kernel_bytes(scene),
+    }
+}
+
+/// The size of the scene's SPICE kernel files (a file that cannot be read counts 0 here:
+/// loading it reports the error).
+fn kernel_bytes(scene: &Scene) -> f64 {
+    let EphemerisSection::Spice(s) = &scene.ephemeris else {
+        return 0.0;
+    };
+    s.kernels
+        .iter()
+        .filter_map(|k| std::fs::metadata(k).ok())
+        .map(|m| m.len() as f64)
+        .sum()
 }
 
 /// The scene's SPICE kernels, loaded, if it is a SPICE scene.
@@ -261,7 +329,7 @@ fn spice_ephemeris(scene: &Scene, s: &SpiceSection, kernels: Kernels) -> Result<
             period_s / steps_per_spin as f64
         }
     };
-    let count = s.steps.count(scene.start) as usize;
+    let count = scene.step_count() as usize;
     let epochs = (0..count)
         .map(|k| scene.start + hifitime::Duration::from_seconds(step_s * k as f64))
         .collect();
@@ -314,7 +382,7 @@ fn spin_model(scene: &Scene, s: &SpinSection) -> SpinModel {
     };
     let hour = 3600.0;
     let period_s = scene.bodies[0].spin_period_h.unwrap_or(1.0) * hour;
-    let steps = ((s.steps_per_period as f64 * s.periods).round() as usize).max(1);
+    let steps = scene.step_count() as usize;
     SpinModel {
         start: scene.start,
         duration_s: period_s * s.periods,

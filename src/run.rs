@@ -8,6 +8,7 @@
 //! service can track jobs.
 
 use crate::bands::Bands;
+use crate::budget::Budget;
 use crate::error::{Error, Result};
 use crate::output::record::{InputFile, RunRecord};
 use crate::output::{self, HistoryWriter};
@@ -19,18 +20,25 @@ use crate::stats::FacetStats;
 use crate::world::World;
 use std::path::{Path, PathBuf};
 
-/// Runs `scene`, writing results into `out_dir`.
-pub fn run_scene(scene: &Scene, out_dir: &Path, progress: &dyn Progress) -> Result<RunRecord> {
+/// Runs `scene` within `budget` (memory), writing results into `out_dir`.
+pub fn run_scene(
+    scene: &Scene,
+    out_dir: &Path,
+    budget: &Budget,
+    progress: &dyn Progress,
+) -> Result<RunRecord> {
     let mut timings = Timings::default();
-    prepare_output_dir(out_dir)?;
-    refuse_foreign_files(out_dir, scene)?;
+    let previous = previous_outputs(out_dir)?;
+    refuse_foreign_files(out_dir, scene, &previous)?;
     let Prepared {
         assembly,
         states,
         scatter,
         bins,
         plan,
-    } = prepare(scene, &mut timings)?;
+    } = prepare(scene, budget, &mut timings)?;
+    // Only now that the scene is known to run is the earlier run cleared away.
+    clear_previous_run(out_dir, previous)?;
     let kernels = assembly.kernel_files()?;
     let world = &assembly.world;
     for w in &assembly.warnings {
@@ -132,38 +140,41 @@ fn write_plys(out_dir: &Path, world: &World, stats: &FacetStats) -> Result<Vec<P
     Ok(files)
 }
 
-/// Creates the output folder and clears a previous run out of it: the files its
-/// `run.json` lists, unfinished `.partial` files, then `run.json` itself. The folder never
-/// vouches for files this run has not written; nothing else in it is touched.
-fn prepare_output_dir(dir: &Path) -> Result<()> {
+/// Creates the output folder and lists what an earlier run in it wrote: the files its
+/// `run.json` lists (bare file names only) and unfinished `.partial` files.
+fn previous_outputs(dir: &Path) -> Result<Vec<String>> {
     std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
-    let record = dir.join("run.json");
     let listed = RunRecord::read(dir).map_or_else(|_| Vec::new(), |r| r.outputs);
     let partial = std::fs::read_dir(dir)
         .map_err(|e| Error::io(dir, e))?
         .filter_map(|entry| entry.ok()?.file_name().into_string().ok())
         .filter(|name| name.ends_with(".partial"));
-    for name in listed
+    Ok(listed
         .into_iter()
         .filter(|n| n != "run.json")
         .chain(partial)
-    {
-        if Path::new(&name).file_name() == Some(std::ffi::OsStr::new(&name)) {
-            remove_if_present(&dir.join(name))?;
-        }
-    }
-    remove_if_present(&record)
+        .filter(|name| Path::new(name).file_name() == Some(std::ffi::OsStr::new(name)))
+        .collect())
 }
 
-/// Refuses to start when a file this run would write is already in the folder: after
-/// [`prepare_output_dir`], no `run.json` of slim lists it, so slim did not write it (an
-/// input mesh named like a body's PLY, say) and will not overwrite it.
-fn refuse_foreign_files(dir: &Path, scene: &Scene) -> Result<()> {
+/// Removes an earlier run's files ([`previous_outputs`]), then its `run.json`, so the
+/// folder never vouches for files this run has not written; nothing else is touched.
+fn clear_previous_run(dir: &Path, previous: Vec<String>) -> Result<()> {
+    for name in previous {
+        remove_if_present(&dir.join(name))?;
+    }
+    remove_if_present(&dir.join("run.json"))
+}
+
+/// Refuses to start when a file this run would write is already in the folder and the
+/// earlier run's `run.json` does not list it: slim did not write it (an input mesh named
+/// like a body's PLY, say) and will not overwrite it.
+fn refuse_foreign_files(dir: &Path, scene: &Scene, previous: &[String]) -> Result<()> {
     let bodies: Vec<&str> = scene.bodies.iter().map(|b| b.name.as_str()).collect();
     let o = &scene.output;
     for name in output::file_names(o.csv, o.history, o.ply, &bodies) {
         let path = dir.join(&name);
-        if path.exists() {
+        if path.exists() && !previous.contains(&name) {
             return Err(Error::file(
                 &path,
                 "is in the output folder but no run.json of slim lists it: slim does not \

@@ -312,6 +312,46 @@ fn absurd_bins_and_fluxes_are_one_line_errors_naming_the_bin_width() {
     }
 }
 
+/// A run whose estimate is above `--max-memory` is refused before it starts, naming the
+/// estimate, the limit, the largest part and the key that shrinks it; the results of the
+/// earlier run in the same folder stay as they were (a failing scene used to clear them
+/// first). The plan in `run.json` carries the estimate.
+#[test]
+fn a_run_above_its_memory_limit_is_refused_and_the_earlier_results_stay() {
+    let dir = TempDir::new("budget");
+    let scene = write_scene(&dir, "ito.toml");
+    assert!(slim(&["run", s(&scene), "-o", "out", "-q"], &dir.0)
+        .status
+        .success());
+    let record = std::fs::read_to_string(dir.join("out/run.json")).unwrap();
+    assert!(
+        record.contains("\"memory\"") && record.contains("statistics"),
+        "{record}"
+    );
+    let summary = std::fs::read(dir.join("out/summary.csv")).unwrap();
+    // 0.002 W/m² bins up to ~1,100 W/m²: 768 facets × 560,000 counts, about 1.7 GB.
+    let fine = dir.join("fine.toml");
+    let toml = std::fs::read_to_string(&scene).unwrap();
+    std::fs::write(&fine, format!("[run]\nbin_width_w_m2 = 0.002\n{toml}")).unwrap();
+    let out = slim(
+        &["run", s(&fine), "-o", "out", "-q", "--max-memory", "64M"],
+        &dir.0,
+    );
+    assert_one_line_error(
+        &out,
+        &[
+            "64.0 MiB",
+            "--max-memory",
+            "statistics",
+            "run.bin_width_w_m2",
+        ],
+    );
+    assert_eq!(std::fs::read(dir.join("out/summary.csv")).unwrap(), summary);
+    assert!(dir.join("out/run.json").exists());
+    let out = slim(&["run", s(&fine), "--max-memory", "lots"], &dir.0);
+    assert_one_line_error(&out, &["--max-memory", "'lots' is not a size"]);
+}
+
 /// A file in the output folder that no run.json of slim lists is never overwritten: here
 /// the input mesh itself, named like the body's result PLY, with `-o` pointing at the
 /// mesh's folder (it used to be replaced by the result and deleted by the next run).

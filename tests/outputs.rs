@@ -115,7 +115,7 @@ struct Finished {
 
 fn run_into(scene_path: &Path, out: &Path) -> slim::Result<slim::output::record::RunRecord> {
     let scene = Scene::load(scene_path)?;
-    run_scene(&scene, out, &Silent)
+    run_scene(&scene, out, &Default::default(), &Silent)
 }
 
 /// Removes shared run folders left by earlier test processes that have ended (statics are
@@ -1078,33 +1078,50 @@ fn missing_mesh_fails_naming_the_mesh_path() {
     assert!(!dir.path().join("out/run.json").exists());
 }
 
+/// A run that fails before its first step (here on a broken mesh) loses nothing: the
+/// earlier run's files and its `run.json` stay exactly as they were, still describing
+/// each other. (Runs used to clear the folder first, so a typo cost the earlier results.)
 #[test]
-fn a_failed_run_removes_the_previous_run_json() {
+fn a_run_that_fails_before_it_starts_leaves_the_earlier_run_as_it_was() {
     let dir = TempDir::new("stale-record");
     let scene = write_fixed_scene(dir.path());
     let out = dir.path().join("out");
     run_into(&scene, &out).expect("first run");
-    assert!(out.join("run.json").is_file());
+    let before: Vec<(std::path::PathBuf, Vec<u8>)> = std::fs::read_dir(&out)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .map(|p| (p.clone(), std::fs::read(&p).unwrap()))
+        .collect();
+    assert!(before.iter().any(|(p, _)| p.ends_with("run.json")));
     // Break a mesh: the next run fails while reading it.
     std::fs::write(dir.path().join("b.obj"), "v 0 0 0\nv 1 0 0\nf 1 2 7\n").unwrap();
     let msg = run_into(&scene, &out).expect_err("broken mesh").to_string();
     assert!(msg.contains("b.obj"), "{msg}");
-    assert!(
-        !out.join("run.json").exists(),
-        "old run.json vouches for a failed run"
-    );
+    for (path, bytes) in &before {
+        assert_eq!(&std::fs::read(path).unwrap(), bytes, "{}", path.display());
+    }
 }
 
+/// A `run.json` that slim did not write is left alone by a run that fails, and replaced by
+/// the record of a run that succeeds.
 #[test]
-fn a_planted_run_json_is_removed_when_a_run_starts() {
+fn a_planted_run_json_is_replaced_only_by_a_finished_run() {
     let dir = TempDir::new("planted-record");
     let scene = write_fixed_scene(dir.path());
+    let good = std::fs::read(dir.path().join("a.obj")).unwrap();
     std::fs::write(dir.path().join("a.obj"), "this is not a mesh\n").unwrap();
     let out = dir.path().join("out");
     std::fs::create_dir_all(&out).unwrap();
     std::fs::write(out.join("run.json"), "{\"old\": true}").unwrap();
     run_into(&scene, &out).expect_err("broken mesh");
-    assert!(!out.join("run.json").exists());
+    assert_eq!(
+        std::fs::read(out.join("run.json")).unwrap(),
+        b"{\"old\": true}"
+    );
+    std::fs::write(dir.path().join("a.obj"), good).unwrap();
+    run_into(&scene, &out).expect("fixed mesh");
+    let record = std::fs::read_to_string(out.join("run.json")).unwrap();
+    assert!(record.contains("\"outputs\""), "{record}");
 }
 
 #[test]

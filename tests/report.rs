@@ -71,7 +71,7 @@ fn shared() -> &'static (PathBuf, PathBuf) {
         let dir = fresh_dir("shared");
         let scene = Scene::load(&write_scene(&dir)).expect("scene");
         let out = dir.join("out");
-        run_scene(&scene, &out, &Silent).expect("run");
+        run_scene(&scene, &out, &Default::default(), &Silent).expect("run");
         let report = write_report(&out, None, &ReportOptions::default()).expect("report");
         assert_eq!(report.dir, out.join("report"));
         (out, report.dir)
@@ -449,7 +449,13 @@ fn a_run_with_a_generated_ellipsoid_and_two_bodies_reports_on_the_first() {
            position_km = [0.0, 40.0, 0.0]\n";
     std::fs::write(&scene, text).unwrap();
     let out = dir.join("out");
-    run_scene(&Scene::load(&scene).unwrap(), &out, &Silent).expect("run");
+    run_scene(
+        &Scene::load(&scene).unwrap(),
+        &out,
+        &Default::default(),
+        &Silent,
+    )
+    .expect("run");
     let report = write_report(&out, None, &ReportOptions::default()).expect("report");
     let html = std::fs::read_to_string(report.dir.join("index.html")).unwrap();
     assert!(

@@ -145,6 +145,14 @@ fn unit_square_against(second: (DVec3, DVec3, DVec3), n: u32, exact: f64, case: 
     error.abs()
 }
 
+/// Runs `scene` into `out` with the default memory budget and no progress output.
+fn run_into(
+    scene: &slim::scene::Scene,
+    out: &std::path::Path,
+) -> slim::Result<slim::output::record::RunRecord> {
+    slim::run::run_scene(scene, out, &Default::default(), &slim::progress::Silent)
+}
+
 #[test]
 fn howell_catalogue_closed_forms_coarse_and_fine() {
     // The tolerance 0.5 % covers the near-field quadrature (3e-4 per split, measured
@@ -587,7 +595,7 @@ fn scene_keys_are_checked_with_their_paths() {
     std::fs::write(dir.0.join("a.txt"), "# albedo\n0.1\nabc\n").unwrap();
     let path = bowl_scene(&dir.0, "albedo_file = \"a.txt\"\n[scatter]");
     let scene = slim::scene::Scene::load(&path).unwrap();
-    let err = slim::run::run_scene(&scene, &dir.0.join("out"), &slim::progress::Silent)
+    let err = run_into(&scene, &dir.0.join("out"))
         .unwrap_err()
         .to_string();
     assert!(err.contains("a.txt") && err.contains("line 3"), "{err}");
@@ -604,7 +612,7 @@ fn run_writes_direct_scattered_and_total_columns() {
     );
     let scene = slim::scene::Scene::load(&path).unwrap();
     let out = dir.0.join("out");
-    let record = slim::run::run_scene(&scene, &out, &slim::progress::Silent).unwrap();
+    let record = run_into(&scene, &out).unwrap();
     let rec = record.scatter.as_ref().expect("scatter record");
     assert_eq!(rec.solves, 2);
     assert!(rec.residual_max < 1e-8 && rec.not_converged == 0);
@@ -657,7 +665,7 @@ fn without_a_scatter_section_outputs_are_unchanged() {
     let dir = TempDir::new("off");
     let path = bowl_scene(&dir.0, "");
     let scene = slim::scene::Scene::load(&path).unwrap();
-    let record = slim::run::run_scene(&scene, &dir.0.join("out"), &slim::progress::Silent).unwrap();
+    let record = run_into(&scene, &dir.0.join("out")).unwrap();
     assert!(record.scatter.is_none());
     let (h, _) = csv_columns(&dir.0.join("out/summary.csv"));
     assert!(!h
@@ -793,7 +801,7 @@ fn bowl_means(dir: &TempDir, tag: &str, extra: &str, names: &[&str]) -> Vec<Vec<
     let sub = dir.0.join(tag);
     std::fs::create_dir_all(&sub).unwrap();
     let scene = slim::scene::Scene::load(&bowl_scene(&sub, extra)).unwrap();
-    slim::run::run_scene(&scene, &sub.join("out"), &slim::progress::Silent).unwrap();
+    run_into(&scene, &sub.join("out")).unwrap();
     let (h, rows) = csv_columns(&sub.join("out/summary.csv"));
     names.iter().map(|n| column(&h, &rows, n)).collect()
 }
@@ -896,7 +904,7 @@ fn solves_that_stop_above_the_tolerance_are_a_warning() {
         "albedo = 0.9\n[scatter]\nsolver = \"jacobi\"\nmax_orders = 1\ntolerance = 1e-9",
     );
     let scene = slim::scene::Scene::load(&path).unwrap();
-    let record = slim::run::run_scene(&scene, &dir.0.join("out"), &slim::progress::Silent).unwrap();
+    let record = run_into(&scene, &dir.0.join("out")).unwrap();
     let rec = record.scatter.as_ref().expect("scatter record");
     assert!(rec.not_converged > 0);
     let warning = record
@@ -912,8 +920,7 @@ fn solves_that_stop_above_the_tolerance_are_a_warning() {
     // A converged run warns of nothing of the kind.
     let path = bowl_scene(&dir.0, "albedo = 0.1\n[scatter]");
     let scene = slim::scene::Scene::load(&path).unwrap();
-    let record =
-        slim::run::run_scene(&scene, &dir.0.join("out2"), &slim::progress::Silent).unwrap();
+    let record = run_into(&scene, &dir.0.join("out2")).unwrap();
     assert!(
         !record.warnings.iter().any(|w| w.contains("max_orders")),
         "{:?}",

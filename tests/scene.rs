@@ -848,3 +848,63 @@ fn a_byte_order_mark_before_the_scene_is_ignored() {
     assert_eq!(scene.bodies[0].name, "rock");
     assert_eq!(scene.run.bin_width_w_m2, 10.0);
 }
+
+// ---------------------------------------------------------------------------------------
+// Runs that could never finish are refused before anything is allocated
+
+/// The hardening issue's absurd step counts: each used to be accepted and abort on memory
+/// within seconds; each is now refused naming the key that sets the steps.
+#[test]
+fn absurd_step_counts_are_refused_naming_the_key() {
+    let spin_steps = edit(
+        SPIN,
+        "steps_per_period = 24",
+        "steps_per_period = 1000000000",
+    );
+    assert_rejected(&spin_steps, &["ephemeris.steps_per_period", "1e9 steps"]);
+    let spin_periods = edit(
+        SPIN,
+        "steps_per_period = 24",
+        "steps_per_period = 24\nperiods = 1e30",
+    );
+    assert_rejected(
+        &spin_periods,
+        &["ephemeris.steps_per_period", "steps; at most"],
+    );
+    let window = edit(SPICE, "step_s = 600", "step_s = 1e-9");
+    assert_rejected(&window, &["ephemeris.step_s", "3.6e12 steps"]);
+    let spins = edit(
+        SPICE,
+        "stop = \"2018-06-10T01:00:00 UTC\"\nstep_s = 600",
+        "spins = 1e12",
+    );
+    assert_rejected(&spins, &["ephemeris.spins", "3.6e14 steps"]);
+    // A century of hourly steps is fine.
+    let century = edit(
+        SPICE,
+        "stop = \"2018-06-10T01:00:00 UTC\"",
+        "stop = \"2118-06-10T01:00:00 UTC\"",
+    );
+    parse(&edit(&century, "step_s = 600", "step_s = 3600")).expect("876,600 steps");
+}
+
+/// Every step checks every pair of bodies: a scene of a thousand bodies is refused.
+#[test]
+fn too_many_bodies_are_refused() {
+    let header = SPIN.split("[[body]]").next().unwrap();
+    let bodies = |n: usize| -> String {
+        (0..n)
+            .map(|i| {
+                format!(
+                    "\n[[body]]\nname = \"b{i}\"\nspin_period_h = 5.0\n\
+                     ellipsoid = {{ radii_km = [1, 1, 1], levels = 0 }}\n"
+                )
+            })
+            .collect()
+    };
+    assert_rejected(
+        &(header.to_string() + &bodies(65)),
+        &["body", "65 bodies; at most 64"],
+    );
+    parse(&(header.to_string() + &bodies(64))).expect("64 bodies are allowed");
+}

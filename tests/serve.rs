@@ -886,6 +886,57 @@ fn every_bad_request_gets_a_json_4xx() {
     );
 }
 
+/// The hardening issue's 2 kB request that took the server down: 16 generated ellipsoids
+/// at level 8 (21 million facets). It and its kin are refused with 422 naming the limit
+/// before any mesh is built, and the server goes on answering.
+#[test]
+fn scenes_that_ask_for_too_much_are_refused_before_anything_is_built() {
+    let data = DataDir::new("too-much");
+    let server = Server::start(data.path(), &["--max-job-memory", "64M"]);
+    let s = &server;
+    let ellipsoids = |n: usize, levels: u32| -> String {
+        let head = scene("shapes/itokawa_8.obj", 8);
+        let head = head.split("[[body]]").next().unwrap().to_string();
+        head + &(0..n)
+            .map(|i| {
+                format!(
+                    "[[body]]\nname = \"e{i}\"\nspin_period_h = 12.0\nposition_km = [{}, 0, 0]\n\
+                     ellipsoid = {{ radii_km = [1, 1, 1], levels = {levels} }}\n",
+                    10 * i
+                )
+            })
+            .collect::<String>()
+    };
+    let expect_limit = |reply: (u16, serde_json::Value), needles: &[&str]| {
+        let message = reply.1["error"]["message"]
+            .as_str()
+            .unwrap_or("")
+            .to_string();
+        assert_error(reply, 422, "limit_exceeded");
+        for n in needles {
+            assert!(message.contains(n), "{message} lacks {n}");
+        }
+    };
+    expect_limit(
+        post_toml(s, &ellipsoids(16, 8)),
+        &["20971520 facets", "at most 2000000"],
+    );
+    expect_limit(
+        post_toml(s, &ellipsoids(17, 0)),
+        &["17 bodies", "at most 16"],
+    );
+    let fine_bins = scene("shapes/itokawa_8.obj", 8)
+        .replace("name = \"ito\"", "name = \"ito\"\nbin_width_w_m2 = 0.002");
+    expect_limit(
+        post_toml(s, &fine_bins),
+        &["64.0 MiB", "--max-job-memory", "statistics"],
+    );
+    // Still answering, with nothing queued.
+    let (status, jobs) = get(s, "/v1/jobs");
+    assert_eq!(status, 200);
+    assert_eq!(jobs["jobs"].as_array().map(Vec::len), Some(0), "{jobs}");
+}
+
 #[test]
 fn the_token_guards_mutating_endpoints_and_optionally_reads() {
     let data = DataDir::new("token");

@@ -528,7 +528,8 @@ fn a_synthetic_moonlet_follows_its_circular_orbit_and_faces_its_primary() {
 #[test]
 fn the_moon_example_places_haworth_and_keeps_its_floor_in_shadow() {
     let scene = slim::scene::Scene::load(&root().join("data/moon-haworth.toml")).unwrap();
-    let prepared = slim::prepare::prepare(&scene, &mut Default::default()).unwrap();
+    let prepared =
+        slim::prepare::prepare(&scene, &Default::default(), &mut Default::default()).unwrap();
     let (world, states) = (&prepared.assembly.world, &prepared.states);
     assert_eq!(states.len(), 720);
     let sim = slim::simulate::statistics(world, states, scene.run.tracer, prepared.bins).unwrap();

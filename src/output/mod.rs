@@ -25,6 +25,7 @@ pub mod read;
 pub mod record;
 pub mod table;
 
+use crate::budget::CDF_ROWS_PER_BATCH;
 use crate::ephemeris::EpochState;
 use crate::error::Result;
 use crate::simulate::StepIrradiance;
@@ -84,7 +85,7 @@ pub fn write_summary(
     parts: NamedStats,
 ) -> Result<Vec<PathBuf>> {
     let mut writer = TableWriter::new(dir, "summary", csv);
-    for_facet_batches(world, |body, range, offset| {
+    for_facet_batches(world, FACETS_PER_BATCH, |body, range, offset| {
         let mesh = &world.bodies[body].mesh;
         let global = || range.clone().map(|i| offset + i);
         let vec_column = |f: &dyn Fn(usize) -> f64| Values::F64(range.clone().map(f).collect());
@@ -127,7 +128,9 @@ pub fn write_cdf(
 ) -> Result<Vec<PathBuf>> {
     let mut writer = TableWriter::new(dir, "cdf", csv);
     let bins = stats.bins();
-    for_facet_batches(world, |body, range, offset| {
+    // A batch holds facets × thresholds rows: bound the rows, not the facets.
+    let per_batch = (CDF_ROWS_PER_BATCH / bins.count).clamp(1, FACETS_PER_BATCH);
+    for_facet_batches(world, per_batch, |body, range, offset| {
         let rows = range.len() * bins.count;
         let mut facet = Vec::with_capacity(rows);
         let mut threshold = Vec::with_capacity(rows);
@@ -234,15 +237,17 @@ pub fn utc_string(state: &EpochState) -> String {
     )
 }
 
-/// Calls `f(body, local facet range, body offset)` for batches of facets, body by body.
+/// Calls `f(body, local facet range, body offset)` for batches of `per_batch` facets,
+/// body by body.
 fn for_facet_batches(
     world: &World,
+    per_batch: usize,
     mut f: impl FnMut(usize, std::ops::Range<usize>, usize) -> Result<()>,
 ) -> Result<()> {
     for (b, offset) in world.offsets().into_iter().enumerate() {
         let n = world.bodies[b].mesh.len();
-        for start in (0..n).step_by(FACETS_PER_BATCH) {
-            f(b, start..(start + FACETS_PER_BATCH).min(n), offset)?;
+        for start in (0..n).step_by(per_batch) {
+            f(b, start..(start + per_batch).min(n), offset)?;
         }
     }
     Ok(())

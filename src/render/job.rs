@@ -13,6 +13,7 @@
 
 use super::camera::Camera;
 use super::{GeometryImage, Renderer};
+use crate::budget::Budget;
 use crate::ephemeris::{Ephemeris, EpochState};
 use crate::error::{Error, Result};
 use crate::image::png::Stretch;
@@ -79,7 +80,7 @@ enum CameraSite {
 impl View {
     /// Loads the scene's bodies and ephemeris.
     pub fn load(scene: &Scene) -> Result<View> {
-        let assembly = assemble(scene, &mut Timings::default())?;
+        let assembly = assemble(scene, &Budget::machine(), &mut Timings::default())?;
         let camera_site = match scene.camera.as_ref().and_then(|c| c.observer_naif_id) {
             Some(observer) => CameraSite::Spice {
                 observer,

@@ -46,7 +46,7 @@ use serde::{Deserialize, Serialize};
 use solve::{Exchange, SolveReport, SolverKind, Stopping};
 use std::borrow::Cow;
 use std::time::Instant;
-use visibility::{cross_block, facets, own_block, Occluder, SAME_FRAME};
+use visibility::{cross_block, facets, facing_pairs, own_block, Occluder, SAME_FRAME};
 
 /// How scattered light is computed.
 #[derive(Debug, Clone, PartialEq)]
@@ -153,17 +153,10 @@ impl Settings {
                 self.near_field.far_ratio
             ),
         }];
-        let offsets = world.offsets();
         let n = world.bodies.len();
         for a in 0..n {
             for b in a + 1..n {
-                let needed = states
-                    .iter()
-                    .filter(|s| {
-                        inter_body_bound(world, &self.albedo, &offsets, s, a, b)
-                            >= self.inter_body_tolerance
-                    })
-                    .collect::<Vec<_>>();
+                let needed = self.needed_steps(world, states, a, b);
                 let moves = needed
                     .windows(2)
                     .filter(|w| relative_pose(w[0], a, b) != relative_pose(w[1], a, b))
@@ -196,6 +189,53 @@ impl Settings {
             }
         }
         out
+    }
+}
+
+impl Settings {
+    /// The steps at which the block between bodies a and b is needed: its bound is at or
+    /// above the inter-body tolerance.
+    fn needed_steps<'s>(
+        &self,
+        world: &World,
+        states: &'s [EpochState],
+        a: usize,
+        b: usize,
+    ) -> Vec<&'s EpochState> {
+        let offsets = world.offsets();
+        states
+            .iter()
+            .filter(|s| {
+                inter_body_bound(world, &self.albedo, &offsets, s, a, b)
+                    >= self.inter_body_tolerance
+            })
+            .collect()
+    }
+
+    /// The form-factor entries the run will store, estimated before they are computed: for
+    /// every body its own block, and for every pair of bodies needed at some step their
+    /// block at the first such step (forward and backward), each from the pairs of facets
+    /// that face each other ([`visibility::facing_pairs`]).
+    pub fn estimated_entries(&self, world: &World, states: &[EpochState]) -> f64 {
+        let own: f64 = world
+            .bodies
+            .iter()
+            .map(|b| {
+                let f = facets(&b.mesh, &SAME_FRAME);
+                facing_pairs(&f, &f, true)
+            })
+            .sum();
+        let n = world.bodies.len();
+        let between: f64 = (0..n)
+            .flat_map(|a| (a + 1..n).map(move |b| (a, b)))
+            .filter_map(|(a, b)| {
+                let first = *self.needed_steps(world, states, a, b).first()?;
+                let rows = facets(&world.bodies[a].mesh, &SAME_FRAME);
+                let cols = facets(&world.bodies[b].mesh, &relative_pose(first, a, b));
+                Some(2.0 * facing_pairs(&rows, &cols, false))
+            })
+            .sum();
+        own + between
     }
 }
 

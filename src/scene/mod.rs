@@ -18,7 +18,7 @@ pub mod schema;
 mod validate;
 
 pub use schema::*;
-pub use validate::camera_size_problem;
+pub use validate::{camera_size_problem, MAX_BODIES, MAX_STEPS};
 
 use crate::error::{Error, Result};
 use hifitime::Epoch;
@@ -121,6 +121,29 @@ impl Scene {
             }
         }
         files
+    }
+
+    /// How many steps the scene asks for, counted from the scene alone, before any file
+    /// is read. A float, so that absurd requests (`periods = 1e30`) are told apart before
+    /// anything is allocated.
+    pub fn step_count(&self) -> f64 {
+        match &self.ephemeris {
+            EphemerisSection::Spin(s) => (s.steps_per_period as f64 * s.periods).round().max(1.0),
+            EphemerisSection::Fixed(f) => f.sun.len() as f64,
+            EphemerisSection::Spice(s) => s.steps.count(self.start),
+        }
+    }
+
+    /// The key that sets the number of steps, for errors that ask for fewer.
+    pub fn step_key(&self) -> &'static str {
+        match &self.ephemeris {
+            EphemerisSection::Spin(_) => "ephemeris.steps_per_period",
+            EphemerisSection::Fixed(_) => "ephemeris.sun",
+            EphemerisSection::Spice(s) => match s.steps {
+                SpiceSteps::Window { .. } => "ephemeris.step_s",
+                SpiceSteps::Spins { .. } => "ephemeris.spins",
+            },
+        }
     }
 
     /// The scene's solar constant (W/m² at 1 AU).

@@ -7,12 +7,28 @@ use super::schema::*;
 use super::Scene;
 use crate::error::Result;
 
+/// The most steps a scene may ask for: a century of one-minute steps fits, a run that
+/// could not finish in a lifetime does not.
+pub const MAX_STEPS: usize = 100_000_000;
+
+/// The most bodies a scene may have: every step checks each pair for shadows.
+pub const MAX_BODIES: usize = 64;
+
 impl Scene {
     pub(super) fn validate(&self) -> Result<()> {
         positive(self, "run.bin_width_w_m2", self.run.bin_width_w_m2)?;
         check_name(self, "run.name", &self.name)?;
         if self.bodies.is_empty() {
             return Err(self.err("body", "a scene needs at least one [[body]]"));
+        }
+        if self.bodies.len() > MAX_BODIES {
+            return Err(self.err(
+                "body",
+                format!(
+                    "{} bodies; at most {MAX_BODIES} (pairs of bodies are checked at every step)",
+                    self.bodies.len()
+                ),
+            ));
         }
         for (i, b) in self.bodies.iter().enumerate() {
             let key = |k: &str| format!("body[{i}].{k}");
@@ -55,7 +71,23 @@ impl Scene {
             EphemerisSection::Spin(s) => self.validate_spin(s),
             EphemerisSection::Fixed(f) => self.validate_fixed(f),
             EphemerisSection::Spice(s) => self.validate_spice(s),
+        }?;
+        self.validate_step_count()
+    }
+
+    /// A run that cannot finish is refused before anything is allocated.
+    fn validate_step_count(&self) -> Result<()> {
+        let steps = self.step_count();
+        if steps.is_nan() || steps > MAX_STEPS as f64 {
+            return Err(self.err(
+                self.step_key(),
+                format!(
+                    "asks for {steps:e} steps; at most {MAX_STEPS} (a century of minute steps \
+                     is 5.3e7): use fewer or longer steps"
+                ),
+            ));
         }
+        Ok(())
     }
 
     fn validate_bands(&self) -> Result<()> {

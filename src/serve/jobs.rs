@@ -10,6 +10,7 @@
 use super::reply::{ApiError, ApiResult};
 use super::scene_input::SceneText;
 use super::store::{self, unix_now, JobRecord, State};
+use crate::budget::Budget;
 use crate::error::{Error, Result};
 use crate::plan::Plan;
 use crate::progress::Progress;
@@ -148,6 +149,8 @@ struct Table {
 
 struct Shared {
     dir: PathBuf,
+    /// The memory each job may hold, checked again when it starts.
+    budget: Budget,
     table: Mutex<Table>,
     wake: Condvar,
 }
@@ -169,7 +172,7 @@ impl Jobs {
     /// Loads the stored jobs of `dir` and starts `workers` compute threads. Jobs that were
     /// running when the service stopped are marked `interrupted`; queued ones queue again;
     /// deletions cut short are finished.
-    pub fn open(dir: &Path, workers: usize, job_threads: usize) -> Result<Jobs> {
+    pub fn open(dir: &Path, workers: usize, job_threads: usize, budget: Budget) -> Result<Jobs> {
         let (stored, notes) = store::load_all(dir)?;
         for note in notes {
             eprintln!("slim serve: {note}");
@@ -209,6 +212,7 @@ impl Jobs {
         }
         let shared = Arc::new(Shared {
             dir: dir.to_path_buf(),
+            budget,
             table: Mutex::new(table),
             wake: Condvar::new(),
         });
@@ -356,7 +360,7 @@ fn work(shared: &Shared, pool: &rayon::ThreadPool) {
         let outcome = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
             pool.install(|| {
                 let scene = scene.parse(dir).map_err(|e| e.message)?;
-                run_scene(&scene, &out, live.as_ref()).map_err(|e| match e {
+                run_scene(&scene, &out, &shared.budget, live.as_ref()).map_err(|e| match e {
                     Error::Cancelled => String::new(),
                     e => e.to_string().replace(&format!("{}/", dir.display()), ""),
                 })

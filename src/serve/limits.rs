@@ -1,6 +1,8 @@
 //! Limits: the bounds the service puts on requests and jobs, all configurable on the
 //! command line. Sizes in bytes, counts of facets, steps and targets.
 
+use crate::budget::Budget;
+
 /// The bounds of one service.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Limits {
@@ -8,6 +10,10 @@ pub struct Limits {
     pub max_body_bytes: usize,
     /// Most facets (all bodies) a job may have.
     pub max_facets: usize,
+    /// Most bodies a job may have.
+    pub max_bodies: usize,
+    /// Most memory a job may hold (the run's estimate), bytes.
+    pub max_job_memory_bytes: u64,
     /// Most time steps a job may have.
     pub max_steps: usize,
     /// Most facets or locations one query may name.
@@ -21,9 +27,23 @@ impl Default for Limits {
         Limits {
             max_body_bytes: 1 << 20,
             max_facets: 2_000_000,
+            max_bodies: 16,
+            // Half of what one run may take by default: jobs share the machine with
+            // the service's caches and queries.
+            max_job_memory_bytes: Budget::machine().max_bytes / 2,
             max_steps: 100_000,
             max_query_targets: 64,
             max_query_values: 1_000_000,
+        }
+    }
+}
+
+impl Limits {
+    /// The memory budget of one job.
+    pub fn job_budget(&self) -> Budget {
+        Budget {
+            max_bytes: self.max_job_memory_bytes,
+            source: "this service's limit per job, --max-job-memory",
         }
     }
 }

@@ -72,7 +72,12 @@ impl App {
         if !data_dir.is_dir() {
             return Err(Error::file(&data_dir, "the data folder is not a folder"));
         }
-        let jobs = jobs::Jobs::open(&data_dir, config.workers, config.job_threads)?;
+        let jobs = jobs::Jobs::open(
+            &data_dir,
+            config.workers,
+            config.job_threads,
+            config.limits.job_budget(),
+        )?;
         Ok(Arc::new(App {
             data_dir,
             jobs,

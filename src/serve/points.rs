@@ -12,9 +12,11 @@
 //! that owns them and answers requests through a channel; the service keeps a few engines
 //! (most recently built) across requests.
 
+use super::limits::Limits;
 use super::query::{check_facet, nearest_facet, unknown_body, Place};
 use super::reply::{ApiError, ApiResult};
 use super::scene_input::{bad_scene, check_files, SceneText};
+use crate::budget::Budget;
 use crate::ephemeris::Ephemeris;
 use crate::illum::Direct;
 use crate::prepare::assemble;
@@ -92,20 +94,20 @@ pub struct EngineCache {
 const ENGINES: usize = 4;
 
 impl EngineCache {
-    /// Answers `request` on job `id`'s scene, starting its engine if needed. `max_values`
-    /// bounds targets × steps.
+    /// Answers `request` on job `id`'s scene, starting its engine if needed, within
+    /// `limits` (targets × steps per query, memory of the scene).
     pub async fn ask(
         &self,
         dir: &Path,
         id: &str,
         scene: SceneText,
         request: PointsRequest,
-        max_values: usize,
+        limits: &Limits,
     ) -> ApiResult<PointsAnswer> {
         let (reply, answer) = tokio::sync::oneshot::channel();
         let ask = Ask {
             request,
-            max_values,
+            max_values: limits.max_query_values,
             reply,
         };
         {
@@ -116,7 +118,7 @@ impl EngineCache {
                     if engines.len() >= ENGINES {
                         engines.clear();
                     }
-                    let s = start_engine(dir.to_path_buf(), scene)?;
+                    let s = start_engine(dir.to_path_buf(), scene, limits.job_budget())?;
                     engines.insert(id.to_string(), s.clone());
                     s
                 }
@@ -140,18 +142,18 @@ impl EngineCache {
     }
 }
 
-fn start_engine(dir: PathBuf, scene: SceneText) -> ApiResult<mpsc::Sender<Ask>> {
+fn start_engine(dir: PathBuf, scene: SceneText, budget: Budget) -> ApiResult<mpsc::Sender<Ask>> {
     let (tx, rx) = mpsc::channel::<Ask>();
     std::thread::Builder::new()
         .name("slim-points".into())
-        .spawn(move || engine(&dir, &scene, rx))
+        .spawn(move || engine(&dir, &scene, &budget, rx))
         .map_err(|e| ApiError::internal(format!("cannot start a point-query engine: {e}")))?;
     Ok(tx)
 }
 
 /// The engine thread: builds the scene once, then answers until its sender is dropped.
-fn engine(dir: &Path, scene: &SceneText, asks: mpsc::Receiver<Ask>) {
-    match build(dir, scene) {
+fn engine(dir: &Path, scene: &SceneText, budget: &Budget, asks: mpsc::Receiver<Ask>) {
+    match build(dir, scene, budget) {
         Ok((world, ephemeris)) => {
             let direct = Direct::new(&world, TracerKind::Grid);
             for ask in asks {
@@ -167,10 +169,11 @@ fn engine(dir: &Path, scene: &SceneText, asks: mpsc::Receiver<Ask>) {
     }
 }
 
-fn build(dir: &Path, text: &SceneText) -> ApiResult<(World, Box<dyn Ephemeris>)> {
+fn build(dir: &Path, text: &SceneText, budget: &Budget) -> ApiResult<(World, Box<dyn Ephemeris>)> {
     let scene = text.parse(dir)?;
     check_files(dir, &scene)?;
-    let assembly = assemble(&scene, &mut Timings::default()).map_err(|e| bad_scene(dir, &e))?;
+    let assembly =
+        assemble(&scene, budget, &mut Timings::default()).map_err(|e| bad_scene(dir, &e))?;
     Ok((assembly.world, assembly.ephemeris))
 }
 
@@ -349,7 +352,7 @@ spin_period_h = 12.0
             .into(),
             parse_path: dir.join("t.toml"),
         };
-        let (world, ephemeris) = build(&dir, &text).unwrap();
+        let (world, ephemeris) = build(&dir, &text, &Budget::machine()).unwrap();
         let grid = Direct::new(&world, TracerKind::Grid);
         let sunview = Direct::new(&world, TracerKind::Sunview);
         let facets: Vec<(usize, usize)> = (0..world.facet_count()).map(|i| (0, i)).collect();

@@ -300,7 +300,7 @@ async fn irradiance(
     let scene = app.jobs.scene(&id)?;
     let answer = app
         .points
-        .ask(&app.data_dir, &id, scene, request, limits.max_query_values)
+        .ask(&app.data_dir, &id, scene, request, &limits)
         .await?;
     Ok(json(&answer))
 }

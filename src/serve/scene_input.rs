@@ -13,10 +13,11 @@
 use super::catalogue::{check_joined, resolve};
 use super::limits::Limits;
 use super::reply::{ApiError, ApiResult};
+use crate::error::Error;
 use crate::plan::Plan;
-use crate::prepare::assemble;
+use crate::prepare::{generated_facets, prepare};
 use crate::progress::Timings;
-use crate::scene::{EphemerisSection, Scene};
+use crate::scene::Scene;
 use serde_json::Value;
 use std::path::{Path, PathBuf};
 
@@ -156,23 +157,25 @@ pub struct Planned {
     pub plan: Plan,
 }
 
-/// Parses the scene, checks its files and limits, loads its shapes and returns its plan.
-/// Blocking (reads meshes and kernels).
+/// Parses the scene, checks its files and limits, loads its shapes and returns its plan
+/// with the memory estimate. Counts the scene states by itself (bodies, steps, generated
+/// facets) are checked before anything is read or built. Blocking (reads meshes and
+/// kernels).
 pub fn plan(dir: &Path, text: &SceneText, limits: &Limits) -> ApiResult<Planned> {
     let scene = text.parse(dir)?;
     check_files(dir, &scene)?;
-    check_spice_steps(&scene, limits)?;
-    let assembly = assemble(&scene, &mut Timings::default()).map_err(|e| bad_scene(dir, &e))?;
-    let facets = assembly.world.facet_count();
+    check_counts(&scene, limits)?;
+    let prepared =
+        prepare(&scene, &limits.job_budget(), &mut Timings::default()).map_err(|e| match e {
+            Error::OverBudget(msg) => ApiError::unprocessable("limit_exceeded", msg),
+            e => bad_scene(dir, &e),
+        })?;
+    let facets = prepared.assembly.world.facet_count();
     if facets > limits.max_facets {
         return Err(over_limit("facets", facets, limits.max_facets));
     }
-    let steps = assembly.ephemeris.steps();
-    if steps > limits.max_steps {
-        return Err(over_limit("steps", steps, limits.max_steps));
-    }
     Ok(Planned {
-        plan: Plan::new(&scene, &assembly.world, steps),
+        plan: prepared.plan,
         name: scene.name,
     })
 }
@@ -186,14 +189,20 @@ pub fn check_files(dir: &Path, scene: &Scene) -> ApiResult<()> {
     Ok(())
 }
 
-/// A SPICE scene lists its epochs when built: bound their number before building.
-fn check_spice_steps(scene: &Scene, limits: &Limits) -> ApiResult<()> {
-    let EphemerisSection::Spice(s) = &scene.ephemeris else {
-        return Ok(());
-    };
-    let steps = s.steps.count(scene.start);
+/// The counts a scene gives before anything is built: bodies, steps and the facets of
+/// generated ellipsoids.
+fn check_counts(scene: &Scene, limits: &Limits) -> ApiResult<()> {
+    let bodies = scene.bodies.len();
+    if bodies > limits.max_bodies {
+        return Err(over_limit("bodies", bodies, limits.max_bodies));
+    }
+    let steps = scene.step_count();
     if steps > limits.max_steps as f64 {
         return Err(over_limit("steps", steps.ceil() as usize, limits.max_steps));
+    }
+    let generated = generated_facets(scene);
+    if generated > limits.max_facets as f64 {
+        return Err(over_limit("facets", generated as usize, limits.max_facets));
     }
     Ok(())
 }
