@@ -142,7 +142,7 @@ pub struct Demand {
 
 /// Bytes per facet of the mesh (vertices, triangles, centroids, normals, areas), its
 /// inspection and the shadow tracer's index, as measured on the shipped meshes.
-const GEOMETRY_BYTES_PER_FACET: f64 = 400.0;
+pub const GEOMETRY_BYTES_PER_FACET: f64 = 400.0;
 
 /// Bytes per step and body of the step geometry kept for the run and of its `geometry`
 /// table, plus the per-step part that does not depend on the bodies: 616 B per step of

@@ -268,6 +268,17 @@ struct ServeArgs {
     /// Most time steps per job.
     #[arg(long, default_value_t = Limits::default().max_steps)]
     max_steps: usize,
+    /// Most memory each of the two caches may hold (finished runs for queries, scenes
+    /// built for point queries), e.g. 1G.
+    #[arg(long, value_name = "SIZE", value_parser = size)]
+    cache_memory: Option<u64>,
+    /// Most heavy queries (point irradiance, windows) computed at once; more get 503
+    /// (default: the number of cores; 0 switches them off).
+    #[arg(long)]
+    max_heavy_queries: Option<usize>,
+    /// Longest a heavy query may take, seconds; slower ones get 503.
+    #[arg(long, default_value_t = Limits::default().query_timeout_s)]
+    query_timeout_s: u64,
     /// Most facets or places per query.
     #[arg(long, default_value_t = Limits::default().max_query_targets)]
     max_query_targets: usize,
@@ -291,6 +302,7 @@ impl ServeArgs {
             None => None,
         };
         let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+        let defaults = Limits::default();
         Ok(serve::Config {
             data_dir: self.data,
             listen: self.listen,
@@ -305,9 +317,10 @@ impl ServeArgs {
                 max_body_bytes: self.max_body_bytes,
                 max_facets: self.max_facets,
                 max_bodies: self.max_bodies,
-                max_job_memory_bytes: self
-                    .max_job_memory
-                    .unwrap_or(Limits::default().max_job_memory_bytes),
+                max_job_memory_bytes: self.max_job_memory.unwrap_or(defaults.max_job_memory_bytes),
+                cache_bytes: self.cache_memory.unwrap_or(defaults.cache_bytes),
+                max_heavy_queries: self.max_heavy_queries.unwrap_or(defaults.max_heavy_queries),
+                query_timeout_s: self.query_timeout_s.max(1),
                 max_steps: self.max_steps,
                 max_query_targets: self.max_query_targets,
                 max_query_values: self.max_query_values,

@@ -576,6 +576,54 @@ fn a_killed_server_keeps_finished_jobs_and_reports_interrupted_ones() {
     assert_eq!(wait_done(&server, &queued)["state"], "succeeded");
 }
 
+/// A stored job whose `job.json` names another folder (copied or crafted) is skipped at
+/// start, never used to remove that folder (the service removed folders by the id read
+/// from the record, so a "deleted" record naming `victim` took `jobs/victim` with it).
+#[test]
+fn a_job_record_naming_another_folder_removes_nothing() {
+    let data = DataDir::new("foreign-record");
+    let server = Server::start(data.path(), &[]);
+    let id = run_quick_job(&server);
+    server.kill();
+    let jobs = data.path().join("jobs");
+    std::fs::create_dir_all(jobs.join("victim")).unwrap();
+    std::fs::write(jobs.join("victim/keep.txt"), "the user's").unwrap();
+    let record_path = jobs.join(&id).join("job.json");
+    let mut record: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(&record_path).unwrap()).unwrap();
+    record["id"] = "victim".into();
+    record["state"] = "deleted".into();
+    std::fs::write(&record_path, serde_json::to_vec(&record).unwrap()).unwrap();
+
+    let server = Server::start(data.path(), &[]);
+    let (status, list) = get(&server, "/v1/jobs");
+    assert_eq!(status, 200);
+    assert_eq!(list["jobs"].as_array().map(Vec::len), Some(0), "{list}");
+    assert!(jobs.join("victim/keep.txt").is_file());
+    assert!(
+        jobs.join(&id).is_dir(),
+        "the skipped job's folder is left for a person to look at"
+    );
+}
+
+/// Point and window queries compute or scan per request: they run under their own permits
+/// (`--max-heavy-queries`, 0 switches them off) and time limit, while the light queries
+/// go on.
+#[test]
+fn heavy_queries_have_their_own_gate() {
+    let data = DataDir::new("heavy");
+    let server = Server::start(data.path(), &["--max-heavy-queries", "0"]);
+    let s = &server;
+    let id = run_quick_job(s);
+    let (status, _) = get(s, &format!("/v1/jobs/{id}/facets?ids=1"));
+    assert_eq!(status, 200);
+    let irradiance = format!("/v1/jobs/{id}/irradiance");
+    let point = serde_json::json!({"targets": [{"facet": 1}]});
+    assert_error(post_json(s, &irradiance, &point), 503, "busy");
+    let windows = format!("/v1/jobs/{id}/windows?facet=1&threshold_w_m2=10");
+    assert_error(get(s, &windows), 503, "busy");
+}
+
 #[test]
 fn deleting_jobs_removes_them_running_or_finished() {
     let data = DataDir::new("delete");

@@ -123,6 +123,23 @@ pub struct RunData {
 }
 
 impl RunData {
+    /// The memory the run takes once read, bytes (for caches that keep runs): per facet
+    /// its row of the summary, its CDF and its mesh, and the geometry rows.
+    pub fn bytes(&self) -> u64 {
+        const FACET_ROW: usize = 7 * 8 + 2 * 24;
+        const MESH_PER_FACET: usize = 12 + 2 * 24 + 8 + 12;
+        const GEOMETRY_ROW: usize = 160;
+        let bodies: usize = self
+            .bodies
+            .iter()
+            .map(|b| {
+                let mesh = b.mesh.as_ref().map_or(0, |m| m.len() * MESH_PER_FACET);
+                b.facets.len() * FACET_ROW + b.cdf.values.len() * 8 + mesh
+            })
+            .sum();
+        (bodies + self.geometry.len() * GEOMETRY_ROW) as u64
+    }
+
     /// Reads the finished run in `dir`.
     pub fn read(dir: &Path) -> Result<RunData> {
         let record = RunRecord::read(dir)?;

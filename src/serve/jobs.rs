@@ -8,7 +8,7 @@
 //! ([`store`]) before it is shown.
 
 use super::reply::{ApiError, ApiResult};
-use super::scene_input::SceneText;
+use super::scene_input::{check_files, SceneText};
 use super::store::{self, unix_now, JobRecord, State};
 use crate::budget::Budget;
 use crate::error::{Error, Result};
@@ -90,10 +90,22 @@ struct Entry {
     record: JobRecord,
     scene: SceneText,
     live: Arc<Live>,
+    /// The result files a succeeded job serves, found when it finished (or when the
+    /// service started), so that listing jobs touches no disk under the lock.
+    results: Vec<&'static str>,
 }
 
 impl Entry {
-    fn view(&self, dir: &Path) -> JobView {
+    fn new(record: JobRecord, scene: SceneText) -> Entry {
+        Entry {
+            record,
+            scene,
+            live: Arc::default(),
+            results: Vec::new(),
+        }
+    }
+
+    fn view(&self) -> JobView {
         let r = &self.record;
         let steps_total = match self.live.total.load(Ordering::Relaxed) {
             0 => r.plan["steps"].as_u64().unwrap_or(0),
@@ -103,16 +115,11 @@ impl Entry {
             State::Succeeded => steps_total,
             _ => self.live.done.load(Ordering::Relaxed),
         };
-        let results = if r.state == State::Succeeded {
-            let folder = store::result_dir(dir, &r.id);
-            RESULT_FILES
-                .iter()
-                .filter(|f| folder.join(f).is_file())
-                .map(|f| format!("/v1/jobs/{}/{f}", r.id))
-                .collect()
-        } else {
-            Vec::new()
-        };
+        let results = self
+            .results
+            .iter()
+            .map(|f| format!("/v1/jobs/{}/{f}", r.id))
+            .collect();
         JobView {
             id: r.id.clone(),
             name: r.name.clone(),
@@ -203,11 +210,10 @@ impl Jobs {
                 toml: scene_toml,
                 parse_path: record.parse_path.clone(),
             };
-            let entry = Entry {
-                record,
-                scene,
-                live: Arc::default(),
-            };
+            let mut entry = Entry::new(record, scene);
+            if entry.record.state == State::Succeeded {
+                entry.results = result_files(&store::result_dir(dir, &entry.record.id));
+            }
             table.jobs.insert(entry.record.id.clone(), entry);
         }
         let shared = Arc::new(Shared {
@@ -260,12 +266,8 @@ impl Jobs {
         };
         store::create(&self.shared.dir, &record, &scene.toml)
             .map_err(|e| ApiError::internal(format!("storing the job: {e}")))?;
-        let entry = Entry {
-            record,
-            scene,
-            live: Arc::default(),
-        };
-        let view = entry.view(&self.shared.dir);
+        let entry = Entry::new(record, scene);
+        let view = entry.view();
         let mut table = self.shared.lock();
         table.jobs.insert(id.clone(), entry);
         table.queue.push_back(id);
@@ -277,11 +279,7 @@ impl Jobs {
     /// Every job, oldest first.
     pub fn list(&self) -> Vec<JobView> {
         let table = self.shared.lock();
-        let mut views: Vec<JobView> = table
-            .jobs
-            .values()
-            .map(|e| e.view(&self.shared.dir))
-            .collect();
+        let mut views: Vec<JobView> = table.jobs.values().map(Entry::view).collect();
         views.sort_by(|a, b| {
             a.timings
                 .submitted_unix_s
@@ -293,13 +291,16 @@ impl Jobs {
     /// One job.
     pub fn get(&self, id: &str) -> ApiResult<JobView> {
         let table = self.shared.lock();
-        find(&table, id).map(|e| e.view(&self.shared.dir))
+        find(&table, id).map(Entry::view)
     }
 
-    /// The scene of a job (any state) and the path it is parsed as.
-    pub fn scene(&self, id: &str) -> ApiResult<SceneText> {
+    /// The scene of a job (any state), and its facets from the plan.
+    pub fn scene(&self, id: &str) -> ApiResult<(SceneText, usize)> {
         let table = self.shared.lock();
-        find(&table, id).map(|e| e.scene.clone())
+        find(&table, id).map(|e| {
+            let facets = e.record.plan["facets"].as_u64().unwrap_or(0) as usize;
+            (e.scene.clone(), facets)
+        })
     }
 
     /// The result folder of a job that has succeeded.
@@ -360,6 +361,9 @@ fn work(shared: &Shared, pool: &rayon::ThreadPool) {
         let outcome = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
             pool.install(|| {
                 let scene = scene.parse(dir).map_err(|e| e.message)?;
+                // The files were checked at submission; a link swapped in since must not
+                // let the run read outside the data folder.
+                check_files(dir, &scene).map_err(|e| e.message)?;
                 run_scene(&scene, &out, &shared.budget, live.as_ref()).map_err(|e| match e {
                     Error::Cancelled => String::new(),
                     e => e.to_string().replace(&format!("{}/", dir.display()), ""),
@@ -369,6 +373,15 @@ fn work(shared: &Shared, pool: &rayon::ThreadPool) {
         .unwrap_or_else(|_| Err("internal error: the run panicked".into()));
         finish(shared, &id, outcome);
     }
+}
+
+/// The result files present in a finished job's folder.
+fn result_files(folder: &Path) -> Vec<&'static str> {
+    RESULT_FILES
+        .iter()
+        .copied()
+        .filter(|f| folder.join(f).is_file())
+        .collect()
 }
 
 /// Waits for a queued job, marks it running and returns what the run needs.
@@ -396,6 +409,10 @@ fn finish(
     id: &str,
     outcome: std::result::Result<crate::output::record::RunRecord, String>,
 ) {
+    let results = match &outcome {
+        Ok(_) => result_files(&store::result_dir(&shared.dir, id)),
+        Err(_) => Vec::new(),
+    };
     let mut table = shared.lock();
     let Some(entry) = table.jobs.get_mut(id) else {
         drop(table);
@@ -405,6 +422,7 @@ fn finish(
         }
         return;
     };
+    entry.results = results;
     let r = &mut entry.record;
     r.finished_unix_s = Some(unix_now());
     match outcome {

@@ -14,6 +14,13 @@ pub struct Limits {
     pub max_bodies: usize,
     /// Most memory a job may hold (the run's estimate), bytes.
     pub max_job_memory_bytes: u64,
+    /// Most memory each of the two caches may hold, bytes: finished runs read for
+    /// queries, and scenes built for point queries. The least recently used goes first.
+    pub cache_bytes: u64,
+    /// Most heavy queries (point irradiance, windows) computed at once; more get 503.
+    pub max_heavy_queries: usize,
+    /// Longest a heavy query may take before it is answered with 503, seconds.
+    pub query_timeout_s: u64,
     /// Most time steps a job may have.
     pub max_steps: usize,
     /// Most facets or locations one query may name.
@@ -31,6 +38,9 @@ impl Default for Limits {
             // Half of what one run may take by default: jobs share the machine with
             // the service's caches and queries.
             max_job_memory_bytes: Budget::machine().max_bytes / 2,
+            cache_bytes: 1 << 30,
+            max_heavy_queries: std::thread::available_parallelism().map_or(1, |n| n.get()),
+            query_timeout_s: 60,
             max_steps: 100_000,
             max_query_targets: 64,
             max_query_values: 1_000_000,

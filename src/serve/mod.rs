@@ -16,6 +16,7 @@ pub mod catalogue;
 pub mod files;
 pub mod jobs;
 pub mod limits;
+pub mod lru;
 pub mod points;
 pub mod query;
 pub mod reply;
@@ -56,6 +57,8 @@ pub struct App {
     pub jobs: jobs::Jobs,
     pub results: query::ResultCache,
     pub points: points::EngineCache,
+    /// Permits for heavy queries (point irradiance, windows): `limits.max_heavy_queries`.
+    pub heavy: tokio::sync::Semaphore,
 }
 
 /// Shared handle on the service state.
@@ -81,8 +84,9 @@ impl App {
         Ok(Arc::new(App {
             data_dir,
             jobs,
-            results: query::ResultCache::default(),
-            points: points::EngineCache::default(),
+            results: query::ResultCache::new(config.limits.cache_bytes),
+            points: points::EngineCache::new(config.limits.cache_bytes),
+            heavy: tokio::sync::Semaphore::new(config.limits.max_heavy_queries),
             config,
         }))
     }

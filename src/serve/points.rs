@@ -9,14 +9,15 @@
 //! grid tracer's, which needs no per-step set-up.
 //!
 //! Each scene's meshes, ephemeris and grids are built once and kept by an engine thread
-//! that owns them and answers requests through a channel; the service keeps a few engines
-//! (most recently built) across requests.
+//! that owns them and answers requests through a channel; the service keeps engines
+//! across requests within a byte budget, the least recently asked leaving first.
 
 use super::limits::Limits;
+use super::lru::Lru;
 use super::query::{check_facet, nearest_facet, unknown_body, Place};
 use super::reply::{ApiError, ApiResult};
 use super::scene_input::{bad_scene, check_files, SceneText};
-use crate::budget::Budget;
+use crate::budget::{Budget, GEOMETRY_BYTES_PER_FACET};
 use crate::ephemeris::Ephemeris;
 use crate::illum::Direct;
 use crate::prepare::assemble;
@@ -24,7 +25,6 @@ use crate::progress::Timings;
 use crate::trace::TracerKind;
 use crate::world::World;
 use serde::{Deserialize, Serialize};
-use std::collections::HashMap;
 use std::ops::Range;
 use std::path::{Path, PathBuf};
 use std::sync::mpsc;
@@ -84,23 +84,28 @@ struct Ask {
     reply: tokio::sync::oneshot::Sender<ApiResult<PointsAnswer>>,
 }
 
-/// Engines by job id.
-#[derive(Default)]
+/// Engines by job id, within a byte budget (each engine holds its scene's meshes and
+/// shadow index); the least recently asked goes first, and its thread ends once it has
+/// answered what it was asked.
 pub struct EngineCache {
-    engines: Mutex<HashMap<String, mpsc::Sender<Ask>>>,
+    engines: Mutex<Lru<mpsc::Sender<Ask>>>,
 }
 
-/// Most engines kept at once.
-const ENGINES: usize = 4;
-
 impl EngineCache {
-    /// Answers `request` on job `id`'s scene, starting its engine if needed, within
-    /// `limits` (targets × steps per query, memory of the scene).
+    /// An empty cache of at most `budget_bytes`.
+    pub fn new(budget_bytes: u64) -> EngineCache {
+        EngineCache {
+            engines: Mutex::new(Lru::new(budget_bytes)),
+        }
+    }
+
+    /// Answers `request` on job `id`'s scene of `facets` facets, starting its engine if
+    /// needed, within `limits` (targets × steps per query, memory of the scene).
     pub async fn ask(
         &self,
         dir: &Path,
         id: &str,
-        scene: SceneText,
+        (scene, facets): (SceneText, usize),
         request: PointsRequest,
         limits: &Limits,
     ) -> ApiResult<PointsAnswer> {
@@ -113,13 +118,11 @@ impl EngineCache {
         {
             let mut engines = self.lock();
             let sender = match engines.get(id) {
-                Some(s) => s.clone(),
+                Some(s) => s,
                 None => {
-                    if engines.len() >= ENGINES {
-                        engines.clear();
-                    }
                     let s = start_engine(dir.to_path_buf(), scene, limits.job_budget())?;
-                    engines.insert(id.to_string(), s.clone());
+                    let bytes = (facets as f64 * GEOMETRY_BYTES_PER_FACET) as u64;
+                    engines.insert(id.to_string(), s.clone(), bytes);
                     s
                 }
             };
@@ -137,7 +140,7 @@ impl EngineCache {
         self.lock().remove(id);
     }
 
-    fn lock(&self) -> std::sync::MutexGuard<'_, HashMap<String, mpsc::Sender<Ask>>> {
+    fn lock(&self) -> std::sync::MutexGuard<'_, Lru<mpsc::Sender<Ask>>> {
         self.engines.lock().unwrap_or_else(|p| p.into_inner())
     }
 }

@@ -6,40 +6,42 @@
 //! frame), normal, latitude/longitude (degrees), min/max/mean irradiance (W/m²), lit
 //! fraction and optionally F(x) at the run's thresholds (W/m²); or the nearest facet.
 
+use super::lru::Lru;
 use super::reply::{ApiError, ApiResult};
 use super::AppState;
 use crate::output::read::{BodyData, RunData};
 use glam::DVec3;
 use serde::{Deserialize, Serialize};
-use std::collections::HashMap;
 use std::sync::{Arc, Mutex};
 
-/// Finished runs held in memory, by job id.
-#[derive(Default)]
+/// Finished runs held in memory, by job id, within a byte budget.
 pub struct ResultCache {
-    runs: Mutex<HashMap<String, Arc<RunData>>>,
+    runs: Mutex<Lru<Arc<RunData>>>,
 }
 
-/// Most runs kept in memory at once.
-const CACHED_RUNS: usize = 16;
-
 impl ResultCache {
+    /// An empty cache of at most `budget_bytes`.
+    pub fn new(budget_bytes: u64) -> ResultCache {
+        ResultCache {
+            runs: Mutex::new(Lru::new(budget_bytes)),
+        }
+    }
+
     /// The finished run of job `id`, read on first use.
     pub async fn get(app: &AppState, id: &str) -> ApiResult<Arc<RunData>> {
         let dir = app.jobs.result_dir(id)?;
         if let Some(run) = app.results.lock().get(id) {
-            return Ok(Arc::clone(run));
+            return Ok(run);
         }
         let run = tokio::task::spawn_blocking(move || RunData::read(&dir))
             .await
             .map_err(|e| ApiError::internal(e.to_string()))?
             .map_err(|e| ApiError::internal(format!("reading the job's results: {e}")))?;
         let run = Arc::new(run);
-        let mut runs = app.results.lock();
-        if runs.len() >= CACHED_RUNS {
-            runs.clear();
-        }
-        runs.insert(id.to_string(), Arc::clone(&run));
+        let bytes = run.bytes();
+        app.results
+            .lock()
+            .insert(id.to_string(), Arc::clone(&run), bytes);
         Ok(run)
     }
 
@@ -48,7 +50,7 @@ impl ResultCache {
         self.lock().remove(id);
     }
 
-    fn lock(&self) -> std::sync::MutexGuard<'_, HashMap<String, Arc<RunData>>> {
+    fn lock(&self) -> std::sync::MutexGuard<'_, Lru<Arc<RunData>>> {
         self.runs.lock().unwrap_or_else(|p| p.into_inner())
     }
 }

@@ -14,7 +14,7 @@ use super::query::{self, FacetsQuery, NearestQuery, ResultCache};
 use super::reply::{json, json_errors, ApiError, ApiResult};
 use super::scene_input::{plan, scene_text};
 use super::windows::{charging_windows, facet_history, WindowsQuery};
-use super::AppState;
+use super::{App, AppState};
 use axum::body::Bytes;
 use axum::extract::{DefaultBodyLimit, Path, Query, Request, State};
 use axum::http::{header, HeaderMap, HeaderValue, StatusCode};
@@ -151,6 +151,41 @@ async fn blocking<T: Send + 'static>(
         .map_err(|e| ApiError::internal(e.to_string()))?
 }
 
+/// Runs a heavy query (one that computes or scans per request) under one of the service's
+/// permits and its time limit: 503 `busy` when every permit is taken, 503 `query_timeout`
+/// when it runs out of time (work already handed to a thread finishes there; its answer
+/// is dropped).
+async fn heavy<T>(
+    app: &App,
+    work: impl std::future::Future<Output = ApiResult<T>>,
+) -> ApiResult<T> {
+    let limits = app.config.limits;
+    let _permit = app.heavy.try_acquire().map_err(|_| {
+        ApiError::unavailable(
+            "busy",
+            match limits.max_heavy_queries {
+                0 => "this service computes no point or window queries (--max-heavy-queries 0)"
+                    .to_string(),
+                n => format!(
+                    "{n} heavy queries are being computed, the most this service runs at \
+                     once; try again shortly"
+                ),
+            },
+        )
+    })?;
+    let limit = std::time::Duration::from_secs(limits.query_timeout_s);
+    tokio::time::timeout(limit, work).await.map_err(|_| {
+        ApiError::unavailable(
+            "query_timeout",
+            format!(
+                "the query took longer than {} s, this service's limit: ask for fewer \
+                 targets, steps or a shorter time range",
+                limits.query_timeout_s
+            ),
+        )
+    })?
+}
+
 async fn list_catalogue(State(app): State<AppState>) -> ApiResult<Response> {
     let dir = app.data_dir.clone();
     let listing = blocking(move || Ok(catalogue::list(&dir))).await?;
@@ -257,10 +292,13 @@ async fn windows(
     }
     let step_s = run.record.duration_s / run.record.plan.steps.max(1) as f64;
     let (dir, name, facet) = (run.dir.clone(), body.name.clone(), q.facet as u32);
-    let samples = blocking(move || {
-        facet_history(&dir, &name, facet)
-            .map_err(|e| ApiError::internal(format!("reading the history: {e}")))
-    })
+    let samples = heavy(
+        &app,
+        blocking(move || {
+            facet_history(&dir, &name, facet)
+                .map_err(|e| ApiError::internal(format!("reading the history: {e}")))
+        }),
+    )
     .await?;
     let within = |t: f64| q.from_tdb_s.is_none_or(|f| t >= f) && q.to_tdb_s.is_none_or(|e| t < e);
     let samples: Vec<(f64, f64)> = samples.into_iter().filter(|s| within(s.0)).collect();
@@ -298,9 +336,10 @@ async fn irradiance(
         ));
     }
     let scene = app.jobs.scene(&id)?;
-    let answer = app
-        .points
-        .ask(&app.data_dir, &id, scene, request, &limits)
-        .await?;
+    let answer = heavy(
+        &app,
+        app.points.ask(&app.data_dir, &id, scene, request, &limits),
+    )
+    .await?;
     Ok(json(&answer))
 }

@@ -150,6 +150,14 @@ fn read_job(dir: &Path, id: &str) -> Result<StoredJob> {
     let bytes = std::fs::read(&path).map_err(|e| Error::io(&path, e))?;
     let record: JobRecord =
         serde_json::from_slice(&bytes).map_err(|e| Error::file(&path, e.to_string()))?;
+    // The folder is removed by the record's id: a record naming another folder (a copied
+    // or crafted job.json) must not make the service delete that one.
+    if record.id != id {
+        return Err(Error::file(
+            &path,
+            format!("names job {:?} but lies in folder {id:?}", record.id),
+        ));
+    }
     let scene = scene_path(dir, id);
     let scene_toml = std::fs::read_to_string(&scene).map_err(|e| Error::io(&scene, e))?;
     Ok(StoredJob { record, scene_toml })
