@@ -576,6 +576,48 @@ fn a_killed_server_keeps_finished_jobs_and_reports_interrupted_ones() {
     assert_eq!(wait_done(&server, &queued)["state"], "succeeded");
 }
 
+/// Windows read only the facet's rows of the history (step × all facets + the facet's
+/// index over all bodies): on the second body of a two-body job they still hold exactly
+/// the facet's lit time and energy from the summary.
+#[test]
+fn windows_of_a_second_body_read_its_own_rows() {
+    let data = DataDir::new("windows-second-body");
+    let server = Server::start(data.path(), &[]);
+    let mut scene = scene_json(36);
+    scene["body"]
+        .as_array_mut()
+        .unwrap()
+        .push(serde_json::json!({
+            "name": "pebble", "ellipsoid": {"radii_km": [0.1, 0.1, 0.1], "levels": 1},
+            "position_km": [100.0, 0.0, 0.0], "spin_period_h": 12.0
+        }));
+    let id = run_job(&server, post_json(&server, "/v1/jobs", &scene));
+    let run = RunData::read(&data.path().join("jobs").join(&id).join("result")).unwrap();
+    let pebble = &run.bodies[1].facets;
+    let period = 12.0 * 3600.0;
+    for k in [0, 17, pebble.len() - 1] {
+        let (status, w) = get(
+            &server,
+            &format!("/v1/jobs/{id}/windows?body=pebble&facet={k}&threshold_w_m2=1e-9"),
+        );
+        assert_eq!(status, 200, "{w}");
+        let total = |key: &str| -> f64 {
+            let windows = w["windows"].as_array().unwrap();
+            windows.iter().map(|w| w[key].as_f64().unwrap()).sum()
+        };
+        let lit = pebble.lit_fraction[k] * period;
+        assert!(
+            (total("duration_s") - lit).abs() < 1e-6 * period,
+            "facet {k}: {w}"
+        );
+        let energy = pebble.mean_w_m2[k] * period;
+        assert!(
+            (total("energy_j_m2") - energy).abs() <= 1e-9 * energy,
+            "facet {k}: {w}"
+        );
+    }
+}
+
 /// A stored job whose `job.json` names another folder (copied or crafted) is skipped at
 /// start, never used to remove that folder (the service removed folders by the id read
 /// from the record, so a "deleted" record naming `victim` took `jobs/victim` with it).

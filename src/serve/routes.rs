@@ -13,7 +13,7 @@ use super::points::PointsRequest;
 use super::query::{self, FacetsQuery, NearestQuery, ResultCache};
 use super::reply::{json, json_errors, ApiError, ApiResult};
 use super::scene_input::{plan, scene_text};
-use super::windows::{charging_windows, facet_history, WindowsQuery};
+use super::windows::{charging_windows, facet_history, HistoryRows, WindowsQuery};
 use super::{App, AppState};
 use axum::body::Bytes;
 use axum::extract::{DefaultBodyLimit, Path, Query, Request, State};
@@ -291,11 +291,22 @@ async fn windows(
         ));
     }
     let step_s = run.record.duration_s / run.record.plan.steps.max(1) as f64;
+    let offset: usize = run
+        .bodies
+        .iter()
+        .take_while(|b| b.name != body.name)
+        .map(|b| b.facets.len())
+        .sum();
+    let rows = HistoryRows {
+        global: offset + q.facet,
+        total: run.bodies.iter().map(|b| b.facets.len()).sum(),
+        steps: run.record.plan.steps,
+    };
     let (dir, name, facet) = (run.dir.clone(), body.name.clone(), q.facet as u32);
     let samples = heavy(
         &app,
         blocking(move || {
-            facet_history(&dir, &name, facet)
+            facet_history(&dir, &name, facet, rows)
                 .map_err(|e| ApiError::internal(format!("reading the history: {e}")))
         }),
     )

@@ -10,9 +10,14 @@
 //! its last sample's step and its energy is Σ E·Δt.
 
 use super::reply::{ApiError, ApiResult};
-use crate::output::read::{batches, column};
+use crate::output::read::column;
 use arrow::array::{Float64Array, StringArray, UInt32Array};
 use hifitime::{Epoch, TimeScale};
+use parquet::arrow::arrow_reader::{
+    ArrowReaderOptions, ParquetRecordBatchReaderBuilder, RowSelection, RowSelector,
+};
+use parquet::arrow::ProjectionMask;
+use parquet::file::metadata::PageIndexPolicy;
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 
@@ -117,21 +122,78 @@ fn utc(tdb_s: f64) -> String {
         .to_string()
 }
 
-/// The (TDB seconds, W/m²) samples of one facet from `history.parquet`, in time order.
-pub fn facet_history(dir: &Path, body: &str, facet: u32) -> crate::Result<Vec<(f64, f64)>> {
+/// Where one facet's rows lie in `history.parquet`: each step writes every facet of every
+/// body in global order, so facet `global` of `total` is row `step × total + global`.
+#[derive(Debug, Clone, Copy)]
+pub struct HistoryRows {
+    /// The facet's index over all bodies (body offset + facet id).
+    pub global: usize,
+    /// Facets of all bodies: the rows of one step.
+    pub total: usize,
+    pub steps: usize,
+}
+
+impl HistoryRows {
+    /// The selection of the facet's rows, one per step: the reader then decodes only the
+    /// pages that hold them (the file's offset index locates the pages).
+    fn selection(&self) -> RowSelection {
+        let mut rows = Vec::with_capacity(3 * self.steps);
+        for _ in 0..self.steps {
+            rows.push(RowSelector::skip(self.global));
+            rows.push(RowSelector::select(1));
+            rows.push(RowSelector::skip(self.total - self.global - 1));
+        }
+        rows.into()
+    }
+}
+
+/// The (TDB seconds, W/m²) samples of facet `facet` of `body` from `history.parquet`, in
+/// time order, reading only the facet's rows. Every row read is checked to be the facet's,
+/// so a file of another layout is an error, not a wrong answer.
+pub fn facet_history(
+    dir: &Path,
+    body: &str,
+    facet: u32,
+    rows: HistoryRows,
+) -> crate::Result<Vec<(f64, f64)>> {
     let path = dir.join("history.parquet");
-    let mut samples = Vec::new();
-    for batch in batches(&path)? {
-        let batch = batch?;
+    let fail = |e: &dyn std::fmt::Display| crate::Error::file(&path, e.to_string());
+    let file = std::fs::File::open(&path).map_err(|e| crate::Error::io(&path, e))?;
+    let options = ArrowReaderOptions::new().with_page_index_policy(PageIndexPolicy::Optional);
+    let builder = ParquetRecordBatchReaderBuilder::try_new_with_options(file, options)
+        .map_err(|e| fail(&e))?;
+    let wanted = ["et_tdb_s", "body", "facet", "irradiance_w_m2"];
+    let mask = ProjectionMask::columns(builder.parquet_schema(), wanted);
+    let reader = builder
+        .with_projection(mask)
+        .with_row_selection(rows.selection())
+        .build()
+        .map_err(|e| fail(&e))?;
+    let mut samples = Vec::with_capacity(rows.steps);
+    for batch in reader {
+        let batch = batch.map_err(|e| fail(&e))?;
         let bodies = column::<StringArray>(&batch, "body", &path)?;
         let facets = column::<UInt32Array>(&batch, "facet", &path)?;
         let epochs = column::<Float64Array>(&batch, "et_tdb_s", &path)?;
         let values = column::<Float64Array>(&batch, "irradiance_w_m2", &path)?;
         for r in 0..batch.num_rows() {
-            if facets.value(r) == facet && bodies.value(r) == body {
-                samples.push((epochs.value(r), values.value(r)));
+            if facets.value(r) != facet || bodies.value(r) != body {
+                return Err(fail(&format!(
+                    "row {} of step {} is not facet {facet} of '{body}': the history is not in \
+                     the layout slim writes",
+                    rows.global,
+                    samples.len()
+                )));
             }
+            samples.push((epochs.value(r), values.value(r)));
         }
+    }
+    if samples.len() != rows.steps {
+        return Err(fail(&format!(
+            "{} rows of facet {facet} of '{body}' for {} steps",
+            samples.len(),
+            rows.steps
+        )));
     }
     samples.sort_by(|a, b| a.0.total_cmp(&b.0));
     Ok(samples)
