@@ -91,14 +91,18 @@ pub struct Prepared {
 /// and the plan with the memory estimate; each allocation is checked against `budget`
 /// first. `timings` also gets the stage "ephemeris".
 pub fn prepare(scene: &Scene, budget: &Budget, timings: &mut Timings) -> Result<Prepared> {
-    let assembly = assemble(scene, budget, timings)?;
-    let world = &assembly.world;
+    let mut assembly = assemble(scene, budget, timings)?;
     let mut demand = Demand {
-        facets: world.facet_count() as f64,
+        facets: assembly.world.facet_count() as f64,
         ..scene_demand(scene)
     };
     budget.check(&demand.estimate())?;
     let states = timings.time("ephemeris", || epoch_states(assembly.ephemeris.as_ref()))?;
+    if let Some(first) = states.first() {
+        let coincident = coincident_bodies(&assembly.world, first);
+        assembly.warnings.extend(coincident);
+    }
+    let world = &assembly.world;
     let bins = bins_for(scene, &states)?;
     let scatter = ScatterSettings::from_scene(scene, world)?;
     demand.bins = bins.count as f64;
@@ -119,6 +123,32 @@ pub fn prepare(scene: &Scene, budget: &Budget, timings: &mut Timings) -> Result<
         scatter,
         plan,
     })
+}
+
+/// A warning for every pair of bodies that occupy the same place at `state`: centres and
+/// bounding radii equal to 1 % of the smaller radius. Such a pair (a body listed twice)
+/// shadows itself and doubles its scattered light, which nothing else would reveal.
+fn coincident_bodies(world: &World, state: &EpochState) -> Vec<String> {
+    let bodies = &world.bodies;
+    let mut warnings = Vec::new();
+    for a in 0..bodies.len() {
+        for b in a + 1..bodies.len() {
+            let (ra, rb) = (bodies[a].bounding_radius_m, bodies[b].bounding_radius_m);
+            let tolerance = 0.01 * ra.min(rb);
+            let apart = state.bodies[a]
+                .pose
+                .position_m
+                .distance(state.bodies[b].pose.position_m);
+            if apart <= tolerance && (ra - rb).abs() <= tolerance {
+                warnings.push(format!(
+                    "bodies '{}' and '{}' coincide (same place and size at the first step): \
+                     each hides the other and scattered light counts both; remove one",
+                    bodies[a].name, bodies[b].name
+                ));
+            }
+        }
+    }
+    warnings
 }
 
 /// The facets of the scene's generated ellipsoids (20·4^levels each), known before any

@@ -1178,3 +1178,25 @@ fn a_rerun_with_fewer_outputs_leaves_no_stale_files_beside_run_json() {
         "files of the previous run left beside the new run.json: {stale:?}"
     );
 }
+
+/// A body listed twice (same mesh, same place) shadows itself and doubles its scattered
+/// light: the run warns, naming both; two bodies apart do not.
+#[test]
+fn coincident_bodies_are_a_warning() {
+    let dir = TempDir::new("coincident");
+    let scene = write_fixed_scene(dir.path());
+    let apart = run_into(&scene, &dir.path().join("apart")).expect("run");
+    assert!(!apart.warnings.iter().any(|w| w.contains("coincide")));
+    let text = std::fs::read_to_string(&scene).unwrap().replace(
+        "mesh = \"b.obj\"\nunits = \"km\"\nposition_km = [-3.0, 0.0, 0.0]",
+        "mesh = \"a.obj\"\nunits = \"km\"",
+    );
+    std::fs::write(&scene, text).unwrap();
+    let twice = run_into(&scene, &dir.path().join("twice")).expect("run");
+    let warning = twice.warnings.iter().find(|w| w.contains("coincide"));
+    let warning = warning.expect("a warning for bodies listed twice");
+    assert!(
+        warning.contains("'A'") && warning.contains("'B'"),
+        "{warning}"
+    );
+}
