@@ -974,6 +974,47 @@ fn every_bad_request_gets_a_json_4xx() {
         404,
         "unknown_job",
     );
+
+    // Absurd numbers that used to make the job panic are refused at submission.
+    let quick = quick_scene();
+    for (from, to) in [
+        ("[run]", "[run]\nbin_width_w_m2 = 1e-300"),
+        ("[ephemeris]", "[ephemeris]\nsolar_constant_w_m2 = 1e308"),
+        ("steps_per_period = 8", "steps_per_period = 1000000000"),
+    ] {
+        assert!(quick.contains(from), "{from}");
+        let reply = post_toml(s, &quick.replacen(from, to, 1));
+        assert!(reply.0 == 422, "{to}: {:?}", reply);
+    }
+
+    // Garbage below HTTP (answered by the HTTP layer itself) leaves the service answering.
+    for raw in [
+        format!(
+            "GET /v1/jobs/{} HTTP/1.1\r\nHost: x\r\n\r\n",
+            "a".repeat(200_000)
+        ),
+        "GARBAGE\r\n\r\n".to_string(),
+        "GET /v1/jobs HTTP/1.1\r\nHost: x\r\nBad Header\r\n\r\n".to_string(),
+    ] {
+        let status = raw_status(s, raw.as_bytes());
+        assert!(status == "400" || status == "414", "{status}");
+    }
+    assert_eq!(get(s, "/v1/jobs").0, 200);
+}
+
+/// Sends `bytes` on a fresh connection and returns the status code of the answer.
+fn raw_status(server: &Server, bytes: &[u8]) -> String {
+    use std::io::{Read, Write};
+    let addr = server.base.trim_start_matches("http://");
+    let mut stream = std::net::TcpStream::connect(addr).unwrap();
+    stream
+        .set_read_timeout(Some(std::time::Duration::from_secs(10)))
+        .unwrap();
+    let _ = stream.write_all(bytes);
+    let mut answer = Vec::new();
+    let _ = stream.read_to_end(&mut answer);
+    let text = String::from_utf8_lossy(&answer);
+    text.split_whitespace().nth(1).unwrap_or("").to_string()
 }
 
 /// The hardening issue's 2 kB request that took the server down: 16 generated ellipsoids
