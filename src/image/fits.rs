@@ -185,6 +185,7 @@ fn header(path: &Path, bytes: &[u8]) -> Result<(Vec<Card>, usize)> {
         }
         let (value, comment) = split_value(&text[10..]);
         let value = parse_value(value.trim()).ok_or_else(|| {
+            let key = crate::error::printable(&key, 8);
             Error::at_byte(path, offset, format!("cannot read the value of {key}"))
         })?;
         cards.push(Card {

@@ -142,15 +142,17 @@ pub fn read(path: &Path) -> Result<Image> {
 }
 
 fn parse_stretch(path: &Path, text: &str) -> Result<Stretch> {
+    // The chunk's text is quoted in errors: control characters escaped, shortened.
+    let shown = crate::error::printable(text, 80);
     let parts: Vec<&str> = text.split_whitespace().collect();
     match parts.as_slice() {
         ["linear", lo, hi] => match (lo.parse(), hi.parse()) {
             (Ok(lo), Ok(hi)) => Ok(Stretch { lo, hi }),
-            _ => Err(Error::file(path, format!("bad {STRETCH_KEY} '{text}'"))),
+            _ => Err(Error::file(path, format!("bad {STRETCH_KEY} '{shown}'"))),
         },
         _ => Err(Error::file(
             path,
-            format!("unknown {STRETCH_KEY} '{text}' (expected 'linear LO HI')"),
+            format!("unknown {STRETCH_KEY} '{shown}' (expected 'linear LO HI')"),
         )),
     }
 }
