@@ -1,4 +1,5 @@
-//! DAF byte order: big-endian SPK and PCK files made native (little-endian) for anise.
+//! DAF checks and byte order: SPK and PCK files checked where anise trusts them, and
+//! big-endian ones made native (little-endian) for anise.
 //!
 //! In: the bytes of a DAF (NAIF Double precision Array File). Out: the same file with
 //! every number in little-endian order, following the DAF Required Reading's layout:
@@ -6,80 +7,201 @@
 //! "BIG-IEEE"/"LTL-IEEE"), records 2 … FWARD−1 hold comment text, a chain of summary
 //! records (three doubles, then NSUM summaries of ND doubles and NI integers) each
 //! followed by a name record (text) starts at FWARD, and every other record holds doubles.
+//!
+//! Before anything is handed to anise, in either byte order: the format word, ND, NI and
+//! FWARD must be plausible; the summary chain must stay inside the file, visit no record
+//! twice, and hold no more summaries than a record fits; and the segments anise evaluates
+//! must hold finite numbers of plausible size and a record count within their length.
+//! anise multiplies pointers and counts by record sizes unchecked (an overflow, a panic
+//! where overflow checks are on), panics on a position whose norm overflows, and echoes
+//! a bad format word's raw bytes in its error.
 
 use crate::error::{Error, Result};
 use std::path::Path;
 
 const RECORD: usize = 1024;
 
-/// `bytes` with little-endian numbers (unchanged if already little-endian).
+/// Largest magnitude of a number in a segment anise evaluates: real kernels stay below
+/// 1e20 (km, km/s, s, rad); beyond 1e154 the square of a coordinate overflows.
+const MAX_MAGNITUDE: f64 = 1e100;
+
+/// `bytes`, checked, with little-endian numbers (unchanged if already little-endian).
 pub fn to_little_endian(path: &Path, bytes: &[u8]) -> Result<Vec<u8>> {
-    let format = bytes.get(88..96).unwrap_or_default();
-    if format != b"BIG-IEEE" {
-        return Ok(bytes.to_vec());
+    let bad = |msg: &str| Error::file(path, format!("DAF: {msg}"));
+    let big = match bytes.get(88..96) {
+        Some(b"BIG-IEEE") => true,
+        Some(b"LTL-IEEE") => false,
+        _ => return Err(bad("no format word (BIG-IEEE or LTL-IEEE) at byte 88")),
+    };
+    let daf = Daf { bytes, big };
+    let layout = daf.layout().map_err(bad)?;
+    let chain = daf.summary_chain(&layout).map_err(bad)?;
+    if big {
+        Ok(daf.swapped(&layout, &chain))
+    } else {
+        Ok(bytes.to_vec())
     }
-    let bad = |msg: &str| Error::file(path, format!("big-endian DAF: {msg}"));
-    if bytes.len() < RECORD || bytes.len() % RECORD != 0 {
-        return Err(bad("its size is not a whole number of 1024-byte records"));
+}
+
+/// The file being read and its byte order.
+struct Daf<'a> {
+    bytes: &'a [u8],
+    big: bool,
+}
+
+/// The file record's numbers slim relies on.
+struct Layout {
+    nd: usize,
+    ni: usize,
+    /// The first summary record (1-based).
+    fward: usize,
+    /// Whole records in the file.
+    records: usize,
+}
+
+impl Layout {
+    /// Doubles one summary takes.
+    fn summary_size(&self) -> usize {
+        self.nd + self.ni.div_ceil(2)
     }
-    let mut out = bytes.to_vec();
-    let int_at = |at: usize| i32::from_be_bytes(bytes[at..at + 4].try_into().expect("4 bytes"));
-    let (nd, ni, fward) = (int_at(8), int_at(12), int_at(76));
-    if !(0..=124).contains(&nd) || !(2..=250).contains(&ni) || fward < 2 {
-        return Err(bad("implausible file record (ND, NI or FWARD)"));
-    }
-    for at in [8, 12, 76, 80, 84] {
-        out[at..at + 4].reverse();
-    }
-    out[88..96].copy_from_slice(b"LTL-IEEE");
-    let records = bytes.len() / RECORD;
-    let mut kind = vec![Kind::Doubles; records + 1];
-    kind[1] = Kind::Done;
-    // Records past the file's end all land on its last slot: bound the walk by the file,
-    // not by FWARD, which a crafted file sets near 2³¹.
-    (2..(fward as usize).min(records + 1)).for_each(|r| kind[r] = Kind::Text);
-    let summary_size = nd as usize + (ni as usize).div_ceil(2);
-    let mut next = fward as usize;
-    while next != 0 {
-        if next > records || kind[next] == Kind::Done {
-            return Err(bad("broken summary record chain"));
+}
+
+/// One summary record of the chain: its number (1-based) and its summary count.
+struct SummaryRecord {
+    record: usize,
+    count: usize,
+}
+
+impl Daf<'_> {
+    /// The `N` bytes at `at`, little-endian.
+    fn word<const N: usize>(&self, at: usize) -> [u8; N] {
+        let mut word: [u8; N] = self.bytes[at..at + N].try_into().expect("N bytes");
+        if self.big {
+            word.reverse();
         }
-        let at = (next - 1) * RECORD;
-        let double = |k: usize| {
-            f64::from_be_bytes(
-                bytes[at + 8 * k..at + 8 * k + 8]
-                    .try_into()
-                    .expect("8 bytes"),
-            )
+        word
+    }
+
+    fn int(&self, at: usize) -> i32 {
+        i32::from_le_bytes(self.word(at))
+    }
+
+    fn double(&self, at: usize) -> f64 {
+        f64::from_le_bytes(self.word(at))
+    }
+
+    fn layout(&self) -> std::result::Result<Layout, &'static str> {
+        let size = self.bytes.len();
+        if size < RECORD || (self.big && size % RECORD != 0) {
+            return Err("its size is not a whole number of 1024-byte records");
+        }
+        let (nd, ni, fward) = (self.int(8), self.int(12), self.int(76));
+        if !(0..=124).contains(&nd) || !(2..=250).contains(&ni) || fward < 2 {
+            return Err("implausible file record (ND, NI or FWARD)");
+        }
+        Ok(Layout {
+            nd: nd as usize,
+            ni: ni as usize,
+            fward: fward as usize,
+            records: size / RECORD,
+        })
+    }
+
+    /// The summary records from FWARD on. The walk is bounded by the file, not by the
+    /// pointers, which a crafted file sets near 2³¹ or to a loop.
+    fn summary_chain(
+        &self,
+        layout: &Layout,
+    ) -> std::result::Result<Vec<SummaryRecord>, &'static str> {
+        let mut visited = vec![false; layout.records + 1];
+        visited[1] = true; // the file record
+        let mut chain = Vec::new();
+        let mut next = layout.fward;
+        while next != 0 {
+            if next > layout.records || visited[next] {
+                return Err("broken summary record chain");
+            }
+            visited[next] = true;
+            let at = (next - 1) * RECORD;
+            let count = whole(self.double(at + 16))
+                .filter(|&n| 3 + n * layout.summary_size() <= RECORD / 8)
+                .ok_or("a summary record claims more summaries than fit")?;
+            for s in 0..count {
+                self.check_segment(layout, at + 24 + 8 * layout.summary_size() * s)?;
+            }
+            chain.push(SummaryRecord {
+                record: next,
+                count,
+            });
+            next = whole(self.double(at)).ok_or("broken summary record chain")?;
+        }
+        Ok(chain)
+    }
+
+    /// The segment of the summary at byte `at`, if of a type anise evaluates (SPK types
+    /// 1, 2, 3, 8, 9, 12 and 13, binary PCK type 2), must hold only numbers within
+    /// ±[`MAX_MAGNITUDE`] and must not count more records (its last number) than it has
+    /// numbers. anise multiplies the count by the record length unchecked (type 9
+    /// overflowed on a count of 1e300), and a coefficient of 3e284 km made a position
+    /// whose norm is ∞, whose light time hifitime refused with a panic.
+    fn check_segment(&self, layout: &Layout, at: usize) -> std::result::Result<(), &'static str> {
+        let ints = at + 8 * layout.nd;
+        let int = |k: usize| self.int(ints + 4 * k);
+        let evaluated = match (layout.nd, layout.ni) {
+            (2, 6) => [1, 2, 3, 8, 9, 12, 13].contains(&int(3)),
+            (2, 5) => int(2) == 2,
+            _ => false,
         };
-        let (following, count) = (double(0) as usize, double(2) as usize);
-        let doubles = count
-            .checked_mul(summary_size)
-            .and_then(|n| n.checked_add(3));
-        if doubles.is_none_or(|n| n > RECORD / 8) {
-            return Err(bad("a summary record claims more summaries than fit"));
+        let (begin, end) = (int(layout.ni - 2), int(layout.ni - 1));
+        let (Ok(begin), Ok(end)) = (usize::try_from(begin), usize::try_from(end)) else {
+            return Ok(()); // anise refuses addresses outside the file itself
+        };
+        if !evaluated || begin < 1 || end < begin || 8 * end > self.bytes.len() {
+            return Ok(());
         }
-        swap_summary_record(
-            &mut out[at..at + RECORD],
-            nd as usize,
-            ni as usize,
-            count,
-            summary_size,
-        );
-        kind[next] = Kind::Done;
-        if next < records {
-            kind[next + 1] = Kind::Text;
+        let number = |address: usize| self.double(8 * (address - 1));
+        if !(begin..=end).all(|a| number(a).abs() <= MAX_MAGNITUDE) {
+            return Err("a segment holds a number beyond ±1e100 (or not a number)");
         }
-        next = following;
-    }
-    for (r, k) in kind.iter().enumerate().skip(1) {
-        if *k == Kind::Doubles {
-            out[(r - 1) * RECORD..r * RECORD]
-                .chunks_exact_mut(8)
-                .for_each(<[u8]>::reverse);
+        match whole(number(end)) {
+            Some(count) if count <= end - begin + 1 => Ok(()),
+            _ => Err("a segment's record count is not a whole number within its length"),
         }
     }
-    Ok(out)
+
+    /// The file with every number little-endian: integers of the file record, the
+    /// summaries, and every record of doubles (not the comment and name records).
+    fn swapped(&self, layout: &Layout, chain: &[SummaryRecord]) -> Vec<u8> {
+        let mut out = self.bytes.to_vec();
+        for at in [8, 12, 76, 80, 84] {
+            out[at..at + 4].reverse();
+        }
+        out[88..96].copy_from_slice(b"LTL-IEEE");
+        let mut kind = vec![Kind::Doubles; layout.records + 1];
+        kind[1] = Kind::Done;
+        (2..layout.fward.min(layout.records + 1)).for_each(|r| kind[r] = Kind::Text);
+        for summary in chain {
+            let at = (summary.record - 1) * RECORD;
+            swap_summary_record(&mut out[at..at + RECORD], layout, summary.count);
+            kind[summary.record] = Kind::Done;
+            if summary.record < layout.records && kind[summary.record + 1] != Kind::Done {
+                kind[summary.record + 1] = Kind::Text;
+            }
+        }
+        for (r, k) in kind.iter().enumerate().skip(1) {
+            if *k == Kind::Doubles {
+                out[(r - 1) * RECORD..r * RECORD]
+                    .chunks_exact_mut(8)
+                    .for_each(<[u8]>::reverse);
+            }
+        }
+        out
+    }
+}
+
+/// A record pointer or count stored as a double: a whole number, not absurdly large.
+fn whole(x: f64) -> Option<usize> {
+    (x.fract() == 0.0 && (0.0..=f64::from(i32::MAX)).contains(&x)).then_some(x as usize)
 }
 
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -89,7 +211,8 @@ enum Kind {
     Done,
 }
 
-fn swap_summary_record(record: &mut [u8], nd: usize, ni: usize, count: usize, size: usize) {
+fn swap_summary_record(record: &mut [u8], layout: &Layout, count: usize) {
+    let (nd, ni, size) = (layout.nd, layout.ni, layout.summary_size());
     record[..24].chunks_exact_mut(8).for_each(<[u8]>::reverse);
     for s in 0..count {
         let start = 24 + 8 * size * s;
@@ -134,5 +257,61 @@ mod tests {
         let bytes = big_endian(2, 2, 6, i32::MAX);
         let e = to_little_endian(Path::new("k.bsp"), &bytes).unwrap_err();
         assert!(e.to_string().contains("broken summary record chain"), "{e}");
+    }
+
+    /// Little-endian files are checked too: anise multiplied a summary record's next
+    /// pointer (here 1e300, saturated to 2⁶⁴ − 1) by the record size, and overflowed.
+    #[test]
+    fn a_little_endian_chain_leaving_the_file_is_an_error() {
+        let mut bytes = vec![0u8; 3 * RECORD];
+        bytes[8..12].copy_from_slice(&2i32.to_le_bytes());
+        bytes[12..16].copy_from_slice(&6i32.to_le_bytes());
+        bytes[76..80].copy_from_slice(&2i32.to_le_bytes());
+        bytes[88..96].copy_from_slice(b"LTL-IEEE");
+        bytes[RECORD..RECORD + 8].copy_from_slice(&1e300f64.to_le_bytes());
+        let e = to_little_endian(Path::new("k.bsp"), &bytes).unwrap_err();
+        assert!(e.to_string().contains("broken summary record chain"), "{e}");
+        bytes[RECORD..RECORD + 8].copy_from_slice(&0f64.to_le_bytes());
+        assert!(to_little_endian(Path::new("k.bsp"), &bytes).is_ok());
+    }
+
+    /// A type-9 segment whose state count (its last double) exceeds its length is refused
+    /// (anise computed six doubles per state from it and overflowed), and so is one with a
+    /// number anise's arithmetic overflows on.
+    #[test]
+    fn a_segment_anise_would_overflow_on_is_an_error() {
+        let mut bytes = vec![0u8; 4 * RECORD];
+        for (at, int) in [(8, 2), (12, 6), (76, 2)] {
+            bytes[at..at + 4].copy_from_slice(&i32::to_le_bytes(int));
+        }
+        bytes[88..96].copy_from_slice(b"LTL-IEEE");
+        bytes[RECORD + 16..RECORD + 24].copy_from_slice(&1f64.to_le_bytes());
+        // Target, centre, frame, type 9, first and last address (doubles 385..392).
+        for (k, int) in [2000433, 10, 1, 9, 385, 392].into_iter().enumerate() {
+            let at = RECORD + 40 + 4 * k;
+            bytes[at..at + 4].copy_from_slice(&i32::to_le_bytes(int));
+        }
+        let count_at = 3 * RECORD + 7 * 8;
+        let read = |bytes: &[u8]| to_little_endian(Path::new("k.bsp"), bytes);
+        bytes[count_at..count_at + 8].copy_from_slice(&1e9f64.to_le_bytes());
+        let e = read(&bytes).unwrap_err();
+        assert!(e.to_string().contains("record count"), "{e}");
+        bytes[count_at..count_at + 8].copy_from_slice(&1f64.to_le_bytes());
+        assert!(read(&bytes).is_ok());
+        // A coefficient whose square overflows (the position's norm, its light time).
+        bytes[3 * RECORD..3 * RECORD + 8].copy_from_slice(&3e284f64.to_le_bytes());
+        let e = read(&bytes).unwrap_err();
+        assert!(e.to_string().contains("beyond ±1e100"), "{e}");
+    }
+
+    /// A damaged format word is named, not echoed (anise quoted its raw bytes).
+    #[test]
+    fn a_damaged_format_word_is_an_error() {
+        let mut bytes = big_endian(2, 2, 6, 2);
+        bytes[88..96].copy_from_slice(b"\0\0LTL-IE");
+        let e = to_little_endian(Path::new("k.bsp"), &bytes).unwrap_err();
+        assert!(e
+            .to_string()
+            .ends_with("DAF: no format word (BIG-IEEE or LTL-IEEE) at byte 88"));
     }
 }
