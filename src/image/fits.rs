@@ -116,7 +116,10 @@ pub fn read(path: &Path) -> Result<Image> {
         ));
     }
     let (width, height) = (int("NAXIS1")?, int("NAXIS2")?);
-    if width <= 0 || height <= 0 || width * height > 1 << 28 {
+    // Checked: NAXIS1 = NAXIS2 = 2³² overflowed the product (a panic with overflow
+    // checks, and without them a wrapped 0 that passed as an empty image of 2³² × 2³²).
+    let too_many = |n: i64| n > 1 << 28;
+    if width <= 0 || height <= 0 || width.checked_mul(height).is_none_or(too_many) {
         return Err(Error::file(
             path,
             format!("implausible size {width} × {height}"),
