@@ -57,6 +57,9 @@ struct Layout {
     fward: usize,
     /// Whole records in the file.
     records: usize,
+    /// An SPK or a binary PCK: anise reads every summary slot of its summary records,
+    /// whatever their count says.
+    anise_reads: bool,
 }
 
 impl Layout {
@@ -64,12 +67,21 @@ impl Layout {
     fn summary_size(&self) -> usize {
         self.nd + self.ni.div_ceil(2)
     }
+
+    /// The summaries of a summary record that counts `count`: those anise reads.
+    fn summaries(&self, count: usize) -> usize {
+        if self.anise_reads {
+            (RECORD / 8 - 3) / self.summary_size()
+        } else {
+            count
+        }
+    }
 }
 
-/// One summary record of the chain: its number (1-based) and its summary count.
+/// One summary record of the chain: its number (1-based) and the summaries read from it.
 struct SummaryRecord {
     record: usize,
-    count: usize,
+    summaries: usize,
 }
 
 impl Daf<'_> {
@@ -99,11 +111,22 @@ impl Daf<'_> {
         if !(0..=124).contains(&nd) || !(2..=250).contains(&ni) || fward < 2 {
             return Err("implausible file record (ND, NI or FWARD)");
         }
+        // anise reads the summaries of a "DAF/SPK" as 2 doubles and 6 integers, and of a
+        // "DAF/PCK" as 2 and 5, whatever ND and NI say.
+        let fixed = match self.bytes[..8].trim_ascii_end() {
+            b"DAF/SPK" => Some((2, 6)),
+            b"DAF/PCK" => Some((2, 5)),
+            _ => None,
+        };
+        if fixed.is_some_and(|fixed| fixed != (nd, ni)) {
+            return Err("ND and NI are not 2 and 6 (SPK) or 2 and 5 (binary PCK)");
+        }
         Ok(Layout {
             nd: nd as usize,
             ni: ni as usize,
             fward: fward as usize,
             records: size / RECORD,
+            anise_reads: fixed.is_some(),
         })
     }
 
@@ -126,31 +149,41 @@ impl Daf<'_> {
             let count = whole(self.double(at + 16))
                 .filter(|&n| 3 + n * layout.summary_size() <= RECORD / 8)
                 .ok_or("a summary record claims more summaries than fit")?;
-            for s in 0..count {
-                self.check_segment(layout, at + 24 + 8 * layout.summary_size() * s)?;
+            let summaries = layout.summaries(count);
+            for s in 0..summaries {
+                self.check_summary(layout, at + 24 + 8 * layout.summary_size() * s)?;
             }
             chain.push(SummaryRecord {
                 record: next,
-                count,
+                summaries,
             });
             next = whole(self.double(at)).ok_or("broken summary record chain")?;
         }
         Ok(chain)
     }
 
-    /// The segment of the summary at byte `at`, if of a type anise evaluates (SPK types
-    /// 1, 2, 3, 8, 9, 12 and 13, binary PCK type 2), must hold only numbers within
-    /// ±[`MAX_MAGNITUDE`] and must not count more records (its last number) than it has
-    /// numbers. anise multiplies the count by the record length unchecked (type 9
-    /// overflowed on a count of 1e300), and a coefficient of 3e284 km made a position
-    /// whose norm is ∞, whose light time hifitime refused with a panic.
-    fn check_segment(&self, layout: &Layout, at: usize) -> std::result::Result<(), &'static str> {
+    /// The summary at byte `at` of an SPK or binary PCK. Its centre (SPK) or reference
+    /// frame (PCK) must not be −2³¹, which anise takes the absolute value of (an
+    /// overflow). Its segment, if of a type anise evaluates (SPK types 1, 2, 3, 8, 9, 12
+    /// and 13, binary PCK type 2), must hold only numbers within ±[`MAX_MAGNITUDE`] and
+    /// must not count more records (its last number) than it has numbers: anise
+    /// multiplies the count by the record length unchecked (type 9 overflowed on a count
+    /// of 1e300), and a coefficient of 3e284 km made a position whose norm is ∞, whose
+    /// light time hifitime refused with a panic.
+    fn check_summary(&self, layout: &Layout, at: usize) -> std::result::Result<(), &'static str> {
+        if !layout.anise_reads {
+            return Ok(());
+        }
         let ints = at + 8 * layout.nd;
         let int = |k: usize| self.int(ints + 4 * k);
-        let evaluated = match (layout.nd, layout.ni) {
-            (2, 6) => [1, 2, 3, 8, 9, 12, 13].contains(&int(3)),
-            (2, 5) => int(2) == 2,
-            _ => false,
+        if int(1) == i32::MIN {
+            return Err("a summary's centre or frame is -2147483648");
+        }
+        let spk = layout.ni == 6;
+        let evaluated = if spk {
+            [1, 2, 3, 8, 9, 12, 13].contains(&int(3))
+        } else {
+            int(2) == 2
         };
         let (begin, end) = (int(layout.ni - 2), int(layout.ni - 1));
         let (Ok(begin), Ok(end)) = (usize::try_from(begin), usize::try_from(end)) else {
@@ -182,7 +215,7 @@ impl Daf<'_> {
         (2..layout.fward.min(layout.records + 1)).for_each(|r| kind[r] = Kind::Text);
         for summary in chain {
             let at = (summary.record - 1) * RECORD;
-            swap_summary_record(&mut out[at..at + RECORD], layout, summary.count);
+            swap_summary_record(&mut out[at..at + RECORD], layout, summary.summaries);
             kind[summary.record] = Kind::Done;
             if summary.record < layout.records && kind[summary.record + 1] != Kind::Done {
                 kind[summary.record + 1] = Kind::Text;
@@ -275,33 +308,59 @@ mod tests {
         assert!(to_little_endian(Path::new("k.bsp"), &bytes).is_ok());
     }
 
-    /// A type-9 segment whose state count (its last double) exceeds its length is refused
-    /// (anise computed six doubles per state from it and overflowed), and so is one with a
-    /// number anise's arithmetic overflows on.
-    #[test]
-    fn a_segment_anise_would_overflow_on_is_an_error() {
+    /// A little-endian SPK of 4 records with one type-9 segment at doubles 385..392
+    /// (record 4), its summary counted `nsum` in the summary record.
+    fn little_endian_spk(nsum: f64) -> Vec<u8> {
         let mut bytes = vec![0u8; 4 * RECORD];
+        bytes[..8].copy_from_slice(b"DAF/SPK ");
         for (at, int) in [(8, 2), (12, 6), (76, 2)] {
             bytes[at..at + 4].copy_from_slice(&i32::to_le_bytes(int));
         }
         bytes[88..96].copy_from_slice(b"LTL-IEEE");
-        bytes[RECORD + 16..RECORD + 24].copy_from_slice(&1f64.to_le_bytes());
-        // Target, centre, frame, type 9, first and last address (doubles 385..392).
+        bytes[RECORD + 16..RECORD + 24].copy_from_slice(&nsum.to_le_bytes());
+        // Target, centre, frame, type 9, first and last address.
         for (k, int) in [2000433, 10, 1, 9, 385, 392].into_iter().enumerate() {
             let at = RECORD + 40 + 4 * k;
             bytes[at..at + 4].copy_from_slice(&i32::to_le_bytes(int));
         }
         let count_at = 3 * RECORD + 7 * 8;
-        let read = |bytes: &[u8]| to_little_endian(Path::new("k.bsp"), bytes);
-        bytes[count_at..count_at + 8].copy_from_slice(&1e9f64.to_le_bytes());
-        let e = read(&bytes).unwrap_err();
-        assert!(e.to_string().contains("record count"), "{e}");
         bytes[count_at..count_at + 8].copy_from_slice(&1f64.to_le_bytes());
-        assert!(read(&bytes).is_ok());
-        // A coefficient whose square overflows (the position's norm, its light time).
-        bytes[3 * RECORD..3 * RECORD + 8].copy_from_slice(&3e284f64.to_le_bytes());
-        let e = read(&bytes).unwrap_err();
-        assert!(e.to_string().contains("beyond ±1e100"), "{e}");
+        bytes
+    }
+
+    /// A type-9 segment whose state count (its last double) exceeds its length is refused
+    /// (anise computed six doubles per state from it and overflowed), and so is one with a
+    /// number anise's arithmetic overflows on, and a centre of −2³¹; also when the
+    /// summary record counts no summaries (anise reads every slot).
+    #[test]
+    fn a_segment_anise_would_overflow_on_is_an_error() {
+        let read = |bytes: &[u8]| to_little_endian(Path::new("k.bsp"), bytes);
+        for nsum in [1.0, 0.0] {
+            let valid = little_endian_spk(nsum);
+            assert!(read(&valid).is_ok());
+            let mut bytes = valid.clone();
+            bytes[3 * RECORD + 56..3 * RECORD + 64].copy_from_slice(&1e9f64.to_le_bytes());
+            let e = read(&bytes).unwrap_err();
+            assert!(e.to_string().contains("record count"), "{e}");
+            // A coefficient whose square overflows (the position's norm, its light time).
+            let mut bytes = valid.clone();
+            bytes[3 * RECORD..3 * RECORD + 8].copy_from_slice(&3e284f64.to_le_bytes());
+            let e = read(&bytes).unwrap_err();
+            assert!(e.to_string().contains("beyond ±1e100"), "{e}");
+            let mut bytes = valid;
+            bytes[RECORD + 44..RECORD + 48].copy_from_slice(&i32::MIN.to_le_bytes());
+            let e = read(&bytes).unwrap_err();
+            assert!(e.to_string().contains("-2147483648"), "{e}");
+        }
+    }
+
+    /// anise reads an SPK's summaries as 2 doubles and 6 integers whatever ND and NI say.
+    #[test]
+    fn an_spk_with_another_summary_layout_is_an_error() {
+        let mut bytes = little_endian_spk(1.0);
+        bytes[8..12].copy_from_slice(&0i32.to_le_bytes());
+        let e = to_little_endian(Path::new("k.bsp"), &bytes).unwrap_err();
+        assert!(e.to_string().contains("ND and NI"), "{e}");
     }
 
     /// A damaged format word is named, not echoed (anise quoted its raw bytes).
