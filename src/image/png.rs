@@ -92,6 +92,7 @@ pub fn read(path: &Path) -> Result<Image> {
     let mut decoder = ::png::Decoder::new(std::io::Cursor::new(&bytes));
     decoder.set_transformations(::png::Transformations::EXPAND);
     let mut reader = decoder.read_info().map_err(|e| bad(&e))?;
+    check_palette(reader.info()).map_err(|e| bad(&e))?;
     let size = decoded_size(&reader, bytes.len()).map_err(|e| bad(&e))?;
     let mut buf = vec![0; size];
     let info = reader.next_frame(&mut buf).map_err(|e| bad(&e))?;
@@ -135,6 +136,18 @@ pub fn read(path: &Path) -> Result<Image> {
         image.set("BUNIT", Value::Text(unit), "from the PNG's slim:unit");
     }
     Ok(image)
+}
+
+/// A palette (PLTE) must hold 1 to 256 whole RGB entries: the png crate (0.18) expands
+/// indices through a palette of any length and indexed past one of 40 bytes (a panic).
+fn check_palette(info: &::png::Info) -> std::result::Result<(), String> {
+    match info.palette.as_deref() {
+        Some(palette) if palette.len() % 3 != 0 || palette.len() > 3 * 256 => Err(format!(
+            "its palette (PLTE) is {} bytes, not 1 to 256 entries of 3",
+            palette.len()
+        )),
+        _ => Ok(()),
+    }
 }
 
 /// Most pixels a PNG may have: 2²⁸, as for FITS (2 GiB of values).
