@@ -25,6 +25,11 @@ const RECORD: usize = 1024;
 /// 1e20 (km, km/s, s, rad); beyond 1e154 the square of a coordinate overflows.
 const MAX_MAGNITUDE: f64 = 1e100;
 
+/// How far a Chebyshev record's midpoint may lie from the centre of its interval, as a
+/// share of half the interval: none in real kernels (DE421, MAR085, the Moon's PCK), a
+/// little for rounding. At 1e-7, even a polynomial of degree 10⁵ stays finite.
+const MIDPOINT_SLACK: f64 = 1e-7;
+
 /// `bytes`, checked, with little-endian numbers (unchanged if already little-endian).
 pub fn to_little_endian(path: &Path, bytes: &[u8]) -> Result<Vec<u8>> {
     let bad = |msg: &str| Error::file(path, format!("DAF: {msg}"));
@@ -196,9 +201,49 @@ impl Daf<'_> {
         if !(begin..=end).all(|a| number(a).abs() <= MAX_MAGNITUDE) {
             return Err("a segment holds a number beyond ±1e100 (or not a number)");
         }
-        match whole(number(end)) {
-            Some(count) if count <= end - begin + 1 => Ok(()),
-            _ => Err("a segment's record count is not a whole number within its length"),
+        if whole(number(end)).is_none_or(|count| count > end - begin + 1) {
+            return Err("a segment's record count is not a whole number within its length");
+        }
+        let chebyshev = !spk || [2, 3].contains(&int(3));
+        if chebyshev && end >= begin + 3 {
+            let span = [self.double(at), self.double(at + 8)];
+            return self.check_chebyshev(span, begin, end);
+        }
+        Ok(())
+    }
+
+    /// A Chebyshev segment (SPK types 2 and 3, binary PCK type 2) whose `span` is that of
+    /// its summary. anise evaluates record k's polynomials at (t − MID_k)/(INTLEN/2) for t
+    /// in the k-th interval of INTLEN from INIT (the last record for any t beyond), so the
+    /// records must sit on their intervals and cover the span, keeping that argument
+    /// within ±1: an INTLEN of 7e-310 made it huge, the position infinite, and hifitime
+    /// panicked on the infinite light time.
+    fn check_chebyshev(
+        &self,
+        span: [f64; 2],
+        begin: usize,
+        end: usize,
+    ) -> std::result::Result<(), &'static str> {
+        let number = |address: usize| self.double(8 * (address - 1));
+        let (init, interval) = (number(end - 3), number(end - 2));
+        let (Some(size), Some(records)) = (whole(number(end - 1)), whole(number(end))) else {
+            return Ok(()); // anise refuses these itself
+        };
+        if size < 2 || records * size + 4 > end - begin + 1 {
+            return Ok(());
+        }
+        let slack = MIDPOINT_SLACK * interval / 2.0;
+        let near = |x: f64, y: f64| (x - y).abs() <= slack; // false for NaN
+        let centred = (0..records).all(|k| {
+            let centre = init + (k as f64 + 0.5) * interval;
+            near(number(begin + k * size), centre)
+        });
+        let last = init + records as f64 * interval;
+        let covered = span[0] >= init - slack && span[1] <= last + slack;
+        if interval > 0.0 && centred && covered {
+            Ok(())
+        } else {
+            Err("a Chebyshev segment's records do not sit on the intervals that cover it")
         }
     }
 
@@ -308,9 +353,10 @@ mod tests {
         assert!(to_little_endian(Path::new("k.bsp"), &bytes).is_ok());
     }
 
-    /// A little-endian SPK of 4 records with one type-9 segment at doubles 385..392
-    /// (record 4), its summary counted `nsum` in the summary record.
-    fn little_endian_spk(nsum: f64) -> Vec<u8> {
+    /// A little-endian SPK of 4 records with one segment of `segment_type` holding
+    /// `data` from double 385 (record 4) on, its summary counted `nsum` in the summary
+    /// record and spanning 0 s.
+    fn little_endian_spk(nsum: f64, segment_type: i32, data: &[f64]) -> Vec<u8> {
         let mut bytes = vec![0u8; 4 * RECORD];
         bytes[..8].copy_from_slice(b"DAF/SPK ");
         for (at, int) in [(8, 2), (12, 6), (76, 2)] {
@@ -318,15 +364,24 @@ mod tests {
         }
         bytes[88..96].copy_from_slice(b"LTL-IEEE");
         bytes[RECORD + 16..RECORD + 24].copy_from_slice(&nsum.to_le_bytes());
-        // Target, centre, frame, type 9, first and last address.
-        for (k, int) in [2000433, 10, 1, 9, 385, 392].into_iter().enumerate() {
+        let last = 384 + data.len() as i32;
+        // Target, centre, frame, type, first and last address.
+        for (k, int) in [2000433, 10, 1, segment_type, 385, last]
+            .into_iter()
+            .enumerate()
+        {
             let at = RECORD + 40 + 4 * k;
             bytes[at..at + 4].copy_from_slice(&i32::to_le_bytes(int));
         }
-        let count_at = 3 * RECORD + 7 * 8;
-        bytes[count_at..count_at + 8].copy_from_slice(&1f64.to_le_bytes());
+        for (k, x) in data.iter().enumerate() {
+            let at = 3 * RECORD + 8 * k;
+            bytes[at..at + 8].copy_from_slice(&x.to_le_bytes());
+        }
         bytes
     }
+
+    /// A type-9 segment of one state: 6 numbers, its epoch, the degree, the count.
+    const TYPE_9: [f64; 8] = [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0];
 
     /// A type-9 segment whose state count (its last double) exceeds its length is refused
     /// (anise computed six doubles per state from it and overflowed), and so is one with a
@@ -336,7 +391,7 @@ mod tests {
     fn a_segment_anise_would_overflow_on_is_an_error() {
         let read = |bytes: &[u8]| to_little_endian(Path::new("k.bsp"), bytes);
         for nsum in [1.0, 0.0] {
-            let valid = little_endian_spk(nsum);
+            let valid = little_endian_spk(nsum, 9, &TYPE_9);
             assert!(read(&valid).is_ok());
             let mut bytes = valid.clone();
             bytes[3 * RECORD + 56..3 * RECORD + 64].copy_from_slice(&1e9f64.to_le_bytes());
@@ -357,10 +412,27 @@ mod tests {
     /// anise reads an SPK's summaries as 2 doubles and 6 integers whatever ND and NI say.
     #[test]
     fn an_spk_with_another_summary_layout_is_an_error() {
-        let mut bytes = little_endian_spk(1.0);
+        let mut bytes = little_endian_spk(1.0, 9, &TYPE_9);
         bytes[8..12].copy_from_slice(&0i32.to_le_bytes());
         let e = to_little_endian(Path::new("k.bsp"), &bytes).unwrap_err();
         assert!(e.to_string().contains("ND and NI"), "{e}");
+    }
+
+    /// A type-2 record must sit on its interval: anise evaluates it at (t − MID)/(INTLEN/2),
+    /// and an INTLEN of 7e-310 made that, and the position, infinite.
+    #[test]
+    fn a_chebyshev_record_off_its_interval_is_an_error() {
+        // One record of degree 0 over [−1, 1] s: MID, RADIUS, x, y, z; INIT, INTLEN,
+        // RSIZE, N.
+        let record = |interval: f64, mid: f64| {
+            little_endian_spk(1.0, 2, &[mid, 1.0, 7.0, 8.0, 9.0, -1.0, interval, 5.0, 1.0])
+        };
+        let read = |bytes: &[u8]| to_little_endian(Path::new("k.bsp"), bytes);
+        assert!(read(&record(2.0, 0.0)).is_ok());
+        for (interval, mid) in [(7e-310, 0.0), (2.0, 0.5), (0.0, 0.0), (-2.0, 0.0)] {
+            let e = read(&record(interval, mid)).unwrap_err();
+            assert!(e.to_string().contains("Chebyshev"), "{interval} {mid}: {e}");
+        }
     }
 
     /// A damaged format word is named, not echoed (anise quoted its raw bytes).
