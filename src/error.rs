@@ -110,3 +110,41 @@ impl Error {
         }
     }
 }
+
+/// `text` as an error message may quote it: control characters (line breaks, terminal
+/// escapes, NUL) written as escapes (`\n`, `\u{1b}`) and at most `max_chars` characters
+/// as written, escapes included, the rest cut to `...`. For messages that quote a file's
+/// content, which must stay one line that a terminal or a log shows as it is, however
+/// broken the file.
+pub(crate) fn printable(text: &str, max_chars: usize) -> String {
+    let mut out = String::with_capacity(text.len().min(4 * max_chars));
+    let mut written = 0;
+    for c in text.chars() {
+        let escaped = c.is_control().then(|| c.escape_default());
+        let width = escaped.clone().map_or(1, Iterator::count);
+        if written + width > max_chars {
+            out.push_str("...");
+            break;
+        }
+        written += width;
+        match escaped {
+            Some(escaped) => out.extend(escaped),
+            None => out.push(c),
+        }
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::printable;
+
+    #[test]
+    fn printable_escapes_control_characters_and_shortens() {
+        assert_eq!(printable("a\nb\u{1b}[31m\0", 40), "a\\nb\\u{1b}[31m\\u{0}");
+        assert_eq!(printable("abcdef", 3), "abc...");
+        assert_eq!(printable("abc", 3), "abc");
+        // Escapes count as written: a NUL takes five characters.
+        assert_eq!(printable("\0\0", 8), "\\u{0}...");
+    }
+}

@@ -116,7 +116,10 @@ pub fn read(path: &Path) -> Result<Image> {
         ));
     }
     let (width, height) = (int("NAXIS1")?, int("NAXIS2")?);
-    if width <= 0 || height <= 0 || width * height > 1 << 28 {
+    // Checked: NAXIS1 = NAXIS2 = 2³² overflowed the product (a panic with overflow
+    // checks, and without them a wrapped 0 that passed as an empty image of 2³² × 2³²).
+    let too_many = |n: i64| n > 1 << 28;
+    if width <= 0 || height <= 0 || width.checked_mul(height).is_none_or(too_many) {
         return Err(Error::file(
             path,
             format!("implausible size {width} × {height}"),
@@ -185,6 +188,7 @@ fn header(path: &Path, bytes: &[u8]) -> Result<(Vec<Card>, usize)> {
         }
         let (value, comment) = split_value(&text[10..]);
         let value = parse_value(value.trim()).ok_or_else(|| {
+            let key = crate::error::printable(&key, 8);
             Error::at_byte(path, offset, format!("cannot read the value of {key}"))
         })?;
         cards.push(Card {

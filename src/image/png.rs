@@ -92,12 +92,9 @@ pub fn read(path: &Path) -> Result<Image> {
     let mut decoder = ::png::Decoder::new(std::io::Cursor::new(&bytes));
     decoder.set_transformations(::png::Transformations::EXPAND);
     let mut reader = decoder.read_info().map_err(|e| bad(&e))?;
-    let mut buf = vec![
-        0;
-        reader
-            .output_buffer_size()
-            .ok_or_else(|| bad(&"too large"))?
-    ];
+    check_palette(reader.info()).map_err(|e| bad(&e))?;
+    let size = decoded_size(&reader, bytes.len()).map_err(|e| bad(&e))?;
+    let mut buf = vec![0; size];
     let info = reader.next_frame(&mut buf).map_err(|e| bad(&e))?;
     let texts = &reader.info().uncompressed_latin1_text;
     let find = |key: &str| {
@@ -141,16 +138,58 @@ pub fn read(path: &Path) -> Result<Image> {
     Ok(image)
 }
 
+/// A palette (PLTE) must hold 1 to 256 whole RGB entries: the png crate (0.18) expands
+/// indices through a palette of any length and indexed past one of 40 bytes (a panic).
+fn check_palette(info: &::png::Info) -> std::result::Result<(), String> {
+    match info.palette.as_deref() {
+        Some(palette) if palette.len() % 3 != 0 || palette.len() > 3 * 256 => Err(format!(
+            "its palette (PLTE) is {} bytes, not 1 to 256 entries of 3",
+            palette.len()
+        )),
+        _ => Ok(()),
+    }
+}
+
+/// Most pixels a PNG may have: 2²⁸, as for FITS (2 GiB of values).
+const MAX_PIXELS: u64 = 1 << 28;
+
+/// How much larger than its file a decoded image can be: deflate expands its input at
+/// most 1032-fold, and the expansion to 8-bit samples at most 32-fold (a 1-bit palette
+/// index becomes 4 bytes of RGBA).
+const MAX_EXPANSION: usize = 1032 * 32;
+
+/// The decoded image's size in bytes, refused before anything is allocated when the
+/// header claims more pixels than [`MAX_PIXELS`] or more bytes than a file of
+/// `file_bytes` can hold: a few bytes of header can claim 2³¹ × 2³¹ pixels, and the
+/// buffer was allocated from that claim (16 GiB from a 74-byte file).
+fn decoded_size<R: std::io::BufRead + std::io::Seek>(
+    reader: &::png::Reader<R>,
+    file_bytes: usize,
+) -> std::result::Result<usize, String> {
+    let (width, height) = reader.info().size();
+    let pixels = u64::from(width) * u64::from(height);
+    let size = reader.output_buffer_size();
+    match size.filter(|&n| n <= MAX_EXPANSION.saturating_mul(file_bytes)) {
+        Some(n) if pixels <= MAX_PIXELS => Ok(n),
+        _ => Err(format!(
+            "the header claims {width} × {height} pixels, more than a {file_bytes}-byte \
+             file holds (or than the {MAX_PIXELS} read at most)"
+        )),
+    }
+}
+
 fn parse_stretch(path: &Path, text: &str) -> Result<Stretch> {
+    // The chunk's text is quoted in errors: control characters escaped, shortened.
+    let shown = crate::error::printable(text, 80);
     let parts: Vec<&str> = text.split_whitespace().collect();
     match parts.as_slice() {
         ["linear", lo, hi] => match (lo.parse(), hi.parse()) {
             (Ok(lo), Ok(hi)) => Ok(Stretch { lo, hi }),
-            _ => Err(Error::file(path, format!("bad {STRETCH_KEY} '{text}'"))),
+            _ => Err(Error::file(path, format!("bad {STRETCH_KEY} '{shown}'"))),
         },
         _ => Err(Error::file(
             path,
-            format!("unknown {STRETCH_KEY} '{text}' (expected 'linear LO HI')"),
+            format!("unknown {STRETCH_KEY} '{shown}' (expected 'linear LO HI')"),
         )),
     }
 }

@@ -168,16 +168,13 @@ pub(super) mod text {
         }
     }
 
-    /// A token as it should appear in an error message: lossy UTF-8, shortened.
+    /// A token as it should appear in an error message: lossy UTF-8, shortened, control
+    /// bytes escaped (a broken file's NUL or escape sequence must not reach a terminal or
+    /// split the message's line).
     pub(in crate::mesh) fn quoted(token: &[u8]) -> String {
         const LONGEST: usize = 40;
         let text = String::from_utf8_lossy(token);
-        if text.chars().count() > LONGEST {
-            let head: String = text.chars().take(LONGEST).collect();
-            format!("'{head}...'")
-        } else {
-            format!("'{text}'")
-        }
+        format!("'{}'", crate::error::printable(&text, LONGEST))
     }
 
     /// A finite coordinate. Fortran `D` exponents (`1.5D+02`), still found in old plate

@@ -199,8 +199,9 @@ impl Header {
     }
 }
 
+/// A header word as an error message quotes it: shortened, control bytes escaped.
 fn shorten(word: &str) -> String {
-    word.chars().take(40).collect()
+    crate::error::printable(word, 40)
 }
 
 fn parse_format<'a>(mut words: impl Iterator<Item = &'a str>) -> Result<Encoding, String> {
@@ -505,11 +506,13 @@ fn read_element(
                 at,
                 format!(
                     "file ends after {instance} of {} '{}' elements",
-                    element.count, element.name
+                    element.count,
+                    shorten(&element.name)
                 ),
             ),
             ValueError::Bad(at, msg) => {
-                ElementError(at, format!("'{}' element {instance}: {msg}", element.name))
+                let name = shorten(&element.name);
+                ElementError(at, format!("'{name}' element {instance}: {msg}"))
             }
         })?;
     }
@@ -545,7 +548,10 @@ fn read_instance(
                 if length < 0.0 {
                     return Err(ValueError::Bad(
                         at,
-                        format!("list '{}' has negative length {length}", property.name),
+                        format!(
+                            "list '{}' has negative length {length}",
+                            shorten(&property.name)
+                        ),
                     ));
                 }
                 for _ in 0..length as u64 {

@@ -64,8 +64,20 @@ impl BodyFrame {
     }
 
     /// Resolves frame `name` through the text kernels. `iau_model` supplies the IAU model
-    /// when the chain ends in `IAU_<...>` of the body with id `naif_id`.
+    /// when the chain ends in `IAU_<...>` of the body with id `naif_id`. The error quotes
+    /// names from the kernels (a parent frame, the frames they define): escaped and
+    /// shortened, as a damaged kernel's names may hold control characters or be many.
     pub fn resolve(
+        kernel: &TextKernel,
+        name: &str,
+        naif_id: i32,
+        iau_model: impl Fn(i32) -> Option<RotationModel>,
+    ) -> Result<BodyFrame, String> {
+        Self::follow_chain(kernel, name, naif_id, iau_model)
+            .map_err(|e| crate::error::printable(&e, 500))
+    }
+
+    fn follow_chain(
         kernel: &TextKernel,
         name: &str,
         naif_id: i32,

@@ -68,6 +68,8 @@ impl Kernels {
                 self.almanac = almanac
                     .load_from_bytes(bytes.as_slice().into())
                     .map_err(|e| {
+                        // anise's message may quote the file's bytes: escaped, shortened.
+                        let e = crate::error::printable(&e.to_string(), 400);
                         Error::file(path, format!("not a readable {}: {e}", kind_name(&ext)))
                     })?;
             }

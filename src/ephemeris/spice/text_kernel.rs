@@ -148,7 +148,7 @@ fn unclosed(path: &Path, list: &OpenList) -> Error {
     Error::at_line(
         path,
         list.start_line,
-        format!("'{}': list not closed by ')'", list.name),
+        format!("'{}': list not closed by ')'", shown(&list.name)),
     )
 }
 
@@ -165,7 +165,7 @@ fn split_assignment<'a>(
         return Err(Error::at_line(
             path,
             line_no,
-            format!("expected NAME = value, found '{line}'"),
+            format!("expected NAME = value, found '{}'", shown(line)),
         ));
     };
     let name = name.trim();
@@ -173,7 +173,7 @@ fn split_assignment<'a>(
         return Err(Error::at_line(
             path,
             line_no,
-            format!("not a variable name: '{name}'"),
+            format!("not a variable name: '{}'", shown(name)),
         ));
     }
     Ok((name.to_string(), append, value.trim()))
@@ -199,7 +199,7 @@ fn parse_values(path: &Path, line_no: usize, text: &str) -> Result<Vec<KernelVal
                 KernelValue::Text(date.to_string())
             } else {
                 KernelValue::Number(parse_number(token).ok_or_else(|| {
-                    Error::at_line(path, line_no, format!("not a number: '{token}'"))
+                    Error::at_line(path, line_no, format!("not a number: '{}'", shown(token)))
                 })?)
             });
             rest = &rest[end..];
@@ -207,6 +207,13 @@ fn parse_values(path: &Path, line_no: usize, text: &str) -> Result<Vec<KernelVal
         rest = rest.trim_start_matches(|c: char| c.is_whitespace() || c == ',');
     }
     Ok(values)
+}
+
+/// Kernel text as an error message quotes it: control characters escaped (a damaged
+/// file's NUL or escape sequence must not reach a terminal) and at most 80 characters (a
+/// message names what is wrong, it does not echo the file).
+fn shown(text: &str) -> String {
+    crate::error::printable(text, 80)
 }
 
 fn parse_number(token: &str) -> Option<f64> {
