@@ -840,7 +840,8 @@ mod service {
     /// What `POST /v1/jobs/{id}/irradiance` reads from its body.
     fn points(path: &Path) -> Outcome {
         let body = std::fs::read(path).expect("case file");
-        Outcome::of(serde_json::from_slice::<slim::serve::points::PointsRequest>(&body))
+        let request = slim::serve::points::PointsRequest::from_body(&body);
+        Outcome::of(request.map_err(|e| e.message))
     }
 }
 

@@ -49,9 +49,10 @@ pub fn read_albedo_file(path: &Path, facets: usize) -> Result<Vec<f64>> {
         if content.is_empty() {
             continue;
         }
-        let value: f64 = content
-            .parse()
-            .map_err(|_| Error::at_line(path, n + 1, format!("'{content}' is not a number")))?;
+        let value: f64 = content.parse().map_err(|_| {
+            let shown = crate::error::printable(content, 80);
+            Error::at_line(path, n + 1, format!("'{shown}' is not a number"))
+        })?;
         if !(value.is_finite() && (0.0..1.0).contains(&value)) {
             return Err(Error::at_line(
                 path,

@@ -20,7 +20,7 @@ mod validate;
 pub use schema::*;
 pub use validate::{camera_size_problem, MAX_BODIES, MAX_STEPS};
 
-use crate::error::{Error, Result};
+use crate::error::{printable, Error, Result};
 use hifitime::Epoch;
 use serde::Deserialize;
 use std::path::{Path, PathBuf};
@@ -160,7 +160,10 @@ fn parse_epoch(path: &Path, key: &str, text: &str) -> Result<Epoch> {
     Epoch::from_str(text).map_err(|e| Error::Scene {
         path: path.to_path_buf(),
         key: key.into(),
-        msg: format!("'{text}' is not an epoch ({e}); write e.g. \"2018-06-10T00:00:00 UTC\""),
+        msg: format!(
+            "'{}' is not an epoch ({e}); write e.g. \"2018-06-10T00:00:00 UTC\"",
+            printable(text, 80)
+        ),
     })
 }
 
@@ -247,7 +250,9 @@ where
             ("", b) => b.to_string(),
             (p, b) => format!("{p}.{b}"),
         };
-        let msg = inner.message().trim().to_string();
+        // Both quote the file (a misspelt key, a bad value): shown escaped and shortened.
+        let key = printable(&key, 200);
+        let msg = printable(inner.message().trim(), 500);
         Error::Scene {
             path: path.to_path_buf(),
             key,

@@ -59,6 +59,14 @@ pub struct PointsRequest {
     pub to_tdb_s: Option<f64>,
 }
 
+impl PointsRequest {
+    /// The request in a body, or a 400 saying why it is not one.
+    pub fn from_body(body: &[u8]) -> ApiResult<PointsRequest> {
+        serde_json::from_slice(body)
+            .map_err(|e| ApiError::bad_request("malformed_body", format!("not a point query: {e}")))
+    }
+}
+
 /// One target's time series.
 #[derive(Debug, Clone, Serialize)]
 pub struct Series {

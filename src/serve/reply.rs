@@ -5,6 +5,7 @@
 //! (unknown route, wrong method, body too large, unreadable path or query). Out:
 //! `{"error": {"status": 404, "code": "unknown_job", "message": "..."}}`.
 
+use crate::error::printable;
 use axum::body::Body;
 use axum::http::{header, HeaderValue, StatusCode};
 use axum::response::{IntoResponse, Response};
@@ -21,13 +22,19 @@ pub struct ApiError {
 /// Result of a handler.
 pub type ApiResult<T> = std::result::Result<T, ApiError>;
 
+/// The longest message an error carries, characters (the cut mark `...` included): enough
+/// for any message of slim's own, short enough that a request cannot make its error echo
+/// kilobytes back.
+const MAX_MESSAGE_CHARS: usize = 1000;
+
 impl ApiError {
-    /// An error with any status.
+    /// An error with any status. The message is made printable (control characters
+    /// escaped) and cut at [`MAX_MESSAGE_CHARS`]: messages may quote the request.
     pub fn new(status: StatusCode, code: &'static str, message: impl Into<String>) -> ApiError {
         ApiError {
             status,
             code,
-            message: message.into(),
+            message: printable(&message.into(), MAX_MESSAGE_CHARS - "...".len()),
         }
     }
 

@@ -337,8 +337,7 @@ async fn irradiance(
     Path(id): Path<String>,
     body: Bytes,
 ) -> ApiResult<Response> {
-    let request: PointsRequest = serde_json::from_slice(&body)
-        .map_err(|e| ApiError::bad_request("malformed_body", format!("not a point query: {e}")))?;
+    let request = PointsRequest::from_body(&body)?;
     let limits = app.config.limits;
     if request.targets.len() > limits.max_query_targets {
         return Err(ApiError::unprocessable(
