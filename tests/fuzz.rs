@@ -1004,8 +1004,9 @@ struct Failure {
 struct Tally {
     cases: usize,
     refused: usize,
-    peak: usize,
-    slowest: Duration,
+    /// The largest peak allocation and the slowest case, each with its case index.
+    peak: (usize, usize),
+    slowest: (Duration, usize),
     failing: usize,
     /// By kind ([`kind_of`]): a long campaign's thousands of failures that differ only in
     /// a byte show as one example each of the ways the property fails.
@@ -1054,8 +1055,8 @@ fn campaign(target: &Target, settings: &Settings, work: &Path, donors: &[Seed]) 
         });
         let took = started.elapsed();
         tally.cases += 1;
-        tally.peak = tally.peak.max(peak);
-        tally.slowest = tally.slowest.max(took);
+        tally.peak = tally.peak.max((peak, case));
+        tally.slowest = tally.slowest.max((took, case));
         let shown_path = path.display().to_string();
         let problems = match outcome {
             Ok(outcome) => {
@@ -1168,12 +1169,15 @@ impl Drop for WorkDir {
 
 fn describe(target: &Target, tally: &Tally) -> String {
     format!(
-        "{:8} {:>9} cases {:>9} refused  peak {:>6.1} MiB  slowest {:>8.1?}  {} failing",
+        "{:8} {:>9} cases {:>9} refused  peak {:>5.1} MiB (case {:>7})  slowest {:>8.1?} \
+         (case {:>7})  {} failing",
         target.name,
         tally.cases,
         tally.refused,
-        tally.peak as f64 / f64::from(1 << 20),
-        tally.slowest,
+        tally.peak.0 as f64 / f64::from(1 << 20),
+        tally.peak.1,
+        tally.slowest.0,
+        tally.slowest.1,
         tally.failing
     )
 }

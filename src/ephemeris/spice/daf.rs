@@ -226,11 +226,10 @@ impl Daf<'_> {
     ) -> std::result::Result<(), &'static str> {
         let number = |address: usize| self.double(8 * (address - 1));
         let (init, interval) = (number(end - 3), number(end - 2));
-        let (Some(size), Some(records)) = (whole(number(end - 1)), whole(number(end))) else {
+        // As anise reads them: RSIZE cut to a whole number, N whole (checked before).
+        let (size, records) = (number(end - 1) as usize, number(end) as usize);
+        if size < 2 || records.saturating_mul(size).saturating_add(4) > end - begin + 1 {
             return Ok(()); // anise refuses these itself
-        };
-        if size < 2 || records * size + 4 > end - begin + 1 {
-            return Ok(());
         }
         let slack = MIDPOINT_SLACK * interval / 2.0;
         let near = |x: f64, y: f64| (x - y).abs() <= slack; // false for NaN
