@@ -17,6 +17,7 @@
 //! a bad format word's raw bytes in its error.
 
 use crate::error::{Error, Result};
+use std::collections::BTreeMap;
 use std::path::Path;
 
 const RECORD: usize = 1024;
@@ -41,6 +42,11 @@ pub fn to_little_endian(path: &Path, bytes: &[u8]) -> Result<Vec<u8>> {
     let daf = Daf { bytes, big };
     let layout = daf.layout().map_err(bad)?;
     let chain = daf.summary_chain(&layout).map_err(bad)?;
+    if has_loop(&daf.centres(&layout, &chain)) {
+        return Err(bad(
+            "its segments' centres form a loop (a body is its own centre)",
+        ));
+    }
     if big {
         Ok(daf.swapped(&layout, &chain))
     } else {
@@ -246,6 +252,26 @@ impl Daf<'_> {
         }
     }
 
+    /// An SPK's links from each segment's target to its centre (none for other files).
+    fn centres(&self, layout: &Layout, chain: &[SummaryRecord]) -> BTreeMap<i32, Vec<i32>> {
+        let mut centres: BTreeMap<i32, Vec<i32>> = BTreeMap::new();
+        if !layout.anise_reads || layout.ni != 6 {
+            return centres;
+        }
+        let size = 8 * layout.summary_size();
+        for summary in chain {
+            let first = (summary.record - 1) * RECORD + 24;
+            for at in (0..summary.summaries).map(|s| first + s * size) {
+                if self.bytes[at..at + size].iter().any(|&b| b != 0) {
+                    let ints = at + 8 * layout.nd;
+                    let (target, centre) = (self.int(ints), self.int(ints + 4));
+                    centres.entry(target).or_default().push(centre);
+                }
+            }
+        }
+        centres
+    }
+
     /// The file with every number little-endian: integers of the file record, the
     /// summaries, and every record of doubles (not the comment and name records).
     fn swapped(&self, layout: &Layout, chain: &[SummaryRecord]) -> Vec<u8> {
@@ -274,6 +300,43 @@ impl Daf<'_> {
         }
         out
     }
+}
+
+/// Whether following centres from some body leads back to it. anise walks from each body
+/// through its centres to a common root in a path of fixed depth; a loop (a segment of
+/// garbage whose target is its own centre) made it index past that path (a panic).
+fn has_loop(centres: &BTreeMap<i32, Vec<i32>>) -> bool {
+    #[derive(PartialEq)]
+    enum Visit {
+        OnPath,
+        Explored,
+    }
+    let mut seen: BTreeMap<i32, Visit> = BTreeMap::new();
+    for &start in centres.keys() {
+        if seen.contains_key(&start) {
+            continue;
+        }
+        seen.insert(start, Visit::OnPath);
+        // The bodies from `start` on, each with the index of its next centre to follow.
+        let mut path = vec![(start, 0)];
+        while let Some(&(body, next)) = path.last() {
+            let Some(&centre) = centres.get(&body).and_then(|c| c.get(next)) else {
+                seen.insert(body, Visit::Explored);
+                path.pop();
+                continue;
+            };
+            path.last_mut().expect("a body on the path").1 += 1;
+            match seen.get(&centre) {
+                Some(Visit::OnPath) => return true,
+                Some(Visit::Explored) => {}
+                None => {
+                    seen.insert(centre, Visit::OnPath);
+                    path.push((centre, 0));
+                }
+            }
+        }
+    }
+    false
 }
 
 /// A record pointer or count stored as a double: a whole number, not absurdly large.
@@ -432,6 +495,28 @@ mod tests {
             let e = read(&record(interval, mid)).unwrap_err();
             assert!(e.to_string().contains("Chebyshev"), "{interval} {mid}: {e}");
         }
+    }
+
+    /// Centre links that lead back to a body are refused; a tree is not.
+    #[test]
+    fn a_loop_of_centres_is_found() {
+        let links = |pairs: &[(i32, i32)]| {
+            let mut centres: BTreeMap<i32, Vec<i32>> = BTreeMap::new();
+            for &(target, centre) in pairs {
+                centres.entry(target).or_default().push(centre);
+            }
+            centres
+        };
+        assert!(!has_loop(&links(&[
+            (301, 3),
+            (399, 3),
+            (3, 0),
+            (10, 0),
+            (401, 4),
+            (4, 0)
+        ])));
+        assert!(has_loop(&links(&[(7, 7)])));
+        assert!(has_loop(&links(&[(401, 4), (4, 499), (499, 4), (10, 0)])));
     }
 
     /// A damaged format word is named, not echoed (anise quoted its raw bytes).

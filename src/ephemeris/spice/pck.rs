@@ -47,6 +47,8 @@ pub fn check_phase_degrees(kernel: &TextKernel, path: &Path) -> Result<()> {
         let whole =
             degree.filter(|d| d.fract() == 0.0 && (0.0..=MAX_PHASE_DEGREE as f64).contains(d));
         if whole.is_none() {
+            // The name is the file's: escaped and shortened like any quoted content.
+            let name = crate::error::printable(name, 80);
             return Err(Error::file(
                 path,
                 format!("{name} = {degree:?}: must be a whole number from 0 to {MAX_PHASE_DEGREE}"),
