@@ -94,11 +94,13 @@ impl Scene {
         Ok(scene)
     }
 
+    /// An error at `key` of this scene. The message may quote the file (a name, a flag):
+    /// it is shown escaped and shortened, so that it stays one readable line.
     pub(crate) fn err(&self, key: impl Into<String>, msg: impl Into<String>) -> Error {
         Error::Scene {
             path: self.path.clone(),
             key: key.into(),
-            msg: msg.into(),
+            msg: printable(&msg.into(), 500),
         }
     }
 
@@ -177,7 +179,7 @@ fn ephemeris_section(
     let err = |msg: String| Error::Scene {
         path: path.to_path_buf(),
         key: "ephemeris.mode".into(),
-        msg,
+        msg: printable(&msg, 500),
     };
     const MODES: &str = "\"spin\", \"fixed\" or \"spice\"";
     let mode = match table.remove("mode") {
