@@ -17,7 +17,7 @@
 //! and `i`.
 //!
 //! `cargo test --test fuzz` runs the default: every seed and [`DEFAULT_CASES`] cases per
-//! target, 65,000 cases in about 5 s on two cores (test profile, opt-level 2). A long
+//! target, 65,000 cases in about 7 s on two cores (test profile, opt-level 2). A long
 //! campaign, about 15 minutes a process:
 //!
 //! ```sh
@@ -28,9 +28,10 @@
 //! 0: run several processes with different seeds to use more cores), `SLIM_FUZZ_ONLY`
 //! (comma-separated target names), `SLIM_FUZZ_REPLAY` (one case index: with the seed and
 //! the target, it replays a failure; add `RUST_BACKTRACE=1` for a panic's backtrace),
-//! `SLIM_FUZZ_PLAN=1` (requests are also planned: meshes and ephemerides built, as the
-//! service does before accepting a job). A failure names the target, seed and case and
-//! leaves its input in `$TMPDIR/slim-fuzz-failures/`. docs/accuracy.md says more.
+//! `SLIM_FUZZ_PLAN=0` (accepted requests are not planned: by default their meshes and
+//! ephemerides are built, as the service does before accepting a job). A failure names
+//! the target, seed and case and leaves its input in `$TMPDIR/slim-fuzz-failures/`.
+//! docs/accuracy.md says more.
 
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
@@ -818,7 +819,7 @@ mod service {
     }
 
     /// What `POST /v1/jobs` does before accepting a job, without a server: the body as a
-    /// scene, its files checked and, with `SLIM_FUZZ_PLAN=1`, the scene planned.
+    /// scene, its files checked and, unless `SLIM_FUZZ_PLAN=0`, the scene planned.
     fn submit(path: &Path) -> Outcome {
         let body = std::fs::read(path).expect("case file");
         let dir = data_dir();
@@ -834,7 +835,7 @@ mod service {
     }
 
     fn planning() -> bool {
-        std::env::var("SLIM_FUZZ_PLAN").is_ok_and(|v| v == "1")
+        std::env::var("SLIM_FUZZ_PLAN").map_or(true, |v| v != "0")
     }
 
     /// What `POST /v1/jobs/{id}/irradiance` reads from its body.
