@@ -347,7 +347,10 @@ fn spice_ephemeris(scene: &Scene, s: &SpiceSection, kernels: Kernels) -> Result<
     };
     let step_s = match s.steps {
         SpiceSteps::Window { step_s, .. } => step_s,
-        SpiceSteps::Spins { steps_per_spin, .. } => {
+        SpiceSteps::Spins {
+            steps_per_spin,
+            spins,
+        } => {
             let period_s = match scene.bodies[0].spin_period_h {
                 Some(h) => h * 3600.0,
                 None => first_period_s.ok_or_else(|| Error::Scene {
@@ -356,6 +359,17 @@ fn spice_ephemeris(scene: &Scene, s: &SpiceSection, kernels: Kernels) -> Result<
                     msg: "the PCK gives this body no rotation rate: set the spin period".into(),
                 })?,
             };
+            let span_s = period_s * spins;
+            if !(span_s <= crate::scene::MAX_SPAN_S) {
+                return Err(scene.err(
+                    "ephemeris.spins",
+                    format!(
+                        "the PCK's rotation period of body[0], {period_s:e} s, makes the run \
+                         span {span_s:e} s; at most {:e} s: set body[0].spin_period_h",
+                        crate::scene::MAX_SPAN_S
+                    ),
+                ));
+            }
             period_s / steps_per_spin as f64
         }
     };

@@ -18,7 +18,7 @@ pub mod schema;
 mod validate;
 
 pub use schema::*;
-pub use validate::{camera_size_problem, MAX_BODIES, MAX_STEPS};
+pub use validate::{camera_size_problem, MAX_BODIES, MAX_SPAN_S, MAX_STEPS};
 
 use crate::error::{printable, Error, Result};
 use hifitime::Epoch;
@@ -133,6 +133,32 @@ impl Scene {
             EphemerisSection::Spin(s) => (s.steps_per_period as f64 * s.periods).round().max(1.0),
             EphemerisSection::Fixed(f) => f.sun.len() as f64,
             EphemerisSection::Spice(s) => s.steps.count(self.start),
+        }
+    }
+
+    /// The time the run spans (seconds) where the scene alone gives it, with the key that
+    /// sets it: spin mode and SPICE spins of a given period, and fixed Suns. (A SPICE
+    /// window is two epochs, bounded by their format; a period from a PCK is checked when
+    /// the kernels are read.)
+    pub fn span_s(&self) -> Option<(f64, &'static str)> {
+        let period_s = self.bodies.first()?.spin_period_h.map(|h| h * 3600.0);
+        // The period is to blame when it alone is too long, else the count of periods.
+        let periods = |count: f64, key: &'static str| {
+            let period_s = period_s?;
+            let blamed = if period_s > MAX_SPAN_S {
+                "body[0].spin_period_h"
+            } else {
+                key
+            };
+            Some((period_s * count, blamed))
+        };
+        match &self.ephemeris {
+            EphemerisSection::Spin(s) => periods(s.periods, "ephemeris.periods"),
+            EphemerisSection::Fixed(f) => Some((f.step_s * f.sun.len() as f64, "ephemeris.step_s")),
+            EphemerisSection::Spice(s) => match s.steps {
+                SpiceSteps::Window { .. } => None,
+                SpiceSteps::Spins { spins, .. } => periods(spins, "ephemeris.spins"),
+            },
         }
     }
 

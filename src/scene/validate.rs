@@ -14,6 +14,10 @@ pub const MAX_STEPS: usize = 100_000_000;
 /// The most bodies a scene may have: every step checks each pair for shadows.
 pub const MAX_BODIES: usize = 64;
 
+/// The longest time a run may span, seconds: far beyond any ephemeris, well inside what
+/// an epoch can hold.
+pub const MAX_SPAN_S: f64 = 1e12;
+
 impl Scene {
     pub(super) fn validate(&self) -> Result<()> {
         positive(self, "run.bin_width_w_m2", self.run.bin_width_w_m2)?;
@@ -75,8 +79,20 @@ impl Scene {
         self.validate_step_count()
     }
 
-    /// A run that cannot finish is refused before anything is allocated.
+    /// A run that cannot finish, or whose epochs lie beyond any calendar, is refused
+    /// before anything is allocated.
     fn validate_step_count(&self) -> Result<()> {
+        if let Some((span_s, key)) = self.span_s() {
+            if !(span_s <= MAX_SPAN_S) {
+                return Err(self.err(
+                    key,
+                    format!(
+                        "makes the run span {span_s:e} s; at most {MAX_SPAN_S:e} s (about \
+                         31,700 years)"
+                    ),
+                ));
+            }
+        }
         let steps = self.step_count();
         if steps.is_nan() || steps > MAX_STEPS as f64 {
             return Err(self.err(
