@@ -360,7 +360,7 @@ fn spice_ephemeris(scene: &Scene, s: &SpiceSection, kernels: Kernels) -> Result<
                 })?,
             };
             let span_s = period_s * spins;
-            if !(span_s <= crate::scene::MAX_SPAN_S) {
+            if span_s.is_nan() || span_s > crate::scene::MAX_SPAN_S {
                 return Err(scene.err(
                     "ephemeris.spins",
                     format!(

@@ -83,7 +83,7 @@ impl Scene {
     /// before anything is allocated.
     fn validate_step_count(&self) -> Result<()> {
         if let Some((span_s, key)) = self.span_s() {
-            if !(span_s <= MAX_SPAN_S) {
+            if span_s.is_nan() || span_s > MAX_SPAN_S {
                 return Err(self.err(
                     key,
                     format!(
