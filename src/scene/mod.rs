@@ -94,12 +94,13 @@ impl Scene {
         Ok(scene)
     }
 
-    /// An error at `key` of this scene. The message may quote the file (a name, a flag):
-    /// it is shown escaped and shortened, so that it stays one readable line.
+    /// An error at `key` of this scene. Both may quote the file (a material's own key, a
+    /// name, a flag): they are shown escaped and shortened, so that the error stays one
+    /// readable line.
     pub(crate) fn err(&self, key: impl Into<String>, msg: impl Into<String>) -> Error {
         Error::Scene {
             path: self.path.clone(),
-            key: key.into(),
+            key: printable(&key.into(), 200),
             msg: printable(&msg.into(), 500),
         }
     }
