@@ -18,7 +18,7 @@ use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use slim::budget::{parse_bytes, Budget};
 #[cfg(feature = "imaging")]
 use slim::compare::{compare_images, ValueBins};
-use slim::error::{Error, Result};
+use slim::error::{printable, Error, Result};
 #[cfg(feature = "imaging")]
 use slim::fit::job::fit_scene;
 #[cfg(feature = "imaging")]
@@ -400,15 +400,7 @@ pub fn main() -> std::process::ExitCode {
 /// (from a broken file's bytes, or a line break) are written as escapes, so that a bad
 /// file can neither drive the terminal nor split the line.
 fn fail(message: &str) -> std::process::ExitCode {
-    let mut line = String::with_capacity(message.len());
-    for c in message.chars() {
-        if c.is_control() {
-            line.extend(c.escape_default());
-        } else {
-            line.push(c);
-        }
-    }
-    eprintln!("slim: error: {line}");
+    eprintln!("slim: error: {}", printable(message, usize::MAX));
     std::process::ExitCode::FAILURE
 }
 

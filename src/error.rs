@@ -102,6 +102,16 @@ impl Error {
         }
     }
 
+    /// A scene error at `key`. Key and message may quote the scene file (a misspelt key,
+    /// a name, a flag), so both are made [`printable`]: at most 200 and 500 characters.
+    pub fn scene(path: &Path, key: impl Into<String>, msg: impl Into<String>) -> Self {
+        Error::Scene {
+            path: path.to_path_buf(),
+            key: printable(&key.into(), 200),
+            msg: printable(&msg.into(), 500),
+        }
+    }
+
     /// An output error on `path`.
     pub fn output(path: &Path, msg: impl std::fmt::Display) -> Self {
         Error::Output {
@@ -116,8 +126,8 @@ impl Error {
 /// as written, escapes included, the rest cut to `...`. For messages that quote a file's
 /// content, which must stay one line that a terminal or a log shows as it is, however
 /// broken the file.
-pub(crate) fn printable(text: &str, max_chars: usize) -> String {
-    let mut out = String::with_capacity(text.len().min(4 * max_chars));
+pub fn printable(text: &str, max_chars: usize) -> String {
+    let mut out = String::with_capacity(text.len().min(max_chars.saturating_mul(4)));
     let mut written = 0;
     for c in text.chars() {
         let escaped = c.is_control().then(|| c.escape_default());

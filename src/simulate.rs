@@ -91,13 +91,7 @@ pub fn simulate(
     });
     let n = world.facet_count();
     let mut acc = Accumulators::new(n, bins, scatter.is_some());
-    // With scattered light on a single body, whose exchange areas are the same at every
-    // step, up to LANES steps are traced first and then solved together.
-    let batch = if scatter.is_some() && world.bodies.len() == 1 {
-        LANES
-    } else {
-        1
-    };
+    let batch = steps_per_batch(scatter.is_some(), world.bodies.len());
     let mut directs = vec![vec![0.0; n]; batch];
     let mut scattered = vec![vec![0.0; n]; batch];
     let mut counts = StepCounts::default();
@@ -140,6 +134,17 @@ pub fn simulate(
                 record: stage.record,
             }),
     })
+}
+
+/// The steps computed together: with scattered light on a single body, whose exchange
+/// areas are the same at every step, up to [`LANES`] steps are traced first and then
+/// solved together; otherwise one.
+pub fn steps_per_batch(scatter: bool, bodies: usize) -> usize {
+    if scatter && bodies == 1 {
+        LANES
+    } else {
+        1
+    }
 }
 
 /// The statistics a run accumulates step by step: of the total, and with scattered light

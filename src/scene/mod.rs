@@ -94,15 +94,9 @@ impl Scene {
         Ok(scene)
     }
 
-    /// An error at `key` of this scene. Both may quote the file (a material's own key, a
-    /// name, a flag): they are shown escaped and shortened, so that the error stays one
-    /// readable line.
+    /// An error at `key` of this scene ([`Error::scene`]: shown printable and bounded).
     pub(crate) fn err(&self, key: impl Into<String>, msg: impl Into<String>) -> Error {
-        Error::Scene {
-            path: self.path.clone(),
-            key: printable(&key.into(), 200),
-            msg: printable(&msg.into(), 500),
-        }
+        Error::scene(&self.path, key, msg)
     }
 
     /// Every file the scene names, each with the key that names it: mesh files, SPICE
@@ -186,13 +180,11 @@ impl Scene {
 }
 
 fn parse_epoch(path: &Path, key: &str, text: &str) -> Result<Epoch> {
-    Epoch::from_str(text).map_err(|e| Error::Scene {
-        path: path.to_path_buf(),
-        key: key.into(),
-        msg: format!(
-            "'{}' is not an epoch ({e}); write e.g. \"2018-06-10T00:00:00 UTC\"",
-            printable(text, 80)
-        ),
+    Epoch::from_str(text).map_err(|e| {
+        let shown = printable(text, 80);
+        let msg =
+            format!("'{shown}' is not an epoch ({e}); write e.g. \"2018-06-10T00:00:00 UTC\"");
+        Error::scene(path, key, msg)
     })
 }
 
@@ -203,11 +195,7 @@ fn ephemeris_section(
     folder: &Path,
     mut table: toml::Table,
 ) -> Result<(EphemerisSection, Epoch)> {
-    let err = |msg: String| Error::Scene {
-        path: path.to_path_buf(),
-        key: "ephemeris.mode".into(),
-        msg: printable(&msg, 500),
-    };
+    let err = |msg: String| Error::scene(path, "ephemeris.mode", msg);
     const MODES: &str = "\"spin\", \"fixed\" or \"spice\"";
     let mode = match table.remove("mode") {
         Some(toml::Value::String(mode)) => mode,
