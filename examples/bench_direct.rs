@@ -23,7 +23,9 @@ fn tracers(options: &common::Options) -> Result<Vec<TracerKind>, String> {
         match options.value("--tracer", "both".to_string())?.as_str() {
             "sunview" => vec![TracerKind::Sunview],
             "grid" => vec![TracerKind::Grid],
+            "bvh" => vec![TracerKind::Bvh],
             "both" => vec![TracerKind::Sunview, TracerKind::Grid],
+            "fast" => vec![TracerKind::Sunview, TracerKind::Bvh],
             t => return Err(format!("unknown tracer {t}")),
         },
     )

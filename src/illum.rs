@@ -13,7 +13,9 @@
 
 use crate::ephemeris::EpochState;
 use crate::error::{Error, Result};
-use crate::trace::{self, ShadowQuery, Tracer, TracerKind};
+use crate::trace::bvh::Bvh;
+use crate::trace::horizon::HorizonBound;
+use crate::trace::{self, ShadowQuery, ShadowRay, Tracer, TracerKind};
 use crate::world::{Body, FrameTransform, World};
 use glam::DVec3;
 use rayon::prelude::*;
@@ -27,6 +29,10 @@ pub struct StepCounts {
     pub rays: u64,
     /// Facets facing the Sun but shadowed.
     pub shadowed: u64,
+    /// Facets facing the Sun whose own body's shadow ray was not traced: the Sun stood
+    /// above their horizon bound ([`crate::trace::horizon`]).
+    #[serde(default)]
+    pub above_horizon: u64,
 }
 
 impl std::ops::AddAssign for StepCounts {
@@ -34,6 +40,7 @@ impl std::ops::AddAssign for StepCounts {
         self.night += o.night;
         self.rays += o.rays;
         self.shadowed += o.shadowed;
+        self.above_horizon += o.above_horizon;
     }
 }
 
@@ -41,6 +48,9 @@ impl std::ops::AddAssign for StepCounts {
 pub struct Direct<'w> {
     world: &'w World,
     tracers: Vec<Box<dyn Tracer + 'w>>,
+    /// Per body, the horizon bound that spares shadow rays (fast tracers, bodies that
+    /// can shadow themselves).
+    horizons: Vec<Option<HorizonBound>>,
     min_height_m: Vec<Vec<f64>>,
     offsets: Vec<usize>,
 }
@@ -53,15 +63,25 @@ struct ForeignCaster<'q> {
 }
 
 impl<'w> Direct<'w> {
-    /// Builds the tracers of every body.
+    /// Builds the tracers of every body. With the BVH tracer, a body that can shadow
+    /// itself also gets its horizon bound, built with the same tree.
     pub fn new(world: &'w World, kind: TracerKind) -> Direct<'w> {
+        let (tracers, horizons) = world
+            .bodies
+            .iter()
+            .map(|b| match kind {
+                TracerKind::Bvh if !b.convex => {
+                    let bvh = Bvh::build(&b.mesh);
+                    let horizon = HorizonBound::new(&b.mesh, &bvh);
+                    (Box::new(bvh) as Box<dyn Tracer + 'w>, Some(horizon))
+                }
+                _ => (trace::build(kind, &b.mesh), None),
+            })
+            .unzip();
         Direct {
             world,
-            tracers: world
-                .bodies
-                .iter()
-                .map(|b| trace::build(kind, &b.mesh))
-                .collect(),
+            tracers,
+            horizons,
             min_height_m: world.bodies.iter().map(min_blocker_heights).collect(),
             offsets: world.offsets(),
         }
@@ -135,20 +155,34 @@ impl<'w> Direct<'w> {
     }
 
     fn illuminate_body(&self, b: usize, light: &Sunlight<'_>, out: &mut [f64]) -> StepCounts {
-        const CHUNK: usize = 1024;
-        out.par_chunks_mut(CHUNK)
-            .enumerate()
-            .map(|(chunk, values)| {
-                let mut counts = StepCounts::default();
-                for (k, e) in values.iter_mut().enumerate() {
-                    *e = self.facet_irradiance(b, chunk * CHUNK + k, light, &mut counts);
-                }
-                counts
+        let mesh = &self.world.bodies[b].mesh;
+        let horizon = self.horizons[b].as_ref();
+        let facing: Vec<Facing> = (0..mesh.len())
+            .into_par_iter()
+            .filter_map(|i| {
+                let cos = mesh.normals[i].dot(light.sun);
+                (cos > 0.0).then(|| Facing {
+                    ray: ShadowRay {
+                        origin: mesh.centroids[i],
+                        t_min: self.t_min(b, i, cos),
+                        skip: Some(i as u32),
+                    },
+                    cos,
+                    above_horizon: horizon.is_some_and(|h| h.clears(i, cos)),
+                })
             })
-            .reduce(StepCounts::default, |mut a, b| {
-                a += b;
-                a
-            })
+            .collect();
+        let mut blocked = vec![false; facing.len()];
+        let mut counts = light.blocked_all(&facing, &mut blocked);
+        counts.night = (mesh.len() - facing.len()) as u64;
+        counts.shadowed = blocked.iter().filter(|&&x| x).count() as u64;
+        out.fill(0.0);
+        for (f, &dark) in facing.iter().zip(&blocked) {
+            if !dark {
+                out[f.ray.skip.map_or(0, |i| i as usize)] = light.flux * f.cos;
+            }
+        }
+        counts
     }
 
     /// Irradiance of facet `i` of body `b`: zero when it faces away from the Sun or the
@@ -182,6 +216,14 @@ impl<'w> Direct<'w> {
     }
 }
 
+/// A facet facing the Sun: its shadow ray, `n·s`, and whether the Sun stands above its
+/// horizon bound.
+struct Facing {
+    ray: ShadowRay,
+    cos: f64,
+    above_horizon: bool,
+}
+
 /// One body's Sun at one step with the shadow queries that serve it.
 pub(crate) struct Sunlight<'q> {
     sun: DVec3,
@@ -204,11 +246,50 @@ impl Sunlight<'_> {
             counts.rays += 1;
             q.blocked(point, t_min, Some(facet as u32))
         });
-        blocked_by_self
-            || self.foreign.iter().any(|f| {
-                counts.rays += 1;
-                f.query.blocked(f.to_caster.point(point), t_min, None)
-            })
+        blocked_by_self || self.blocked_by_others(point, t_min, counts)
+    }
+
+    /// [`Sunlight::blocked`] for the receiver's facets facing the Sun, into `blocked`;
+    /// the own body's rays are traced only for facets the Sun is not above the horizon of.
+    fn blocked_all(&self, facing: &[Facing], blocked: &mut [bool]) -> StepCounts {
+        let mut counts = StepCounts::default();
+        if let Some(own) = self.own.as_deref() {
+            let traced: Vec<usize> = (0..facing.len())
+                .filter(|&k| !facing[k].above_horizon)
+                .collect();
+            let rays: Vec<ShadowRay> = traced.iter().map(|&k| facing[k].ray).collect();
+            let mut answers = vec![false; rays.len()];
+            own.blocked_all(&rays, &mut answers);
+            for (&k, dark) in traced.iter().zip(answers) {
+                blocked[k] = dark;
+            }
+            counts.rays += rays.len() as u64;
+            counts.above_horizon += (facing.len() - rays.len()) as u64;
+        }
+        if !self.foreign.is_empty() {
+            counts += facing
+                .par_iter()
+                .zip(blocked)
+                .filter(|(_, dark)| !**dark)
+                .map(|(f, dark)| {
+                    let mut c = StepCounts::default();
+                    *dark = self.blocked_by_others(f.ray.origin, f.ray.t_min, &mut c);
+                    c
+                })
+                .reduce(StepCounts::default, |mut a, b| {
+                    a += b;
+                    a
+                });
+        }
+        counts
+    }
+
+    /// True when a facet of another body blocks the Sun from `point` farther than `t_min`.
+    fn blocked_by_others(&self, point: DVec3, t_min: f64, counts: &mut StepCounts) -> bool {
+        self.foreign.iter().any(|f| {
+            counts.rays += 1;
+            f.query.blocked(f.to_caster.point(point), t_min, None)
+        })
     }
 }
 

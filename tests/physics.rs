@@ -633,21 +633,65 @@ fn two_spheres_shadow_matches_exact_spheres() {
 }
 
 // ---------------------------------------------------------------------------------------
-// 4. Both tracers classify identically on real meshes
+// 4. Every tracer classifies identically on real meshes
 
-/// Compares Grid and Sunview on every lit facet for every Sun, once through the tracers'
-/// queries (with the engine's guard replicated) and once through the engine's direct
-/// stage (irradiance compared bit for bit). Returns (rays, shadowed).
+/// Compares each fast tracer (Sunview, and the BVH with its horizon bound) with the Grid
+/// reference on every lit facet for every Sun, once through the tracers' queries (with
+/// the engine's guard replicated) and once through the engine's direct stage, where the
+/// BVH run also skips the rays its horizon bound clears (irradiance compared bit for
+/// bit). Returns (rays, shadowed).
 fn compare_tracers(name: &str, mesh: &Mesh, suns: &[DVec3]) -> (usize, usize) {
     let world = World {
         bodies: vec![Body::new(name, mesh.clone(), false)],
     };
-    let radius = world.bodies[0].bounding_radius_m;
+    let eph = fixed(suns, 1000.0, vec![Pose::IDENTITY]);
+    let by_grid = history(&world, &eph, TracerKind::Grid);
+    let mut totals = (0, 0);
+    for kind in [TracerKind::Sunview, TracerKind::Bvh] {
+        totals = compare_queries(name, mesh, suns, world.bodies[0].bounding_radius_m, kind);
+        let by_fast = history(&world, &eph, kind);
+        let mut engine_mismatches = Vec::new();
+        for (k, ((eg, _), (ef, _))) in by_grid.iter().zip(&by_fast).enumerate() {
+            for i in 0..mesh.len() {
+                if eg[i].to_bits() != ef[i].to_bits() {
+                    engine_mismatches.push((i, suns[k], eg[i], ef[i]));
+                }
+            }
+        }
+        let cleared: u64 = by_fast.iter().map(|(_, c)| c.above_horizon).sum();
+        println!(
+            "{name} {kind:?}: {} engine mismatches, {cleared} rays cleared by the horizon bound",
+            engine_mismatches.len()
+        );
+        assert!(
+            engine_mismatches.is_empty(),
+            "{name}: engine irradiance of Grid and {kind:?} differs {} times, first (facet, \
+             sun, E grid, E {kind:?}): {:?}",
+            engine_mismatches.len(),
+            &engine_mismatches[..engine_mismatches.len().min(5)]
+        );
+        assert!(
+            kind != TracerKind::Bvh || cleared > 0,
+            "{name}: the horizon bound cleared no ray, so it went untested"
+        );
+    }
+    totals
+}
+
+/// Compares `kind`'s queries with the Grid's on every lit facet for every Sun, the
+/// engine's guard replicated. Returns (rays, shadowed).
+fn compare_queries(
+    name: &str,
+    mesh: &Mesh,
+    suns: &[DVec3],
+    radius: f64,
+    kind: TracerKind,
+) -> (usize, usize) {
     let grid = trace::build(TracerKind::Grid, mesh);
-    let view = trace::build(TracerKind::Sunview, mesh);
+    let fast = trace::build(kind, mesh);
     let (mut rays, mut shadowed, mut mismatches) = (0, 0, Vec::new());
     for &s in suns {
-        let (qg, qv) = (grid.toward(s), view.toward(s));
+        let (qg, qf) = (grid.toward(s), fast.toward(s));
         for i in 0..mesh.len() {
             let cos = mesh.normals[i].dot(s);
             if cos <= 0.0 {
@@ -656,45 +700,27 @@ fn compare_tracers(name: &str, mesh: &Mesh, suns: &[DVec3]) -> (usize, usize) {
             let c = mesh.centroids[i];
             let t_min = min_height(mesh, radius, i) / cos;
             let skip = Some(i as u32);
-            let (g, v) = (qg.blocked(c, t_min, skip), qv.blocked(c, t_min, skip));
-            if g != v {
-                mismatches.push((i, s, cos, g, v));
+            let (g, f) = (qg.blocked(c, t_min, skip), qf.blocked(c, t_min, skip));
+            if g != f {
+                mismatches.push((i, s, cos, g, f));
             }
             rays += 1;
             shadowed += g as usize;
         }
     }
-    // The same through the engine: (facet, sun, E grid, E sunview).
-    let eph = fixed(suns, 1000.0, vec![Pose::IDENTITY]);
-    let (by_grid, by_view) = (
-        history(&world, &eph, TracerKind::Grid),
-        history(&world, &eph, TracerKind::Sunview),
-    );
-    let mut engine_mismatches = Vec::new();
-    for (k, ((eg, _), (ev, _))) in by_grid.iter().zip(&by_view).enumerate() {
-        for i in 0..mesh.len() {
-            if eg[i].to_bits() != ev[i].to_bits() {
-                engine_mismatches.push((i, suns[k], eg[i], ev[i]));
-            }
-        }
-    }
     println!(
-        "{name}: {} facets, {} suns, {rays} rays, {shadowed} shadowed, {} query mismatches, \
-         {} engine mismatches",
+        "{name} {kind:?}: {} facets, {} suns, {rays} rays, {shadowed} shadowed, {} query \
+         mismatches",
         mesh.len(),
         suns.len(),
         mismatches.len(),
-        engine_mismatches.len()
     );
     assert!(
-        mismatches.is_empty() && engine_mismatches.is_empty(),
-        "{name}: Grid and Sunview disagree on {} rays, first (facet, sun, cos i, grid \
-         blocked, sunview blocked): {:?}; engine irradiance differs {} times, first (facet, \
-         sun, E grid, E sunview): {:?}",
+        mismatches.is_empty(),
+        "{name}: Grid and {kind:?} disagree on {} rays, first (facet, sun, cos i, grid \
+         blocked, {kind:?} blocked): {:?}",
         mismatches.len(),
         &mismatches[..mismatches.len().min(5)],
-        engine_mismatches.len(),
-        &engine_mismatches[..engine_mismatches.len().min(5)]
     );
     assert!(
         shadowed > 0,

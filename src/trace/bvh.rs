@@ -12,8 +12,8 @@
 //! far above `f32` rounding, so the box tests can only let through more, never fewer,
 //! segments than exact ones would; facets are then screened in `f32` and tested in `f64`.
 
-use super::caster_facets;
 use super::ray::{inside, DepthPlane, RayFrame};
+use super::{caster_facets, ShadowQuery, Tracer};
 use crate::mesh::Mesh;
 use glam::{BVec4A, DVec3, Vec3, Vec4};
 
@@ -222,9 +222,12 @@ impl Bvh {
     /// True if a facet other than those in `skip` crosses the segment `a → b` (mesh frame,
     /// metres) farther than `margin` from both ends.
     pub fn segment_blocked(&self, a: DVec3, b: DVec3, skip: [u32; 2], margin: f64) -> bool {
-        let Some(segment) = self.segment(a, b, skip, margin) else {
-            return false;
-        };
+        self.segment(a, b, skip, margin)
+            .is_some_and(|segment| self.first_blocker(&segment))
+    }
+
+    /// True if a facet blocks the prepared `segment`.
+    fn first_blocker(&self, segment: &Segment) -> bool {
         let mut stack = [0u32; STACK];
         let mut top = 1;
         while top > 0 {
@@ -237,7 +240,7 @@ impl Bvh {
                 if !quad.leaf[k] {
                     stack[top] = quad.child[k];
                     top += 1;
-                } else if self.leaf_blocks(&self.leaves[quad.child[k] as usize], &segment) {
+                } else if self.leaf_blocks(&self.leaves[quad.child[k] as usize], segment) {
                     return true;
                 }
             }
@@ -252,9 +255,21 @@ impl Bvh {
         if self.quads.is_empty() || length <= 2.0 * margin {
             return None;
         }
-        let dir = (b - a) / length;
+        self.along(a, b, (b - a) / length, margin, length - margin, skip)
+    }
+
+    /// The segment `a → b` along unit `dir`, whose hits count between `t0` and `t1` from
+    /// `a`, prepared for testing; `None` when it misses the tree's bounding sphere.
+    fn along(
+        &self,
+        a: DVec3,
+        b: DVec3,
+        dir: DVec3,
+        t0: f64,
+        t1: f64,
+        skip: [u32; 2],
+    ) -> Option<Segment> {
         let frame = RayFrame::new(dir);
-        let (t0, t1) = (margin, length - margin);
         // The box tests start from the segment's point nearest the tree's centre, so that
         // their `f32` coordinates stay of the tree's size however far away `a` lies.
         let tc = (self.centre - a).dot(dir).clamp(t0, t1);
@@ -271,6 +286,20 @@ impl Bvh {
             skip,
             slab: Slab::new(start.as_vec3(), dir.as_vec3().recip(), t0 - tc, t1 - tc),
         })
+    }
+
+    /// True if a facet other than those in `skip` crosses the ray from `a` along unit
+    /// `dir` farther than `t_min`: [`Bvh::segment_blocked`] for a segment reaching past
+    /// the tree, with the frame built from `dir` itself, as the other tracers build it.
+    pub fn ray_blocked(&self, a: DVec3, dir: DVec3, t_min: f64, skip: [u32; 2]) -> bool {
+        if self.quads.is_empty() {
+            return false;
+        }
+        let length = (a - self.centre).length() + self.radius + 2.0 * t_min;
+        let Some(ray) = self.along(a, a + dir * length, dir, t_min, length - t_min, skip) else {
+            return false;
+        };
+        self.first_blocker(&ray)
     }
 
     /// True if a facet of `leaf` blocks the segment.
@@ -293,6 +322,85 @@ impl Bvh {
             }
         }
         false
+    }
+}
+
+/// Shadow rays along one direction, answered by the tree.
+struct BvhRays<'b> {
+    bvh: &'b Bvh,
+    dir: DVec3,
+}
+
+impl Tracer for Bvh {
+    fn toward(&self, dir: DVec3) -> Box<dyn ShadowQuery + '_> {
+        Box::new(BvhRays { bvh: self, dir })
+    }
+}
+
+impl ShadowQuery for BvhRays<'_> {
+    fn blocked(&self, origin: DVec3, t_min: f64, skip: Option<u32>) -> bool {
+        let skip = [skip.unwrap_or(u32::MAX), u32::MAX];
+        self.bvh.ray_blocked(origin, self.dir, t_min, skip)
+    }
+}
+
+impl Bvh {
+    /// The largest `value(facet id, corners, threshold)` over the tree's facets, at least
+    /// `floor`, to within `slack`: the true maximum is at most the result plus `slack`.
+    /// Found by branch and bound: a subtree is skipped when `box_bound` of its box (lower
+    /// and upper corners, mesh frame, metres), which must bound `value` over every facet
+    /// inside, is not above the best value found so far plus `slack`, the `threshold`
+    /// passed to `value`, which may answer anything not above it for a facet whose value
+    /// it can show to be no higher.
+    pub(crate) fn max_over_facets(
+        &self,
+        floor: f64,
+        slack: f64,
+        box_bound: impl Fn(DVec3, DVec3) -> f64,
+        value: impl Fn(u32, &[DVec3; 3], f64) -> f64,
+    ) -> f64 {
+        let mut best = floor;
+        if self.quads.is_empty() {
+            return best;
+        }
+        let mut stack = [0u32; STACK];
+        let mut top = 1;
+        while top > 0 {
+            top -= 1;
+            let quad = &self.quads[stack[top] as usize];
+            let corner = |c: &[Vec4; 3], lane: usize| {
+                DVec3::new(c[0][lane] as f64, c[1][lane] as f64, c[2][lane] as f64) + self.centre
+            };
+            let mut lanes: [(f64, usize); 4] = [(f64::NEG_INFINITY, 0); 4];
+            for (lane, slot) in lanes.iter_mut().enumerate() {
+                if quad.lo[0][lane] != f32::INFINITY {
+                    *slot = (
+                        box_bound(corner(&quad.lo, lane), corner(&quad.hi, lane)),
+                        lane,
+                    );
+                }
+            }
+            // Highest bound last, so that it is taken first and raises `best` early.
+            lanes.sort_unstable_by(|a, b| a.0.total_cmp(&b.0));
+            for &(bound, lane) in &lanes {
+                if bound <= best + slack {
+                    continue;
+                }
+                if !quad.leaf[lane] {
+                    stack[top] = quad.child[lane];
+                    top += 1;
+                    continue;
+                }
+                let leaf = &self.leaves[quad.child[lane] as usize];
+                for (k, &id) in leaf.ids.iter().enumerate() {
+                    if id != u32::MAX {
+                        let tri = &self.tris[leaf.first as usize + k];
+                        best = best.max(value(id, &tri.corners, best + slack));
+                    }
+                }
+            }
+        }
+        best
     }
 }
 

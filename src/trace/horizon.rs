@@ -1,0 +1,382 @@
+//! Horizon bound: per facet, the highest elevation at which its centroid sees any other
+//! facet of its body, so that a Sun above it needs no shadow ray.
+//!
+//! In: a mesh (metres, body frame) and its [`Bvh`]. Out: [`HorizonBound`], per facet the
+//! sine of the largest elevation above the facet's plane of any point of any other facet
+//! with an area, seen from the facet's centroid (0 when nothing rises above the plane).
+//! A shadow ray leaves the centroid at the Sun's elevation (`sin e = n·s`); when that is
+//! above the bound, every point the ray passes lies higher than anything of the body in
+//! that direction, so no facet can block it, and [`HorizonBound::clears`] answers
+//! without tracing. The answer is then the exact tracers' answer, not an approximation:
+//! on a convex patch of a surface nothing rises above the facet's plane, and on a real
+//! shape model most Sun-facing facets see the Sun above their highest horizon at most
+//! steps.
+//!
+//! The elevation of a triangle seen from a point is maximal at a corner, on an edge (the
+//! highest point of the great-circle arc between two corner directions) or, when the
+//! facet's normal points into the triangle's cone of directions, straight up (sin = 1).
+//! The bound is computed exactly that way for every triangle the tree cannot rule out,
+//! each triangle widened by the rounding of the exact predicate (a few units in the last
+//! place of the mesh's coordinates, `ROUNDING_ULPS · ε · |v|max`), so that a ray the
+//! tracers call blocked through rounding is never cleared.
+
+use super::bvh::Bvh;
+use crate::mesh::Mesh;
+use glam::DVec3;
+use rayon::prelude::*;
+
+/// The exact predicate's position error as a multiple of `ε · |v|max` (its edge
+/// functions combine three roundings of coordinates that size; this is far above).
+const ROUNDING_ULPS: f64 = 1024.0;
+
+/// How far above the highest horizon found the bound may lie (sine): the search skips
+/// whatever cannot rise more than this above it, which keeps it to the few hundred
+/// triangles near each facet and the far ones that form its horizon.
+const SEARCH_SLACK: f64 = 0.02;
+
+/// Least gap between the Sun's `sin e` and the bound for a ray to be cleared, over and
+/// above the widened triangles: the rounding of `n·s` itself.
+const SIN_MARGIN: f64 = 1e-9;
+
+/// Per facet, the sine of the highest elevation of any other facet seen from its centroid.
+#[derive(Debug, Clone)]
+pub struct HorizonBound {
+    sin_max: Vec<f64>,
+}
+
+impl HorizonBound {
+    /// The bound of every facet of `mesh`, using `bvh` (built over the same mesh).
+    pub fn new(mesh: &Mesh, bvh: &Bvh) -> HorizonBound {
+        let reach = mesh
+            .vertices
+            .iter()
+            .fold(0.0f64, |m, v| m.max(v.abs().max_element()));
+        let widening = ROUNDING_ULPS * f64::EPSILON * reach;
+        let sin_max = (0..mesh.len())
+            .into_par_iter()
+            .map(|i| {
+                let (c, n) = (mesh.centroids[i], mesh.normals[i]);
+                if n == DVec3::ZERO || mesh.areas[i] <= 0.0 {
+                    return 1.0;
+                }
+                let found = bvh.max_over_facets(
+                    0.0,
+                    SEARCH_SLACK,
+                    |lo, hi| box_bound(c, n, lo, hi, widening),
+                    |id, tri, threshold| {
+                        if id as usize == i {
+                            0.0
+                        } else {
+                            triangle_bound(c, n, tri, widening, threshold)
+                        }
+                    },
+                );
+                (found + SEARCH_SLACK).min(1.0)
+            })
+            .collect();
+        HorizonBound { sin_max }
+    }
+
+    /// True when a Sun at `sin_elevation` (n·s) above facet `i`'s plane is higher than
+    /// everything else of the body seen from its centroid: its shadow ray is unblocked.
+    #[inline]
+    pub fn clears(&self, i: usize, sin_elevation: f64) -> bool {
+        sin_elevation > self.sin_max[i] + SIN_MARGIN
+    }
+
+    /// Per facet, the sine of the highest elevation (for tests and reports).
+    pub fn sin_max(&self) -> &[f64] {
+        &self.sin_max
+    }
+
+    /// Bytes held.
+    pub fn bytes(&self) -> usize {
+        self.sin_max.len() * std::mem::size_of::<f64>()
+    }
+}
+
+/// An upper bound of the elevation sine from `c` (plane normal `n`) of every point of the
+/// box `lo..hi` widened by `widening`; 0 when the box lies on or below the plane.
+fn box_bound(c: DVec3, n: DVec3, lo: DVec3, hi: DVec3, widening: f64) -> f64 {
+    let (lo, hi) = (lo - widening, hi + widening);
+    let mid = (lo + hi) * 0.5;
+    let rise = n.dot(mid - c) + n.abs().dot((hi - lo) * 0.5);
+    if rise <= 0.0 {
+        return 0.0;
+    }
+    let gap = (c.clamp(lo, hi) - c).length();
+    if gap <= 0.0 {
+        1.0
+    } else {
+        (rise / gap).min(1.0)
+    }
+}
+
+/// An upper bound of the elevation sine from `c` (plane normal `n`) of every point within
+/// `widening` of triangle `tri`: the exact maximum over the triangle plus `widening` over
+/// the distance to it, or anything not above `threshold` when a cheap bound (the
+/// triangle's box) shows that it is not higher.
+fn triangle_bound(c: DVec3, n: DVec3, tri: &[DVec3; 3], widening: f64, threshold: f64) -> f64 {
+    let (lo, hi) = (
+        tri[0].min(tri[1]).min(tri[2]),
+        tri[0].max(tri[1]).max(tri[2]),
+    );
+    if box_bound(c, n, lo, hi, widening) <= threshold {
+        return 0.0;
+    }
+    let gap = distance_to_triangle(c, tri);
+    if gap <= 64.0 * widening {
+        return 1.0;
+    }
+    (triangle_max_sin(c, n, tri) + widening / (gap - widening)).min(1.0)
+}
+
+/// The exact largest elevation sine from `c` of a point of triangle `tri`, which does not
+/// contain `c`.
+fn triangle_max_sin(c: DVec3, n: DVec3, tri: &[DVec3; 3]) -> f64 {
+    let [a, b, d] = tri.map(|p| p - c);
+    if normal_in_cone(n, a, b, d) {
+        return 1.0;
+    }
+    arc_max_sin(n, a, b)
+        .max(arc_max_sin(n, b, d))
+        .max(arc_max_sin(n, d, a))
+}
+
+/// True when `n` is a non-negative combination of `a`, `b` and `d` (the triangle's cone of
+/// directions seen from the origin), within rounding; false for a flat cone.
+fn normal_in_cone(n: DVec3, a: DVec3, b: DVec3, d: DVec3) -> bool {
+    let volume = a.dot(b.cross(d));
+    let scale = a.length() * b.length() * d.length();
+    if volume.abs() <= 1e-12 * scale {
+        // A flat cone is its edges' arcs, which the caller takes.
+        return false;
+    }
+    let tolerance = 1e-12 * scale;
+    [n.dot(b.cross(d)), n.dot(d.cross(a)), n.dot(a.cross(b))]
+        .iter()
+        .all(|&w| w * volume.signum() >= -tolerance)
+}
+
+/// The largest `n·u` over the unit directions `u` of the segment from `a` to `b` (seen
+/// from the origin): an end, or the top of the great-circle arc between them. A segment
+/// through the origin gives 1.
+fn arc_max_sin(n: DVec3, a: DVec3, b: DVec3) -> f64 {
+    let (ua, ub) = (a.normalize(), b.normalize());
+    let ends = n.dot(ua).max(n.dot(ub));
+    let k = ua.cross(ub);
+    let k_len = k.length();
+    if k_len <= 1e-12 {
+        // Collinear with the origin: the segment passes through it when the ends point
+        // apart, and is a single direction otherwise.
+        return if ua.dot(ub) < 0.0 { 1.0 } else { ends };
+    }
+    let k = k / k_len;
+    let m = n - k * n.dot(k);
+    let m_len = m.length();
+    if m_len <= 0.0 {
+        return ends;
+    }
+    let top = m / m_len;
+    let within = ua.cross(top).dot(k) >= 0.0 && top.cross(ub).dot(k) >= 0.0;
+    if within {
+        m_len.max(ends)
+    } else {
+        ends
+    }
+}
+
+/// Distance from `p` to the triangle `tri` (its closest point, by region).
+fn distance_to_triangle(p: DVec3, tri: &[DVec3; 3]) -> f64 {
+    let [a, b, c] = *tri;
+    let (ab, ac, ap) = (b - a, c - a, p - a);
+    let (d1, d2) = (ab.dot(ap), ac.dot(ap));
+    if d1 <= 0.0 && d2 <= 0.0 {
+        return ap.length();
+    }
+    let bp = p - b;
+    let (d3, d4) = (ab.dot(bp), ac.dot(bp));
+    if d3 >= 0.0 && d4 <= d3 {
+        return bp.length();
+    }
+    let vc = d1 * d4 - d3 * d2;
+    if vc <= 0.0 && d1 >= 0.0 && d3 <= 0.0 {
+        return (p - (a + ab * (d1 / (d1 - d3)))).length();
+    }
+    let cp = p - c;
+    let (d5, d6) = (ab.dot(cp), ac.dot(cp));
+    if d6 >= 0.0 && d5 <= d6 {
+        return cp.length();
+    }
+    let vb = d5 * d2 - d1 * d6;
+    if vb <= 0.0 && d2 >= 0.0 && d6 <= 0.0 {
+        return (p - (a + ac * (d2 / (d2 - d6)))).length();
+    }
+    let va = d3 * d6 - d5 * d4;
+    if va <= 0.0 && d4 - d3 >= 0.0 && d5 - d6 >= 0.0 {
+        let w = (d4 - d3) / ((d4 - d3) + (d5 - d6));
+        return (p - (b + (c - b) * w)).length();
+    }
+    let denom = va + vb + vc;
+    if denom == 0.0 {
+        // A triangle without area (never a caster); no distance is claimed.
+        return 0.0;
+    }
+    let (v, w) = (vb / denom, vc / denom);
+    (p - (a + ab * v + ac * w)).length()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::mesh::generate::icosphere;
+    use crate::mesh::{LengthUnit, RawMesh};
+    use crate::TestRng;
+
+    fn random_point(rng: &mut TestRng, size: f64) -> DVec3 {
+        DVec3::new(rng.unit() - 0.5, rng.unit() - 0.5, rng.unit() - 0.5) * size
+    }
+
+    /// The largest elevation sine over a dense barycentric sampling of the triangle.
+    fn sampled_max_sin(c: DVec3, n: DVec3, [a, b, d]: [DVec3; 3], steps: u32) -> f64 {
+        let mut best = f64::NEG_INFINITY;
+        for i in 0..=steps {
+            for j in 0..=steps - i {
+                let (u, v) = (i as f64 / steps as f64, j as f64 / steps as f64);
+                let p = a + (b - a) * u + (d - a) * v;
+                best = best.max(n.dot((p - c).normalize()));
+            }
+        }
+        best
+    }
+
+    /// Whether the ray `c + t·n` (t > 0) meets the triangle, within 1e-9 of its edges
+    /// (Möller and Trumbore's test).
+    fn ray_meets(c: DVec3, n: DVec3, [a, b, d]: [DVec3; 3]) -> bool {
+        let (e1, e2) = (b - a, d - a);
+        let p = n.cross(e2);
+        let det = e1.dot(p);
+        if det.abs() < 1e-300 {
+            return false;
+        }
+        let s = c - a;
+        let u = s.dot(p) / det;
+        let q = s.cross(e1);
+        let v = n.dot(q) / det;
+        let t = e2.dot(q) / det;
+        t > 0.0 && u >= -1e-9 && v >= -1e-9 && u + v <= 1.0 + 1e-9
+    }
+
+    #[test]
+    fn triangle_maximum_bounds_and_matches_a_dense_sampling() {
+        let mut rng = TestRng::new(17);
+        let (mut interior_tops, mut far) = (0, 0);
+        for _ in 0..2000 {
+            let c = random_point(&mut rng, 2.0);
+            let n = random_point(&mut rng, 2.0).normalize();
+            let tri = [0, 1, 2].map(|_| random_point(&mut rng, 4.0));
+            if distance_to_triangle(c, &tri) < 0.05 {
+                continue;
+            }
+            let exact = triangle_max_sin(c, n, &tri);
+            if exact == 1.0 {
+                // Straight up is claimed: the ray from `c` along `n` must meet the triangle.
+                interior_tops += 1;
+                assert!(
+                    ray_meets(c, n, tri),
+                    "{c} {n} {tri:?}: sin 1 but the normal misses"
+                );
+                continue;
+            }
+            let sampled = sampled_max_sin(c, n, tri, 120);
+            // The exact maximum is never below a sampled point; from a distance of at
+            // least 0.8 the sampling (steps of at most 0.06) sees the triangle in steps
+            // of 0.075 rad, so it comes within (0.075)²/2 of the top.
+            assert!(
+                exact >= sampled - 1e-12,
+                "{c} {n} {tri:?}: {exact} < {sampled}"
+            );
+            if distance_to_triangle(c, &tri) >= 0.8 {
+                far += 1;
+                assert!(
+                    exact <= sampled + 3e-3,
+                    "{c} {n} {tri:?}: {exact} ≫ {sampled}"
+                );
+            }
+        }
+        assert!(
+            interior_tops > 0,
+            "no case had the normal inside the triangle's cone"
+        );
+        assert!(
+            far > 200,
+            "too few triangles far enough to compare with the sampling"
+        );
+    }
+
+    #[test]
+    fn distance_to_triangle_matches_a_dense_sampling() {
+        let mut rng = TestRng::new(5);
+        for _ in 0..500 {
+            let p = random_point(&mut rng, 3.0);
+            let [a, b, d] = [0, 1, 2].map(|_| random_point(&mut rng, 4.0));
+            let mut sampled = f64::INFINITY;
+            for i in 0..=100 {
+                for j in 0..=100 - i {
+                    let (u, v) = (i as f64 / 100.0, j as f64 / 100.0);
+                    sampled = sampled.min((a + (b - a) * u + (d - a) * v - p).length());
+                }
+            }
+            let exact = distance_to_triangle(p, &[a, b, d]);
+            assert!(
+                exact <= sampled + 1e-12 && exact >= sampled - 0.1,
+                "{exact} {sampled}"
+            );
+        }
+    }
+
+    /// A floor (two triangles, z = 0) and a vertical wall of height `h` along x = `wall_x`,
+    /// wide enough that the top edge's nearest point is straight across from the floor
+    /// facets' centroids: seen from a centroid `c`, the wall's top rises to
+    /// sin e = h / √(h² + (wall_x − c.x)²).
+    #[test]
+    fn a_wall_beside_a_floor_is_the_floors_horizon() {
+        let (h, wall_x, half) = (3.0, 4.0, 50.0);
+        let raw = RawMesh {
+            vertices: vec![
+                DVec3::new(-1.0, -1.0, 0.0),
+                DVec3::new(1.0, -1.0, 0.0),
+                DVec3::new(1.0, 1.0, 0.0),
+                DVec3::new(-1.0, 1.0, 0.0),
+                DVec3::new(wall_x, -half, 0.0),
+                DVec3::new(wall_x, half, 0.0),
+                DVec3::new(wall_x, half, h),
+                DVec3::new(wall_x, -half, h),
+            ],
+            triangles: vec![[0, 1, 2], [0, 2, 3], [4, 5, 6], [4, 6, 7]],
+        };
+        let mesh = Mesh::from_raw(raw, LengthUnit::M);
+        let bound = HorizonBound::new(&mesh, &Bvh::build(&mesh));
+        for i in 0..2 {
+            let c = mesh.centroids[i];
+            let expected = h / (h * h + (wall_x - c.x).powi(2)).sqrt();
+            let got = bound.sin_max()[i];
+            assert!(
+                got >= expected && got <= expected + SEARCH_SLACK + 1e-9,
+                "facet {i}: bound {got}, closed form {expected}"
+            );
+            // A Sun just above the wall's top is cleared, one just below it is not.
+            assert!(bound.clears(i, got + 2.0 * SIN_MARGIN));
+            assert!(!bound.clears(i, expected - 1e-6));
+        }
+    }
+
+    #[test]
+    fn a_convex_body_hides_nothing_above_any_facets_plane() {
+        let mesh = Mesh::from_raw(icosphere(3, 1.0, DVec3::new(5e3, 0.0, 0.0)), LengthUnit::Km);
+        let bound = HorizonBound::new(&mesh, &Bvh::build(&mesh));
+        let worst = bound.sin_max().iter().fold(0.0f64, |m, &s| m.max(s));
+        // Nothing rises above a face of a convex solid: only the search's slack remains.
+        assert!(worst <= SEARCH_SLACK + 1e-6, "{worst}");
+    }
+}
