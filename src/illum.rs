@@ -211,7 +211,7 @@ impl<'w> Direct<'w> {
 
     /// The least distance along the Sun ray at which a hit on facet `i` of body `b` counts
     /// as a shadow, for the Sun at `cos_i` from its normal (the module doc's `h_min`).
-    pub(crate) fn t_min(&self, b: usize, i: usize, cos_i: f64) -> f64 {
+    pub fn t_min(&self, b: usize, i: usize, cos_i: f64) -> f64 {
         self.min_height_m[b][i] / cos_i
     }
 }

@@ -1,10 +1,13 @@
 //! What the benchmarks share: command-line options, the thread count, the test body (a
 //! mesh file, km, optionally subdivided) spinning under a fixed Sun, and peak memory.
+//! `folded` builds the bilobed test shape.
+
+pub mod folded;
 
 use glam::DVec3;
 use slim::ephemeris::spin::{Spin, SpinModel};
 use slim::ephemeris::EpochState;
-use slim::mesh::{generate::subdivide, inspect::inspect, read_mesh, LengthUnit, Mesh};
+use slim::mesh::{generate::subdivide, inspect::inspect, read_mesh, LengthUnit, Mesh, RawMesh};
 use slim::prepare::epoch_states;
 use slim::world::{Body, World};
 use std::path::PathBuf;
@@ -31,12 +34,13 @@ impl Options {
     pub fn optional<T: std::str::FromStr>(&self, flag: &str) -> Result<Option<T>, String> {
         match self.argv.iter().position(|a| a == flag) {
             None => Ok(None),
-            Some(k) => self
-                .argv
-                .get(k + 1)
-                .and_then(|v| v.parse().ok())
-                .map(Some)
-                .ok_or(format!("{flag} needs a value")),
+            Some(k) => match self.argv.get(k + 1) {
+                None => Err(format!("{flag} needs a value")),
+                Some(v) => v
+                    .parse()
+                    .map(Some)
+                    .map_err(|_| format!("{flag}: cannot read the value {v:?}")),
+            },
         }
     }
 
@@ -45,9 +49,39 @@ impl Options {
         Ok(self.optional(flag)?.unwrap_or(default))
     }
 
-    /// The mesh: the argument that is neither a flag nor a flag's value, or the
-    /// 49,152-facet Itokawa model.
-    pub fn mesh(&self) -> PathBuf {
+    /// True when the switch `flag` (a flag without a value) is given.
+    pub fn has(&self, flag: &str) -> bool {
+        self.argv.iter().any(|a| a == flag)
+    }
+
+    /// An error naming the first argument that starts with `--` but is neither a flag
+    /// that takes a value nor one of `switches`, and any second positional argument.
+    pub fn check(&self, switches: &[&str]) -> Result<(), String> {
+        let mut positional = 0;
+        let mut k = 0;
+        while k < self.argv.len() {
+            let a = self.argv[k].as_str();
+            if self.flags.contains(&a) {
+                k += 2;
+                continue;
+            }
+            if a.starts_with("--") && !switches.contains(&a) {
+                let known: Vec<&str> = self.flags.iter().chain(switches).copied().collect();
+                return Err(format!("unknown flag {a} (known: {})", known.join(", ")));
+            }
+            if !a.starts_with("--") {
+                positional += 1;
+                if positional > 1 {
+                    return Err(format!("unexpected argument {a}: give at most one mesh"));
+                }
+            }
+            k += 1;
+        }
+        Ok(())
+    }
+
+    /// The argument that is neither a flag nor a flag's value, if any.
+    pub fn positional(&self) -> Option<PathBuf> {
         let argv = &self.argv;
         argv.iter()
             .enumerate()
@@ -55,10 +89,15 @@ impl Options {
                 !a.starts_with("--") && (*k == 0 || !self.flags.contains(&argv[k - 1].as_str()))
             })
             .map(|(_, a)| PathBuf::from(a))
-            .unwrap_or_else(|| {
-                PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-                    .join("data/shapes/itokawa/ItokawaHayabusa.obj")
-            })
+    }
+
+    /// The mesh: the argument that is neither a flag nor a flag's value, or the
+    /// 49,152-facet Itokawa model.
+    pub fn mesh(&self) -> PathBuf {
+        self.positional().unwrap_or_else(|| {
+            PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+                .join("data/shapes/itokawa/ItokawaHayabusa.obj")
+        })
     }
 
     /// `--threads N` (0 or absent: rayon's default) applied to the global pool.
@@ -75,8 +114,17 @@ impl Options {
     /// One body from the mesh (km) subdivided `--subdivide` times (×4 facets per level,
     /// same shape), `default_subdivide` when the flag is absent.
     pub fn world(&self, default_subdivide: u32) -> Result<World, Box<dyn std::error::Error>> {
+        self.world_from(read_mesh(&self.mesh(), None)?, default_subdivide)
+    }
+
+    /// One body from `raw` (km) subdivided as in [`Options::world`].
+    pub fn world_from(
+        &self,
+        raw: RawMesh,
+        default_subdivide: u32,
+    ) -> Result<World, Box<dyn std::error::Error>> {
         let levels: u32 = self.value("--subdivide", default_subdivide)?;
-        let raw = (0..levels).fold(read_mesh(&self.mesh(), None)?, |m, _| subdivide(&m));
+        let raw = (0..levels).fold(raw, |m, _| subdivide(&m));
         let mesh = Mesh::from_raw(raw, LengthUnit::Km);
         let convex = inspect(&mesh).convex;
         Ok(World {
@@ -104,11 +152,16 @@ pub fn spin_states(steps: usize, sun_dir: DVec3) -> Result<Vec<EpochState>, slim
 
 /// Peak resident memory of this process, MB (Linux; 0 elsewhere).
 pub fn peak_rss_mb() -> f64 {
+    proc_status_mb("VmHWM:")
+}
+
+/// A memory line of /proc/self/status (`VmHWM:`, `VmRSS:`…), MB (Linux; 0 elsewhere).
+pub fn proc_status_mb(key: &str) -> f64 {
     std::fs::read_to_string("/proc/self/status")
         .ok()
         .and_then(|s| {
             s.lines()
-                .find(|l| l.starts_with("VmHWM:"))
+                .find(|l| l.starts_with(key))
                 .and_then(|l| l.split_whitespace().nth(1)?.parse::<f64>().ok())
         })
         .map_or(0.0, |kb| kb / 1024.0)

@@ -1,0 +1,166 @@
+"""The peer benchmark's table.
+
+In: a results folder laid out by `bench/peers/run`: one folder per case holding
+`slim1/slim.json`, `slim2/slim.json` (slim with 1 and 2 threads), `embree.json`, and
+slim's shadowed bitmaps of both runs. Out: the table printed, and `table.md` and
+`results.json` written into the results folder, stamped with the date, the machine
+architecture and the CPU model.
+"""
+
+import argparse
+import datetime
+import json
+import platform
+import sys
+from pathlib import Path
+
+import numpy as np
+
+
+def cpu_model():
+    try:
+        for line in open("/proc/cpuinfo"):
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return "unknown"
+
+
+def load_case(folder):
+    slim1 = json.loads((folder / "slim1" / "slim.json").read_text())
+    slim2 = json.loads((folder / "slim2" / "slim.json").read_text())
+    embree = json.loads((folder / "embree.json").read_text())
+    same = np.array_equal(np.load(folder / "slim1" / "shadowed.npy"),
+                          np.load(folder / "slim2" / "shadowed.npy"))
+    return {
+        "case": folder.name,
+        "facets": slim1["facets"],
+        "steps": slim1["steps"],
+        "slim_1t_ms": slim1["ms_per_step_mean"],
+        "slim_1t_min_ms": slim1["ms_per_step_min"],
+        "slim_2t_ms": slim2["ms_per_step_mean"],
+        "slim_2t_min_ms": slim2["ms_per_step_min"],
+        "embree_1t_ms": embree["ms_per_step_mean"],
+        "embree_1t_min_ms": embree["ms_per_step_min"],
+        "embree_over_slim_1t": embree["ms_per_step_mean"] / slim1["ms_per_step_mean"],
+        "slim_2t_speedup": slim1["ms_per_step_mean"] / slim2["ms_per_step_mean"],
+        "slim_1t_rays_per_s": slim1["rays_per_s"],
+        "slim_2t_rays_per_s": slim2["rays_per_s"],
+        "embree_rays_per_s": embree["rays_per_s"],
+        "rays_per_step": slim1["rays"] / slim1["steps"],
+        "slim_rss_before_mb": slim1["memory"]["before_loop"]["vm_rss_mb"],
+        "slim_1t_loop_growth_mb": slim1["memory"]["rss_growth_mb"],
+        "slim_1t_peak_mb": slim1["memory"]["after_loop"]["vm_hwm_mb"],
+        "slim_2t_loop_growth_mb": slim2["memory"]["rss_growth_mb"],
+        "embree_build_growth_mb": embree["memory"]["rss_growth_mb"],
+        "embree_build_hwm_growth_mb": embree["memory"]["hwm_growth_mb"],
+        "embree_bvh_build_s": embree["bvh_build_s"],
+        "embree_upload_s": embree["upload_s"],
+        "slim_direct_new_s": slim1["direct_new_s"],
+        "slim_shadowed": slim1["shadowed_facet_steps"],
+        "embree_shadowed": embree["shadowed_facet_steps"],
+        "slim_1t_2t_identical": same,
+        "disagreements": embree["disagreements"],
+        "slim_shadowed_embree_lit": embree["slim_shadowed_embree_lit"],
+        "embree_shadowed_slim_lit": embree["embree_shadowed_slim_lit"],
+        "refereed": embree["refereed"],
+        "referee_capped": embree["referee_capped"],
+        "slim_right": embree["slim_right"],
+        "embree_right": embree["embree_right"],
+        "marginal": embree["marginal"],
+        "referee_check": f"{embree['referee_check']['agree']}/{embree['referee_check']['rays']}",
+        "tnear": embree["tnear"],
+        "embree_os_threads": max(embree["os_threads_after_build"],
+                                 embree["os_threads_after_tracing"]),
+        "embree_cpu_over_wall": embree["tracing_cpu_over_wall"],
+        "embree_version": embree["embree"],
+    }
+
+
+def tables(rows):
+    speed = [
+        "| case | facets | steps | slim 1T ms/step | slim 2T ms/step | Embree 1T ms/step "
+        "| Embree/slim 1T | slim 2T speed-up | rays/s slim 1T | rays/s slim 2T "
+        "| rays/s Embree 1T |",
+        "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
+    ]
+    other = [
+        "| case | slim RSS before loop MB | slim loop growth MB (1T/2T) | slim peak MB "
+        "| Embree geometry+BVH MB | Embree BVH build s | shadowed slim / Embree "
+        "| disagreements (slim-only / Embree-only) | refereed | slim right | Embree right "
+        "| near an edge | referee check |",
+        "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
+    ]
+    for r in rows:
+        speed.append(
+            f"| {r['case']} | {r['facets']:,} | {r['steps']} | {r['slim_1t_ms']:.2f} "
+            f"| {r['slim_2t_ms']:.2f} | {r['embree_1t_ms']:.2f} "
+            f"| {r['embree_over_slim_1t']:.2f} | {r['slim_2t_speedup']:.2f} "
+            f"| {r['slim_1t_rays_per_s']:.2e} | {r['slim_2t_rays_per_s']:.2e} "
+            f"| {r['embree_rays_per_s']:.2e} |")
+        capped = " (capped)" if r["referee_capped"] else ""
+        other.append(
+            f"| {r['case']} | {r['slim_rss_before_mb']:.1f} "
+            f"| {r['slim_1t_loop_growth_mb']:.1f} / {r['slim_2t_loop_growth_mb']:.1f} "
+            f"| {r['slim_1t_peak_mb']:.1f} | {r['embree_build_growth_mb']:.1f} "
+            f"| {r['embree_bvh_build_s']:.2f} "
+            f"| {r['slim_shadowed']:,} / {r['embree_shadowed']:,} "
+            f"| {r['disagreements']:,} ({r['slim_shadowed_embree_lit']:,} / "
+            f"{r['embree_shadowed_slim_lit']:,}) | {r['refereed']:,}{capped} "
+            f"| {r['slim_right']:,} | {r['embree_right']:,} | {r['marginal']:,} "
+            f"| {r['referee_check']} |")
+    return "\n".join(speed), "\n".join(other)
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("results", help="results folder of one run")
+    ap.add_argument("--cases", required=True, help="comma-separated case names, in order")
+    ap.add_argument("--note", default="", help="a line to add under the stamp")
+    args = ap.parse_args()
+    folder = Path(args.results)
+    rows = []
+    for name in args.cases.split(","):
+        try:
+            rows.append(load_case(folder / name))
+        except FileNotFoundError as e:
+            sys.exit(f"report: case {name} is incomplete: {e}")
+    stamp = {
+        "date": datetime.datetime.now().astimezone().isoformat(timespec="seconds"),
+        "machine": platform.machine(),
+        "cpu": cpu_model(),
+        "logical_cpus": len(__import__("os").sched_getaffinity(0)),
+        "embree": rows[0]["embree_version"] if rows else "",
+        "tnear": {r["case"]: r["tnear"] for r in rows},
+        "note": args.note,
+    }
+    speed, other = tables(rows)
+    header = (f"Peer benchmark, {stamp['date']}, {stamp['machine']}, {stamp['cpu']}, "
+              f"{stamp['logical_cpus']} logical CPUs, {stamp['embree']}")
+    notes = [
+        "1T/2T: slim with 1 or 2 rayon threads; Embree (embreex, rtcOccluded1 per ray) on "
+        "one thread, pinned to one CPU.",
+        "ms/step: mean over the steps; slim's includes its per-step tracer build, "
+        "Embree's is queries only (its BVH is built once, column 'Embree BVH build s').",
+        "slim 2T speed-up = slim 1T ms / slim 2T ms. Embree/slim 1T > 1: slim faster.",
+        "Memory: slim's RSS growth over the step loop (its per-step structures); Embree's "
+        "RSS growth over geometry upload + BVH build.",
+        "Disagreements: traced facet-steps where the two classify differently; each refereed"
+        " one is settled by an f64 Möller–Trumbore test against all other facets.",
+    ]
+    if not all(r["slim_1t_2t_identical"] for r in rows):
+        notes.append("WARNING: slim's 1- and 2-thread classifications differ for: "
+                     + ", ".join(r["case"] for r in rows if not r["slim_1t_2t_identical"]))
+    if args.note:
+        notes.insert(0, args.note)
+    text = "\n\n".join([header, speed, other, "\n".join("- " + n for n in notes)])
+    print(text)
+    (folder / "table.md").write_text(f"# Peer benchmark\n\n{text}\n")
+    (folder / "results.json").write_text(
+        json.dumps({"stamp": stamp, "cases": rows}, indent=2) + "\n")
+    print(f"\nwritten: {folder / 'table.md'}, {folder / 'results.json'}")
+
+
+if __name__ == "__main__":
+    main()
