@@ -1,15 +1,17 @@
-//! Slim's half of the peer benchmark (`bench/peers/`): times the Sun-view shadow tracer
-//! over a spin and exports everything a peer ray tracer needs to cast the same rays.
+//! Slim's half of the peer benchmark (`bench/peers/`): times a shadow tracer over a spin
+//! and exports everything a peer ray tracer needs to cast the same rays.
 //!
 //! ```text
 //! cargo run --release --example bench_peer -- [MESH] [--subdivide N] [--folded]
-//!     [--steps N] [--threads N] --out DIR
+//!     [--steps N] [--threads N] [--tracer sunview|bvh] --out DIR
 //! ```
 //! In: a mesh file in km (default: the 49,152-facet Itokawa model) or `--folded` (the
 //! bilobed test shape of `examples/common/folded.rs`), optionally subdivided (×4 facets
 //! per level); `--steps` states over one spin about z with the Sun along +x in the
 //! equator plane, as `bench_direct` uses. Only the step loop is timed, with the per-step
-//! tracer build (`TracerKind::Sunview`) included; the exports happen after it.
+//! tracer build included (`--tracer sunview`, the default) or the tracer built once with
+//! its horizon bound before the loop (`--tracer bvh`, reported as `direct_new_s`); the
+//! exports happen after it.
 //!
 //! Out, in DIR: `.npy` files (NumPy format 1.0, little-endian, C order) and `slim.json`.
 //! - `vertices.npy` f64 (V, 3), metres; `triangles.npy` u32 (F, 3), 0-based;
@@ -35,7 +37,7 @@ use std::io::{BufWriter, Write};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-const VALUE_FLAGS: &[&str] = &["--subdivide", "--steps", "--threads", "--out"];
+const VALUE_FLAGS: &[&str] = &["--subdivide", "--steps", "--threads", "--out", "--tracer"];
 const SWITCHES: &[&str] = &["--folded"];
 
 /// Memory figures of this process at one moment, MB.
@@ -143,9 +145,16 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
     let threads = rayon::current_num_threads();
     println!("slim: {label}: {facets} facets, {steps} steps, {threads} threads");
 
+    let kind = match options.value("--tracer", "sunview".to_string())?.as_str() {
+        "sunview" => TracerKind::Sunview,
+        "bvh" => TracerKind::Bvh,
+        t => return Err(format!("unknown --tracer {t} (sunview, bvh)").into()),
+    };
+    let before_build = Memory::now();
     let build_t0 = Instant::now();
-    let direct = Direct::new(&world, TracerKind::Sunview);
+    let direct = Direct::new(&world, kind);
     let build_s = build_t0.elapsed().as_secs_f64();
+    let after_build = Memory::now();
     let min_height: Vec<f64> = (0..facets).map(|i| direct.t_min(0, i, 1.0)).collect();
 
     // Everything the loop writes is allocated and touched before the "before" reading,
@@ -241,6 +250,7 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
     )?;
 
     let summary = summary(&Summary {
+        tracer: kind,
         label: &label,
         world: &world,
         steps,
@@ -250,6 +260,7 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
         step_ms: &step_ms,
         counts,
         traced: bitmap_traced,
+        build: (before_build, after_build),
         before,
         after,
     });
@@ -271,6 +282,7 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
 
 /// What `slim.json` is made from.
 struct Summary<'a> {
+    tracer: TracerKind,
     label: &'a str,
     world: &'a World,
     steps: usize,
@@ -280,6 +292,7 @@ struct Summary<'a> {
     step_ms: &'a [f64],
     counts: StepCounts,
     traced: u64,
+    build: (Memory, Memory),
     before: Memory,
     after: Memory,
 }
@@ -287,13 +300,14 @@ struct Summary<'a> {
 /// `slim.json`: facets, steps, threads; `direct_new_s` (`Direct::new`, outside the loop);
 /// `loop_s`, `ms_per_step_mean`, `ms_per_step_min`; `rays` (shadow queries the tracer
 /// counted), `rays_per_s`, `traced_facet_steps` (n·s > 0), `shadowed_facet_steps`,
-/// `night_facet_steps`; memory `before_loop` and `after_loop` (VmHWM = peak, VmRSS =
-/// current, MB) and their growth.
+/// `night_facet_steps`, `above_horizon_facet_steps` (answered by the horizon bound, no
+/// ray); memory `before_loop` and `after_loop` (VmHWM = peak, VmRSS = current, MB),
+/// their growth, and `build_rss_growth_mb` (the tracer's structures built once).
 fn summary(s: &Summary<'_>) -> serde_json::Value {
     let body = &s.world.bodies[0];
     let min_ms = s.step_ms.iter().copied().fold(f64::INFINITY, f64::min);
     serde_json::json!({
-        "tracer": "sunview",
+        "tracer": format!("{:?}", s.tracer).to_lowercase(),
         "shape": s.label,
         "facets": body.mesh.len(),
         "vertices": body.mesh.vertices.len(),
@@ -310,11 +324,13 @@ fn summary(s: &Summary<'_>) -> serde_json::Value {
         "traced_facet_steps": s.traced,
         "shadowed_facet_steps": s.counts.shadowed,
         "night_facet_steps": s.counts.night,
+        "above_horizon_facet_steps": s.counts.above_horizon,
         "memory": {
             "before_loop": s.before.json(),
             "after_loop": s.after.json(),
             "hwm_growth_mb": s.after.hwm_mb - s.before.hwm_mb,
             "rss_growth_mb": s.after.rss_mb - s.before.rss_mb,
+            "build_rss_growth_mb": s.build.1.rss_mb - s.build.0.rss_mb,
         },
     })
 }

@@ -820,6 +820,29 @@ fn tracers_agree_on_haworth_terrain() {
     compare_tracers("haworth", &mesh, &suns);
 }
 
+/// The benchmark's folded body (`examples/common/folded.rs`): Phobos and a scaled
+/// Itokawa interpenetrating at a neck, so that buried facets, fins and overhangs stack
+/// over the same spot seen from the Sun.
+#[path = "../examples/common/folded.rs"]
+mod folded;
+
+#[test]
+fn tracers_agree_on_a_folded_bilobed_body() {
+    let mesh = Mesh::from_raw(folded::folded_raw().expect("folded shape"), LengthUnit::Km);
+    let mut suns = vec![
+        DVec3::X,
+        -DVec3::X,
+        DVec3::Y,
+        -DVec3::Z,
+        DVec3::new(1.0, 1.0, 0.0).normalize(),
+    ];
+    // Along an edge near the neck, and a generic direction.
+    let [a, b, _] = mesh.corners(32_070 + 100);
+    suns.push((b - a).normalize());
+    suns.push(DVec3::new(0.3, -0.8, 0.52).normalize());
+    compare_tracers("folded", &mesh, &suns);
+}
+
 // ---------------------------------------------------------------------------------------
 // 5. Extreme cases
 

@@ -58,6 +58,10 @@ def load_case(folder):
         "embree_bvh_build_s": embree["bvh_build_s"],
         "embree_upload_s": embree["upload_s"],
         "slim_direct_new_s": slim1["direct_new_s"],
+        "slim_tracer": slim1["tracer"],
+        "slim_build_growth_mb": slim1["memory"]["build_rss_growth_mb"],
+        "slim_above_horizon_share": slim1["above_horizon_facet_steps"]
+        / max(1, slim1["traced_facet_steps"]),
         "slim_shadowed": slim1["shadowed_facet_steps"],
         "embree_shadowed": embree["shadowed_facet_steps"],
         "slim_1t_2t_identical": same,
@@ -86,11 +90,12 @@ def tables(rows):
         "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
     other = [
-        "| case | slim RSS before loop MB | slim loop growth MB (1T/2T) | slim peak MB "
-        "| Embree geometry+BVH MB | Embree BVH build s | shadowed slim / Embree "
+        "| case | slim setup s (1T) | slim built-once MB | slim loop growth MB (1T/2T) "
+        "| slim peak MB | Embree geometry+BVH MB | Embree BVH build s "
+        "| rays spared by the horizon bound | shadowed slim / Embree "
         "| disagreements (slim-only / Embree-only) | refereed | slim right | Embree right "
         "| near an edge | referee check |",
-        "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
+        "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
     for r in rows:
         speed.append(
@@ -101,10 +106,11 @@ def tables(rows):
             f"| {r['embree_rays_per_s']:.2e} |")
         capped = " (capped)" if r["referee_capped"] else ""
         other.append(
-            f"| {r['case']} | {r['slim_rss_before_mb']:.1f} "
+            f"| {r['case']} | {r['slim_direct_new_s']:.2f} "
+            f"| {r['slim_build_growth_mb']:.1f} "
             f"| {r['slim_1t_loop_growth_mb']:.1f} / {r['slim_2t_loop_growth_mb']:.1f} "
             f"| {r['slim_1t_peak_mb']:.1f} | {r['embree_build_growth_mb']:.1f} "
-            f"| {r['embree_bvh_build_s']:.2f} "
+            f"| {r['embree_bvh_build_s']:.2f} | {100 * r['slim_above_horizon_share']:.0f} % "
             f"| {r['slim_shadowed']:,} / {r['embree_shadowed']:,} "
             f"| {r['disagreements']:,} ({r['slim_shadowed_embree_lit']:,} / "
             f"{r['embree_shadowed_slim_lit']:,}) | {r['refereed']:,}{capped} "
@@ -136,16 +142,20 @@ def main():
         "note": args.note,
     }
     speed, other = tables(rows)
-    header = (f"Peer benchmark, {stamp['date']}, {stamp['machine']}, {stamp['cpu']}, "
+    stamp["slim_tracer"] = rows[0]["slim_tracer"] if rows else ""
+    header = (f"Peer benchmark, slim tracer {stamp['slim_tracer']}, {stamp['date']}, "
+              f"{stamp['machine']}, {stamp['cpu']}, "
               f"{stamp['logical_cpus']} logical CPUs, {stamp['embree']}")
     notes = [
         "1T/2T: slim with 1 or 2 rayon threads; Embree (embreex, rtcOccluded1 per ray) on "
         "one thread, pinned to one CPU.",
-        "ms/step: mean over the steps; slim's includes its per-step tracer build, "
+        "ms/step: mean over the steps; slim's includes its per-step tracer build (sunview; "
+        "the bvh tracer and its horizon bound are built once, 'slim setup s'), "
         "Embree's is queries only (its BVH is built once, column 'Embree BVH build s').",
         "slim 2T speed-up = slim 1T ms / slim 2T ms. Embree/slim 1T > 1: slim faster.",
-        "Memory: slim's RSS growth over the step loop (its per-step structures); Embree's "
-        "RSS growth over geometry upload + BVH build.",
+        "Memory: slim's RSS growth while building its tracer (built once) and over the "
+        "step loop (per-step structures); Embree's RSS growth over geometry upload + BVH "
+        "build.",
         "Disagreements: traced facet-steps where the two classify differently; each refereed"
         " one is settled by an f64 Möller–Trumbore test against all other facets.",
     ]

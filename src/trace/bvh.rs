@@ -255,21 +255,24 @@ impl Bvh {
         if self.quads.is_empty() || length <= 2.0 * margin {
             return None;
         }
-        self.along(a, b, (b - a) / length, margin, length - margin, skip)
+        let dir = (b - a) / length;
+        let toward = Toward::new(dir);
+        self.along(a, b, &toward, margin, length - margin, skip)
     }
 
-    /// The segment `a → b` along unit `dir`, whose hits count between `t0` and `t1` from
+    /// The segment `a → b` along `toward`, whose hits count between `t0` and `t1` from
     /// `a`, prepared for testing; `None` when it misses the tree's bounding sphere.
     fn along(
         &self,
         a: DVec3,
         b: DVec3,
-        dir: DVec3,
+        toward: &Toward,
         t0: f64,
         t1: f64,
         skip: [u32; 2],
     ) -> Option<Segment> {
-        let frame = RayFrame::new(dir);
+        let Toward { frame, inv } = *toward;
+        let dir = frame.dir();
         // The box tests start from the segment's point nearest the tree's centre, so that
         // their `f32` coordinates stay of the tree's size however far away `a` lies.
         let tc = (self.centre - a).dot(dir).clamp(t0, t1);
@@ -284,22 +287,22 @@ impl Bvh {
             t0,
             t1,
             skip,
-            slab: Slab::new(start.as_vec3(), dir.as_vec3().recip(), t0 - tc, t1 - tc),
+            slab: Slab::new(start.as_vec3(), inv, t0 - tc, t1 - tc),
         })
     }
 
-    /// True if a facet other than those in `skip` crosses the ray from `a` along unit
-    /// `dir` farther than `t_min`: [`Bvh::segment_blocked`] for a segment reaching past
-    /// the tree, with the frame built from `dir` itself, as the other tracers build it.
-    pub fn ray_blocked(&self, a: DVec3, dir: DVec3, t_min: f64, skip: [u32; 2]) -> bool {
+    /// True if a facet other than those in `skip` crosses the ray from `a` along
+    /// `toward` farther than `t_min`: [`Bvh::segment_blocked`] for a segment reaching past
+    /// the tree, with the frame built from the direction itself, as the other tracers
+    /// build it.
+    fn ray_blocked(&self, a: DVec3, toward: &Toward, t_min: f64, skip: [u32; 2]) -> bool {
         if self.quads.is_empty() {
             return false;
         }
         let length = (a - self.centre).length() + self.radius + 2.0 * t_min;
-        let Some(ray) = self.along(a, a + dir * length, dir, t_min, length - t_min, skip) else {
-            return false;
-        };
-        self.first_blocker(&ray)
+        let b = a + toward.frame.dir() * length;
+        self.along(a, b, toward, t_min, length - t_min, skip)
+            .is_some_and(|ray| self.first_blocker(&ray))
     }
 
     /// True if a facet of `leaf` blocks the segment.
@@ -325,43 +328,57 @@ impl Bvh {
     }
 }
 
+/// What every ray along one unit direction shares: the exact predicate's frame and the
+/// box tests' reciprocal direction.
+#[derive(Clone, Copy)]
+struct Toward {
+    frame: RayFrame,
+    inv: Vec3,
+}
+
+impl Toward {
+    fn new(dir: DVec3) -> Toward {
+        Toward {
+            frame: RayFrame::new(dir),
+            inv: dir.as_vec3().recip(),
+        }
+    }
+}
+
 /// Shadow rays along one direction, answered by the tree.
 struct BvhRays<'b> {
     bvh: &'b Bvh,
-    dir: DVec3,
+    toward: Toward,
 }
 
 impl Tracer for Bvh {
     fn toward(&self, dir: DVec3) -> Box<dyn ShadowQuery + '_> {
-        Box::new(BvhRays { bvh: self, dir })
+        Box::new(BvhRays {
+            bvh: self,
+            toward: Toward::new(dir),
+        })
     }
 }
 
 impl ShadowQuery for BvhRays<'_> {
     fn blocked(&self, origin: DVec3, t_min: f64, skip: Option<u32>) -> bool {
         let skip = [skip.unwrap_or(u32::MAX), u32::MAX];
-        self.bvh.ray_blocked(origin, self.dir, t_min, skip)
+        self.bvh.ray_blocked(origin, &self.toward, t_min, skip)
     }
 }
 
 impl Bvh {
-    /// The largest `value(facet id, corners, threshold)` over the tree's facets, at least
-    /// `floor`, to within `slack`: the true maximum is at most the result plus `slack`.
-    /// Found by branch and bound: a subtree is skipped when `box_bound` of its box (lower
-    /// and upper corners, mesh frame, metres), which must bound `value` over every facet
-    /// inside, is not above the best value found so far plus `slack`, the `threshold`
-    /// passed to `value`, which may answer anything not above it for a facet whose value
-    /// it can show to be no higher.
-    pub(crate) fn max_over_facets(
+    /// Branch and bound over the tree: `open(lo, hi)` of a child's box (lower and upper
+    /// corners, mesh frame, metres; the box holds every facet below it) says whether to
+    /// descend and with which priority (higher first); `visit(facet id, corners)` sees
+    /// every facet of every leaf opened.
+    pub(crate) fn search(
         &self,
-        floor: f64,
-        slack: f64,
-        box_bound: impl Fn(DVec3, DVec3) -> f64,
-        value: impl Fn(u32, &[DVec3; 3], f64) -> f64,
-    ) -> f64 {
-        let mut best = floor;
+        mut open: impl FnMut(DVec3, DVec3) -> Option<f64>,
+        mut visit: impl FnMut(u32, &[DVec3; 3]),
+    ) {
         if self.quads.is_empty() {
-            return best;
+            return;
         }
         let mut stack = [0u32; STACK];
         let mut top = 1;
@@ -371,21 +388,17 @@ impl Bvh {
             let corner = |c: &[Vec4; 3], lane: usize| {
                 DVec3::new(c[0][lane] as f64, c[1][lane] as f64, c[2][lane] as f64) + self.centre
             };
-            let mut lanes: [(f64, usize); 4] = [(f64::NEG_INFINITY, 0); 4];
+            let mut lanes: [(f64, usize); 4] = [(f64::NEG_INFINITY, 4); 4];
             for (lane, slot) in lanes.iter_mut().enumerate() {
                 if quad.lo[0][lane] != f32::INFINITY {
-                    *slot = (
-                        box_bound(corner(&quad.lo, lane), corner(&quad.hi, lane)),
-                        lane,
-                    );
+                    if let Some(priority) = open(corner(&quad.lo, lane), corner(&quad.hi, lane)) {
+                        *slot = (priority, lane);
+                    }
                 }
             }
-            // Highest bound last, so that it is taken first and raises `best` early.
+            // Highest priority pushed last, so that it is taken first.
             lanes.sort_unstable_by(|a, b| a.0.total_cmp(&b.0));
-            for &(bound, lane) in &lanes {
-                if bound <= best + slack {
-                    continue;
-                }
+            for &(_, lane) in lanes.iter().filter(|(_, lane)| *lane < 4) {
                 if !quad.leaf[lane] {
                     stack[top] = quad.child[lane];
                     top += 1;
@@ -394,13 +407,11 @@ impl Bvh {
                 let leaf = &self.leaves[quad.child[lane] as usize];
                 for (k, &id) in leaf.ids.iter().enumerate() {
                     if id != u32::MAX {
-                        let tri = &self.tris[leaf.first as usize + k];
-                        best = best.max(value(id, &tri.corners, best + slack));
+                        visit(id, &self.tris[leaf.first as usize + k].corners);
                     }
                 }
             }
         }
-        best
     }
 }
 
@@ -483,7 +494,7 @@ fn round_down(x: f64) -> f32 {
 }
 
 /// An `f32` not below `x`.
-fn round_up(x: f64) -> f32 {
+pub(super) fn round_up(x: f64) -> f32 {
     -round_down(-x)
 }
 

@@ -24,6 +24,7 @@ use super::bvh::Bvh;
 use crate::mesh::Mesh;
 use glam::DVec3;
 use rayon::prelude::*;
+use std::cell::Cell;
 
 /// The exact predicate's position error as a multiple of `ε · |v|max` (its edge
 /// functions combine three roundings of coordinates that size; this is far above).
@@ -59,18 +60,21 @@ impl HorizonBound {
                 if n == DVec3::ZERO || mesh.areas[i] <= 0.0 {
                     return 1.0;
                 }
-                let found = bvh.max_over_facets(
-                    0.0,
-                    SEARCH_SLACK,
-                    |lo, hi| box_bound(c, n, lo, hi, widening),
-                    |id, tri, threshold| {
-                        if id as usize == i {
-                            0.0
-                        } else {
-                            triangle_bound(c, n, tri, widening, threshold)
+                let best = Cell::new(0.0f64);
+                bvh.search(
+                    |lo, hi| {
+                        let bound = box_bound(c, n, lo, hi, widening);
+                        (bound > best.get() + SEARCH_SLACK).then_some(bound)
+                    },
+                    |id, tri| {
+                        if id as usize != i {
+                            let threshold = best.get() + SEARCH_SLACK;
+                            let value = triangle_bound(c, n, tri, widening, threshold);
+                            best.set(best.get().max(value));
                         }
                     },
                 );
+                let found = best.get();
                 (found + SEARCH_SLACK).min(1.0)
             })
             .collect();
