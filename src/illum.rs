@@ -154,33 +154,86 @@ impl<'w> Direct<'w> {
             .collect()
     }
 
+    /// Irradiance of every facet of body `b` into `out`: first as if nothing blocked the
+    /// Sun, then the own body's shadow rays that the horizon bound does not spare, traced
+    /// as one batch, then the other bodies' shadows on what is still lit.
     fn illuminate_body(&self, b: usize, light: &Sunlight<'_>, out: &mut [f64]) -> StepCounts {
+        const CHUNK: usize = 4096;
         let mesh = &self.world.bodies[b].mesh;
         let horizon = self.horizons[b].as_ref();
-        let facing: Vec<Facing> = (0..mesh.len())
-            .into_par_iter()
-            .filter_map(|i| {
-                let cos = mesh.normals[i].dot(light.sun);
-                (cos > 0.0).then(|| Facing {
-                    ray: ShadowRay {
-                        origin: mesh.centroids[i],
-                        t_min: self.t_min(b, i, cos),
-                        skip: Some(i as u32),
-                    },
-                    cos,
-                    above_horizon: horizon.is_some_and(|h| h.clears(i, cos)),
-                })
+        let traces_own = light.own.is_some();
+        let (mut counts, rays) = out
+            .par_chunks_mut(CHUNK)
+            .enumerate()
+            .map(|(chunk, values)| {
+                let mut counts = StepCounts::default();
+                let mut rays = Vec::new();
+                for (k, e) in values.iter_mut().enumerate() {
+                    let i = chunk * CHUNK + k;
+                    let cos = mesh.normals[i].dot(light.sun);
+                    if cos <= 0.0 {
+                        counts.night += 1;
+                        *e = 0.0;
+                        continue;
+                    }
+                    *e = light.flux * cos;
+                    if !traces_own {
+                        continue;
+                    }
+                    if horizon.is_some_and(|h| h.clears(i, cos)) {
+                        counts.above_horizon += 1;
+                    } else {
+                        rays.push(ShadowRay {
+                            origin: mesh.centroids[i],
+                            t_min: self.t_min(b, i, cos),
+                            skip: Some(i as u32),
+                        });
+                    }
+                }
+                (counts, rays)
             })
-            .collect();
-        let mut blocked = vec![false; facing.len()];
-        let mut counts = light.blocked_all(&facing, &mut blocked);
-        counts.night = (mesh.len() - facing.len()) as u64;
-        counts.shadowed = blocked.iter().filter(|&&x| x).count() as u64;
-        out.fill(0.0);
-        for (f, &dark) in facing.iter().zip(&blocked) {
-            if !dark {
-                out[f.ray.skip.map_or(0, |i| i as usize)] = light.flux * f.cos;
+            .reduce(
+                || (StepCounts::default(), Vec::new()),
+                |(mut ca, mut ra), (cb, rb)| {
+                    ca += cb;
+                    ra.extend(rb);
+                    (ca, ra)
+                },
+            );
+        let mut dark = vec![false; rays.len()];
+        if let Some(own) = light.own.as_deref() {
+            own.blocked_all(&rays, &mut dark);
+            counts.rays += rays.len() as u64;
+        }
+        for (r, _) in rays.iter().zip(&dark).filter(|(_, &d)| d) {
+            out[r.skip.map_or(0, |i| i as usize)] = 0.0;
+            counts.shadowed += 1;
+        }
+        if !light.foreign.is_empty() {
+            let mut by_self = vec![false; mesh.len()];
+            for (r, _) in rays.iter().zip(&dark).filter(|(_, &d)| d) {
+                by_self[r.skip.map_or(0, |i| i as usize)] = true;
             }
+            counts += out
+                .par_iter_mut()
+                .enumerate()
+                .filter(|&(i, _)| !by_self[i])
+                .map(|(i, e)| {
+                    let mut c = StepCounts::default();
+                    let cos = mesh.normals[i].dot(light.sun);
+                    if cos > 0.0 {
+                        let point = mesh.centroids[i];
+                        if light.blocked_by_others(point, self.t_min(b, i, cos), &mut c) {
+                            *e = 0.0;
+                            c.shadowed += 1;
+                        }
+                    }
+                    c
+                })
+                .reduce(StepCounts::default, |mut a, b| {
+                    a += b;
+                    a
+                });
         }
         counts
     }
@@ -216,14 +269,6 @@ impl<'w> Direct<'w> {
     }
 }
 
-/// A facet facing the Sun: its shadow ray, `n·s`, and whether the Sun stands above its
-/// horizon bound.
-struct Facing {
-    ray: ShadowRay,
-    cos: f64,
-    above_horizon: bool,
-}
-
 /// One body's Sun at one step with the shadow queries that serve it.
 pub(crate) struct Sunlight<'q> {
     sun: DVec3,
@@ -247,41 +292,6 @@ impl Sunlight<'_> {
             q.blocked(point, t_min, Some(facet as u32))
         });
         blocked_by_self || self.blocked_by_others(point, t_min, counts)
-    }
-
-    /// [`Sunlight::blocked`] for the receiver's facets facing the Sun, into `blocked`;
-    /// the own body's rays are traced only for facets the Sun is not above the horizon of.
-    fn blocked_all(&self, facing: &[Facing], blocked: &mut [bool]) -> StepCounts {
-        let mut counts = StepCounts::default();
-        if let Some(own) = self.own.as_deref() {
-            let traced: Vec<usize> = (0..facing.len())
-                .filter(|&k| !facing[k].above_horizon)
-                .collect();
-            let rays: Vec<ShadowRay> = traced.iter().map(|&k| facing[k].ray).collect();
-            let mut answers = vec![false; rays.len()];
-            own.blocked_all(&rays, &mut answers);
-            for (&k, dark) in traced.iter().zip(answers) {
-                blocked[k] = dark;
-            }
-            counts.rays += rays.len() as u64;
-            counts.above_horizon += (facing.len() - rays.len()) as u64;
-        }
-        if !self.foreign.is_empty() {
-            counts += facing
-                .par_iter()
-                .zip(blocked)
-                .filter(|(_, dark)| !**dark)
-                .map(|(f, dark)| {
-                    let mut c = StepCounts::default();
-                    *dark = self.blocked_by_others(f.ray.origin, f.ray.t_min, &mut c);
-                    c
-                })
-                .reduce(StepCounts::default, |mut a, b| {
-                    a += b;
-                    a
-                });
-        }
-        counts
     }
 
     /// True when a facet of another body blocks the Sun from `point` farther than `t_min`.
