@@ -158,12 +158,39 @@ impl<'w> Direct<'w> {
     /// Sun, then the own body's shadow rays that the horizon bound does not spare, traced
     /// as one batch, then the other bodies' shadows on what is still lit.
     fn illuminate_body(&self, b: usize, light: &Sunlight<'_>, out: &mut [f64]) -> StepCounts {
+        let (mut counts, own_rays) = self.light_facing(b, light, out);
+        let mut by_self = vec![false; own_rays.len()];
+        if let Some(own) = light.own.as_deref() {
+            let rays: Vec<ShadowRay> = own_rays.iter().map(|&(_, r)| r).collect();
+            own.blocked_all(&rays, &mut by_self);
+            counts.rays += rays.len() as u64;
+        }
+        let mut dark = vec![false; out.len()];
+        for (&(i, _), _) in own_rays.iter().zip(&by_self).filter(|(_, &d)| d) {
+            out[i as usize] = 0.0;
+            dark[i as usize] = true;
+            counts.shadowed += 1;
+        }
+        if !light.foreign.is_empty() {
+            counts += self.shade_by_others(b, light, out, &dark);
+        }
+        counts
+    }
+
+    /// Lights every facet of body `b` facing the Sun as if nothing blocked it, and lists
+    /// the own body's shadow rays to trace (facet, ray): none when the body cannot shadow
+    /// itself, none where the Sun stands above the facet's horizon bound.
+    fn light_facing(
+        &self,
+        b: usize,
+        light: &Sunlight<'_>,
+        out: &mut [f64],
+    ) -> (StepCounts, Vec<(u32, ShadowRay)>) {
         const CHUNK: usize = 4096;
         let mesh = &self.world.bodies[b].mesh;
         let horizon = self.horizons[b].as_ref();
         let traces_own = light.own.is_some();
-        let (mut counts, rays) = out
-            .par_chunks_mut(CHUNK)
+        out.par_chunks_mut(CHUNK)
             .enumerate()
             .map(|(chunk, values)| {
                 let mut counts = StepCounts::default();
@@ -183,11 +210,12 @@ impl<'w> Direct<'w> {
                     if horizon.is_some_and(|h| h.clears(i, cos)) {
                         counts.above_horizon += 1;
                     } else {
-                        rays.push(ShadowRay {
+                        let ray = ShadowRay {
                             origin: mesh.centroids[i],
                             t_min: self.t_min(b, i, cos),
                             skip: Some(i as u32),
-                        });
+                        };
+                        rays.push((i as u32, ray));
                     }
                 }
                 (counts, rays)
@@ -199,43 +227,38 @@ impl<'w> Direct<'w> {
                     ra.extend(rb);
                     (ca, ra)
                 },
-            );
-        let mut dark = vec![false; rays.len()];
-        if let Some(own) = light.own.as_deref() {
-            own.blocked_all(&rays, &mut dark);
-            counts.rays += rays.len() as u64;
-        }
-        for (r, _) in rays.iter().zip(&dark).filter(|(_, &d)| d) {
-            out[r.skip.map_or(0, |i| i as usize)] = 0.0;
-            counts.shadowed += 1;
-        }
-        if !light.foreign.is_empty() {
-            let mut by_self = vec![false; mesh.len()];
-            for (r, _) in rays.iter().zip(&dark).filter(|(_, &d)| d) {
-                by_self[r.skip.map_or(0, |i| i as usize)] = true;
-            }
-            counts += out
-                .par_iter_mut()
-                .enumerate()
-                .filter(|&(i, _)| !by_self[i])
-                .map(|(i, e)| {
-                    let mut c = StepCounts::default();
-                    let cos = mesh.normals[i].dot(light.sun);
-                    if cos > 0.0 {
-                        let point = mesh.centroids[i];
-                        if light.blocked_by_others(point, self.t_min(b, i, cos), &mut c) {
-                            *e = 0.0;
-                            c.shadowed += 1;
-                        }
+            )
+    }
+
+    /// Darkens the facets of body `b` still lit in `out` (not `dark` already) whose ray
+    /// another body blocks.
+    fn shade_by_others(
+        &self,
+        b: usize,
+        light: &Sunlight<'_>,
+        out: &mut [f64],
+        dark: &[bool],
+    ) -> StepCounts {
+        let mesh = &self.world.bodies[b].mesh;
+        out.par_iter_mut()
+            .enumerate()
+            .filter(|&(i, _)| !dark[i])
+            .map(|(i, e)| {
+                let mut counts = StepCounts::default();
+                let cos = mesh.normals[i].dot(light.sun);
+                if cos > 0.0 {
+                    let t_min = self.t_min(b, i, cos);
+                    if light.blocked_by_others(mesh.centroids[i], t_min, &mut counts) {
+                        *e = 0.0;
+                        counts.shadowed += 1;
                     }
-                    c
-                })
-                .reduce(StepCounts::default, |mut a, b| {
-                    a += b;
-                    a
-                });
-        }
-        counts
+                }
+                counts
+            })
+            .reduce(StepCounts::default, |mut a, b| {
+                a += b;
+                a
+            })
     }
 
     /// Irradiance of facet `i` of body `b`: zero when it faces away from the Sun or the

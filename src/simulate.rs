@@ -82,6 +82,20 @@ pub fn simulate(
         scatter,
         mut bands,
     } = options;
+    let bounded: usize = world
+        .bodies
+        .iter()
+        .filter(|b| !b.convex)
+        .map(|b| b.mesh.len())
+        .sum();
+    if tracer == TracerKind::Bvh && bounded > 0 {
+        // The one long silent stage of a BVH run: say what it is and roughly how long.
+        progress.note(&format!(
+            "tracer bvh: building the tree and the horizon bound of {bounded} facets once \
+             (about {:.0} s on one core)",
+            build_seconds_one_core(bounded)
+        ));
+    }
     let direct = timings.time("trace build", || Direct::new(world, tracer));
     let mut scatter = scatter.map(|settings| {
         timings.time("form factors", || {
@@ -138,6 +152,13 @@ pub fn simulate(
 
 /// The steps computed together: with scattered light on a single body, whose exchange
 /// areas are the same at every step, up to [`LANES`] steps are traced first and then
+/// Seconds the BVH tracer's tree and horizon bound take to build on one core for
+/// `facets` facets, fitted to the peer benchmark's Itokawa runs (2.8 s at 49k, 81 s at
+/// 786k, 434 s at 3.1M facets; docs/performance.md).
+fn build_seconds_one_core(facets: usize) -> f64 {
+    3.0 * (facets as f64 / 50_000.0).powf(1.2)
+}
+
 /// solved together; otherwise one.
 pub fn steps_per_batch(scatter: bool, bodies: usize) -> usize {
     if scatter && bodies == 1 {

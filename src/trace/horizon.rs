@@ -18,7 +18,12 @@
 //! The bound is computed exactly that way for every triangle the tree cannot rule out,
 //! each triangle widened by the rounding of the exact predicate (a few units in the last
 //! place of the mesh's coordinates, `ROUNDING_ULPS · ε · |v|max`), so that a ray the
-//! tracers call blocked through rounding is never cleared.
+//! tracers call blocked through rounding is never cleared. The branch and bound stops
+//! refining within `SEARCH_SLACK` (0.02 in sine, about 1°) of the highest horizon, which
+//! it adds to the bound: a Sun less than that above the horizon is simply traced.
+//!
+//! Cost: a tree search per facet, parallel over facets; about 3 s per 49k facets on one
+//! core, growing a little faster than the facet count. Memory: 8 bytes per facet.
 
 use super::bvh::Bvh;
 use crate::mesh::Mesh;
@@ -91,11 +96,6 @@ impl HorizonBound {
     /// Per facet, the sine of the highest elevation (for tests and reports).
     pub fn sin_max(&self) -> &[f64] {
         &self.sin_max
-    }
-
-    /// Bytes held.
-    pub fn bytes(&self) -> usize {
-        self.sin_max.len() * std::mem::size_of::<f64>()
     }
 }
 

@@ -5,17 +5,21 @@
 //! one the ray starts on) is hit at a distance `t > t_min` — the any-hit query a shadow test
 //! needs.
 //!
-//! Two structures implement [`Tracer`]:
+//! Three structures implement [`Tracer`]:
 //! - [`grid::UniformGrid`]: the SLIM paper's reference (section 6.1), a 3-D uniform grid
 //!   over the body's bounding box walked cell by cell with Amanatides–Woo traversal.
-//! - [`sunview::SunView`]: the fast path. All shadow rays of a step are parallel to the
+//! - [`sunview::SunView`]: the default. All shadow rays of a step are parallel to the
 //!   Sun, so the mesh is projected once onto the plane perpendicular to the Sun and binned
 //!   into a 2-D grid; a shadow query is then a point lookup in one cell.
+//! - [`bvh::Bvh`]: a bounding-volume hierarchy built once for every direction (also the
+//!   facet-to-facet visibility of scattered light). With it, the direct stage also builds
+//!   each body's [`horizon::HorizonBound`], which answers without a ray whenever the Sun
+//!   stands above everything a facet can see.
 //!
-//! Both decide a hit with the same exact predicate ([`ray::blocks`]), evaluated in a
+//! All decide a hit with the same exact predicate ([`ray::blocks`]), evaluated in a
 //! frame that depends only on the ray direction, so they classify every ray identically;
-//! they differ only in which facets they test. Both keep their per-cell facet lists in the
-//! same compressed form, built by [`cells`].
+//! they differ only in which facets they test. The grids keep their per-cell facet lists
+//! in the same compressed form, built by [`cells`].
 
 pub mod bvh;
 mod cells;
