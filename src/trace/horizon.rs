@@ -190,7 +190,9 @@ fn arc_max_sin(n: DVec3, a: DVec3, b: DVec3) -> f64 {
     }
 }
 
-/// Distance from `p` to the triangle `tri` (its closest point, by region).
+/// Distance from `p` to the triangle `tri`: its closest point found by which feature's
+/// region (corner, edge or face) `p` falls in, the textbook method (Ericson, *Real-Time
+/// Collision Detection*, 5.1.5).
 fn distance_to_triangle(p: DVec3, tri: &[DVec3; 3]) -> f64 {
     let [a, b, c] = *tri;
     let (ab, ac, ap) = (b - a, c - a, p - a);
