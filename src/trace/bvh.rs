@@ -1,8 +1,11 @@
 //! A bounding-volume hierarchy for rays in any direction: the segment any-hit query that
-//! facet-to-facet visibility needs.
+//! facet-to-facet visibility needs, the shadow rays of the `bvh` tracer, and a branch and
+//! bound over its boxes (the horizon bound's search).
 //!
 //! In: a mesh (metres, body frame). Out: [`Bvh::segment_blocked`] — whether the open
-//! segment from `a` to `b` crosses a facet other than the (up to two) facets it joins.
+//! segment from `a` to `b` crosses a facet other than the (up to two) facets it joins;
+//! as a [`Tracer`], whether a ray toward the Sun is blocked (a segment reaching past the
+//! tree); and [`Bvh::search`].
 //! The hit decision is the shared exact predicate of [`super::ray`] evaluated in the frame
 //! of the segment's direction, so a segment is classified exactly as a shadow ray of the
 //! other tracers would be. The tree is built with the binned surface-area heuristic;
@@ -494,7 +497,7 @@ fn round_down(x: f64) -> f32 {
 }
 
 /// An `f32` not below `x`.
-pub(super) fn round_up(x: f64) -> f32 {
+fn round_up(x: f64) -> f32 {
     -round_down(-x)
 }
 
