@@ -138,7 +138,7 @@ fn triangle_bound(c: DVec3, n: DVec3, tri: &[DVec3; 3], widening: f64, threshold
 /// The exact largest elevation sine from `c` of a point of triangle `tri`, which does not
 /// contain `c`.
 fn triangle_max_sin(c: DVec3, n: DVec3, tri: &[DVec3; 3]) -> f64 {
-    let [a, b, d] = tri.map(|p| p - c);
+    let [a, b, d] = tri.map(|p| (p - c).normalize());
     if normal_in_cone(n, a, b, d) {
         return 1.0;
     }
@@ -147,26 +147,24 @@ fn triangle_max_sin(c: DVec3, n: DVec3, tri: &[DVec3; 3]) -> f64 {
         .max(arc_max_sin(n, d, a))
 }
 
-/// True when `n` is a non-negative combination of `a`, `b` and `d` (the triangle's cone of
-/// directions seen from the origin), within rounding; false for a flat cone.
+/// True when `n` is a non-negative combination of the unit vectors `a`, `b` and `d` (the
+/// triangle's cone of directions seen from the origin), within rounding; false for a flat
+/// cone.
 fn normal_in_cone(n: DVec3, a: DVec3, b: DVec3, d: DVec3) -> bool {
     let volume = a.dot(b.cross(d));
-    let scale = a.length() * b.length() * d.length();
-    if volume.abs() <= 1e-12 * scale {
+    if volume.abs() <= 1e-12 {
         // A flat cone is its edges' arcs, which the caller takes.
         return false;
     }
-    let tolerance = 1e-12 * scale;
     [n.dot(b.cross(d)), n.dot(d.cross(a)), n.dot(a.cross(b))]
         .iter()
-        .all(|&w| w * volume.signum() >= -tolerance)
+        .all(|&w| w * volume.signum() >= -1e-12)
 }
 
-/// The largest `n·u` over the unit directions `u` of the segment from `a` to `b` (seen
-/// from the origin): an end, or the top of the great-circle arc between them. A segment
-/// through the origin gives 1.
-fn arc_max_sin(n: DVec3, a: DVec3, b: DVec3) -> f64 {
-    let (ua, ub) = (a.normalize(), b.normalize());
+/// The largest `n·u` over the unit directions `u` of the segment between the directions
+/// of unit vectors `ua` and `ub` (seen from the origin): an end, or the top of the
+/// great-circle arc between them. A segment through the origin gives 1.
+fn arc_max_sin(n: DVec3, ua: DVec3, ub: DVec3) -> f64 {
     let ends = n.dot(ua).max(n.dot(ub));
     let k = ua.cross(ub);
     let k_len = k.length();
@@ -178,13 +176,14 @@ fn arc_max_sin(n: DVec3, a: DVec3, b: DVec3) -> f64 {
     let k = k / k_len;
     let m = n - k * n.dot(k);
     let m_len = m.length();
-    if m_len <= 0.0 {
+    if m_len <= ends {
+        // The great circle's top is no higher than the ends.
         return ends;
     }
     let top = m / m_len;
     let within = ua.cross(top).dot(k) >= 0.0 && top.cross(ub).dot(k) >= 0.0;
     if within {
-        m_len.max(ends)
+        m_len
     } else {
         ends
     }
