@@ -15,7 +15,7 @@ use crate::ephemeris::EpochState;
 use crate::error::{Error, Result};
 use crate::trace::bvh::Bvh;
 use crate::trace::horizon::HorizonBound;
-use crate::trace::{self, ShadowQuery, ShadowRay, Tracer, TracerKind};
+use crate::trace::{self, ShadowQuery, Tracer, TracerKind};
 use crate::world::{Body, FrameTransform, World};
 use glam::DVec3;
 use rayon::prelude::*;
@@ -158,34 +158,38 @@ impl<'w> Direct<'w> {
     /// Sun, then the own body's shadow rays that the horizon bound does not spare, traced
     /// as one batch, then the other bodies' shadows on what is still lit.
     fn illuminate_body(&self, b: usize, light: &Sunlight<'_>, out: &mut [f64]) -> StepCounts {
-        let (mut counts, own_rays) = self.light_facing(b, light, out);
-        let mut by_self = vec![false; own_rays.len()];
+        let (mut counts, rays) = self.light_facing(b, light, out);
+        let mut by_self = vec![false; rays.len()];
         if let Some(own) = light.own.as_deref() {
-            let rays: Vec<ShadowRay> = own_rays.iter().map(|&(_, r)| r).collect();
-            own.blocked_all(&rays, &mut by_self);
+            rays.par_iter()
+                .zip(&mut by_self)
+                .for_each(|(r, dark)| *dark = own.blocked(r.origin, r.t_min, Some(r.facet)));
             counts.rays += rays.len() as u64;
         }
-        let mut dark = vec![false; out.len()];
-        for (&(i, _), _) in own_rays.iter().zip(&by_self).filter(|(_, &d)| d) {
-            out[i as usize] = 0.0;
-            dark[i as usize] = true;
+        // Which facets are dark already matters only to the other bodies' shadows.
+        let mut dark = (!light.foreign.is_empty()).then(|| vec![false; out.len()]);
+        for (r, _) in rays.iter().zip(&by_self).filter(|(_, &d)| d) {
+            out[r.facet as usize] = 0.0;
             counts.shadowed += 1;
+            if let Some(dark) = dark.as_mut() {
+                dark[r.facet as usize] = true;
+            }
         }
-        if !light.foreign.is_empty() {
+        if let Some(dark) = dark {
             counts += self.shade_by_others(b, light, out, &dark);
         }
         counts
     }
 
     /// Lights every facet of body `b` facing the Sun as if nothing blocked it, and lists
-    /// the own body's shadow rays to trace (facet, ray): none when the body cannot shadow
-    /// itself, none where the Sun stands above the facet's horizon bound.
+    /// the own body's shadow rays to trace: none when the body cannot shadow itself, none
+    /// where the Sun stands above the facet's horizon bound.
     fn light_facing(
         &self,
         b: usize,
         light: &Sunlight<'_>,
         out: &mut [f64],
-    ) -> (StepCounts, Vec<(u32, ShadowRay)>) {
+    ) -> (StepCounts, Vec<OwnRay>) {
         const CHUNK: usize = 4096;
         let mesh = &self.world.bodies[b].mesh;
         let horizon = self.horizons[b].as_ref();
@@ -210,12 +214,11 @@ impl<'w> Direct<'w> {
                     if horizon.is_some_and(|h| h.clears(i, cos)) {
                         counts.above_horizon += 1;
                     } else {
-                        let ray = ShadowRay {
+                        rays.push(OwnRay {
+                            facet: i as u32,
                             origin: mesh.centroids[i],
                             t_min: self.t_min(b, i, cos),
-                            skip: Some(i as u32),
-                        };
-                        rays.push((i as u32, ray));
+                        });
                     }
                 }
                 (counts, rays)
@@ -290,6 +293,14 @@ impl<'w> Direct<'w> {
     pub fn t_min(&self, b: usize, i: usize, cos_i: f64) -> f64 {
         self.min_height_m[b][i] / cos_i
     }
+}
+
+/// A shadow ray of a facet toward the Sun, to be traced through its own body: from the
+/// facet's centroid (body frame, metres), hits farther than `t_min` on any other facet.
+struct OwnRay {
+    facet: u32,
+    origin: DVec3,
+    t_min: f64,
 }
 
 /// One body's Sun at one step with the shadow queries that serve it.

@@ -82,19 +82,8 @@ pub fn simulate(
         scatter,
         mut bands,
     } = options;
-    let bounded: usize = world
-        .bodies
-        .iter()
-        .filter(|b| !b.convex)
-        .map(|b| b.mesh.len())
-        .sum();
-    if tracer == TracerKind::Bvh && bounded > 0 {
-        // The one long silent stage of a BVH run: say what it is and roughly how long.
-        progress.note(&format!(
-            "tracer bvh: building the tree and the horizon bound of {bounded} facets once \
-             (about {:.0} s on one core)",
-            build_seconds_one_core(bounded)
-        ));
+    if tracer == TracerKind::Bvh {
+        announce_bvh_build(world, progress);
     }
     let direct = timings.time("trace build", || Direct::new(world, tracer));
     let mut scatter = scatter.map(|settings| {
@@ -152,6 +141,24 @@ pub fn simulate(
 
 /// The steps computed together: with scattered light on a single body, whose exchange
 /// areas are the same at every step, up to [`LANES`] steps are traced first and then
+/// Tells the user about the one long silent stage of a BVH run: the tree and horizon
+/// bound of every body that can shadow itself, and roughly how long they take.
+fn announce_bvh_build(world: &World, progress: &dyn Progress) {
+    let bounded: usize = world
+        .bodies
+        .iter()
+        .filter(|b| !b.convex)
+        .map(|b| b.mesh.len())
+        .sum();
+    if bounded > 0 {
+        progress.note(&format!(
+            "tracer bvh: building the tree and the horizon bound of {bounded} facets once \
+             (about {:.0} s on one core)",
+            build_seconds_one_core(bounded)
+        ));
+    }
+}
+
 /// Seconds the BVH tracer's tree and horizon bound take to build on one core for
 /// `facets` facets, fitted to the peer benchmark's Itokawa runs (2.8 s at 49k, 81 s at
 /// 786k, 434 s at 3.1M facets; docs/performance.md).

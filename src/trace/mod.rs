@@ -30,32 +30,13 @@ pub mod sunview;
 
 use crate::mesh::Mesh;
 use glam::DVec3;
-use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
-
-/// A shadow ray toward the light: from `origin` (mesh frame, metres), counting hits
-/// farther than `t_min` on any facet but `skip`.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct ShadowRay {
-    pub origin: DVec3,
-    pub t_min: f64,
-    pub skip: Option<u32>,
-}
 
 /// Any-hit queries for rays parallel to one direction.
 pub trait ShadowQuery: Sync {
     /// True if the ray `origin + t·dir` hits a facet other than `skip` for some `t > t_min`
     /// (`origin` in the mesh frame, metres).
     fn blocked(&self, origin: DVec3, t_min: f64, skip: Option<u32>) -> bool;
-
-    /// [`ShadowQuery::blocked`] for every ray of a batch, into `out` (same length). A
-    /// structure may answer them in whatever order is fastest for it; the answers are
-    /// those of `blocked`.
-    fn blocked_all(&self, rays: &[ShadowRay], out: &mut [bool]) {
-        rays.par_iter()
-            .zip(out)
-            .for_each(|(r, o)| *o = self.blocked(r.origin, r.t_min, r.skip));
-    }
 }
 
 /// An acceleration structure over one mesh that answers shadow queries.
