@@ -138,6 +138,8 @@ pub struct Demand {
     pub form_factor_entries: f64,
     /// Bytes of the SPICE kernel files.
     pub kernel_bytes: f64,
+    /// Bytes of the horizon maps the run uses.
+    pub horizon_map_bytes: f64,
 }
 
 /// Bytes per facet of the mesh (vertices, triangles, centroids, normals, areas), its
@@ -274,6 +276,11 @@ impl Demand {
                 "switch the history off (output.history = false)",
             );
         }
+        e.push(
+            "horizon maps",
+            self.horizon_map_bytes,
+            "use fewer azimuth wedges (run.horizon_azimuths) or run.shadows = \"rays\"",
+        );
         e.push(
             "form factors",
             self.form_factor_entries * FORM_FACTOR_ENTRY_BYTES,

@@ -13,8 +13,11 @@
 
 use crate::ephemeris::EpochState;
 use crate::error::{Error, Result};
+use crate::horizon::bound::HorizonBound;
+use crate::horizon::disk::SolarDisk;
+use crate::horizon::map::{HorizonMap, LocalHorizon};
+use crate::horizon::{HorizonMode, Shadows, SunShape};
 use crate::trace::bvh::Bvh;
-use crate::trace::horizon::HorizonBound;
 use crate::trace::{self, ShadowQuery, Tracer, TracerKind};
 use crate::world::{Body, FrameTransform, World};
 use glam::DVec3;
@@ -33,6 +36,10 @@ pub struct StepCounts {
     /// above their horizon bound ([`crate::trace::horizon`]).
     #[serde(default)]
     pub above_horizon: u64,
+    /// Facet–steps decided by a horizon map alone (approximate mode, or the Sun as a
+    /// disk), without a ray.
+    #[serde(default)]
+    pub horizon_lookups: u64,
 }
 
 impl std::ops::AddAssign for StepCounts {
@@ -41,6 +48,7 @@ impl std::ops::AddAssign for StepCounts {
         self.rays += o.rays;
         self.shadowed += o.shadowed;
         self.above_horizon += o.above_horizon;
+        self.horizon_lookups += o.horizon_lookups;
     }
 }
 
@@ -48,11 +56,22 @@ impl std::ops::AddAssign for StepCounts {
 pub struct Direct<'w> {
     world: &'w World,
     tracers: Vec<Box<dyn Tracer + 'w>>,
-    /// Per body, the horizon bound that spares shadow rays (fast tracers, bodies that
-    /// can shadow themselves).
-    horizons: Vec<Option<HorizonBound>>,
+    /// Per body, what spares or replaces its own shadow rays.
+    horizons: Vec<OwnHorizon>,
+    sun: SunShape,
+    disk: SolarDisk,
     min_height_m: Vec<Vec<f64>>,
     offsets: Vec<usize>,
+}
+
+/// What a body knows of its horizon.
+enum OwnHorizon {
+    /// Nothing: a ray per facet facing the Sun.
+    None,
+    /// The horizon bound of the BVH tracer: no ray for a Sun above it.
+    Bound(HorizonBound),
+    /// A horizon map: no ray where it is certain (`exact`), or none at all.
+    Map { map: HorizonMap, exact: bool },
 }
 
 /// Another body that may shadow a receiver at this step: its query and the transform
@@ -63,25 +82,43 @@ struct ForeignCaster<'q> {
 }
 
 impl<'w> Direct<'w> {
-    /// Builds the tracers of every body. With the BVH tracer, a body that can shadow
-    /// itself also gets its horizon bound, built with the same tree.
+    /// Builds the tracers of every body, for a point Sun and shadow rays. With the BVH
+    /// tracer, a body that can shadow itself also gets its horizon bound, built with the
+    /// same tree.
     pub fn new(world: &'w World, kind: TracerKind) -> Direct<'w> {
+        let none = world.bodies.iter().map(|_| None).collect();
+        Direct::with_maps(world, kind, none, &Shadows::default())
+    }
+
+    /// As [`Direct::new`], with a horizon map for the bodies that have one in `maps`
+    /// (scene order), used as `shadows` says, and the Sun shaped as it says.
+    pub fn with_maps(
+        world: &'w World,
+        kind: TracerKind,
+        maps: Vec<Option<HorizonMap>>,
+        shadows: &Shadows,
+    ) -> Direct<'w> {
+        let exact = shadows.mode == HorizonMode::Exact;
         let (tracers, horizons) = world
             .bodies
             .iter()
-            .map(|b| match kind {
-                TracerKind::Bvh if !b.convex => {
+            .zip(maps)
+            .map(|(b, map)| match (map, kind) {
+                (Some(map), _) => (trace::build(kind, &b.mesh), OwnHorizon::Map { map, exact }),
+                (None, TracerKind::Bvh) if !b.convex => {
                     let bvh = Bvh::build(&b.mesh);
-                    let horizon = HorizonBound::new(&b.mesh, &bvh);
-                    (Box::new(bvh) as Box<dyn Tracer + 'w>, Some(horizon))
+                    let bound = OwnHorizon::Bound(HorizonBound::new(&b.mesh, &bvh));
+                    (Box::new(bvh) as Box<dyn Tracer + 'w>, bound)
                 }
-                _ => (trace::build(kind, &b.mesh), None),
+                (None, _) => (trace::build(kind, &b.mesh), OwnHorizon::None),
             })
             .unzip();
         Direct {
             world,
             tracers,
             horizons,
+            sun: shadows.sun,
+            disk: shadows.disk,
             min_height_m: world.bodies.iter().map(min_blocker_heights).collect(),
             offsets: world.offsets(),
         }
@@ -124,6 +161,10 @@ impl<'w> Direct<'w> {
         Ok(Sunlight {
             sun,
             flux: state.bodies[b].flux_w_m2,
+            radius: match self.sun {
+                SunShape::Point => 0.0,
+                SunShape::Disk => SolarDisk::angular_radius(state.bodies[b].sun_distance_m),
+            },
             own: (!body.convex).then(|| self.tracers[b].toward(sun)),
             foreign: self.foreign_casters(b, state, sun),
         })
@@ -166,24 +207,20 @@ impl<'w> Direct<'w> {
                 .for_each(|(r, dark)| *dark = own.blocked(r.origin, r.t_min, Some(r.facet)));
             counts.rays += rays.len() as u64;
         }
-        // Which facets are dark already matters only to the other bodies' shadows.
-        let mut dark = (!light.foreign.is_empty()).then(|| vec![false; out.len()]);
         for (r, _) in rays.iter().zip(&by_self).filter(|(_, &d)| d) {
             out[r.facet as usize] = 0.0;
             counts.shadowed += 1;
-            if let Some(dark) = dark.as_mut() {
-                dark[r.facet as usize] = true;
-            }
         }
-        if let Some(dark) = dark {
-            counts += self.shade_by_others(b, light, out, &dark);
+        if !light.foreign.is_empty() {
+            counts += self.shade_by_others(b, light, out);
         }
         counts
     }
 
-    /// Lights every facet of body `b` facing the Sun as if nothing blocked it, and lists
-    /// the own body's shadow rays to trace: none when the body cannot shadow itself, none
-    /// where the Sun stands above the facet's horizon bound.
+    /// Lights every facet of body `b` facing the Sun as if nothing of its own body blocked
+    /// it, except where a horizon map decides, and lists the own body's shadow rays to
+    /// trace: none when the body cannot shadow itself, none where the Sun stands above
+    /// the facet's horizon bound or the map is certain or decides alone.
     fn light_facing(
         &self,
         b: usize,
@@ -192,8 +229,10 @@ impl<'w> Direct<'w> {
     ) -> (StepCounts, Vec<OwnRay>) {
         const CHUNK: usize = 4096;
         let mesh = &self.world.bodies[b].mesh;
-        let horizon = self.horizons[b].as_ref();
+        let horizon = &self.horizons[b];
         let traces_own = light.own.is_some();
+        // A disk starts to rise above a facet's plane when its centre is ρ below it.
+        let facing = -light.radius.sin();
         out.par_chunks_mut(CHUNK)
             .enumerate()
             .map(|(chunk, values)| {
@@ -201,17 +240,49 @@ impl<'w> Direct<'w> {
                 let mut rays = Vec::new();
                 for (k, e) in values.iter_mut().enumerate() {
                     let i = chunk * CHUNK + k;
-                    let cos = mesh.normals[i].dot(light.sun);
-                    if cos <= 0.0 {
+                    let normal = mesh.normals[i];
+                    let cos = normal.dot(light.sun);
+                    if cos <= facing {
                         counts.night += 1;
                         *e = 0.0;
+                        continue;
+                    }
+                    let map = match horizon {
+                        OwnHorizon::Map { map, exact } if traces_own => Some((map, *exact)),
+                        _ => None,
+                    };
+                    if self.sun == SunShape::Disk {
+                        let ground = LocalHorizon {
+                            elevation: 0.0,
+                            slope: 0.0,
+                        };
+                        let h = map.map_or(ground, |(m, _)| {
+                            counts.horizon_lookups += 1;
+                            m.horizon(i, &m.position(normal, light.sun, cos))
+                        });
+                        *e = light.flux * self.disk_share(cos, h, light.radius);
+                        counts.shadowed += (*e == 0.0) as u64;
                         continue;
                     }
                     *e = light.flux * cos;
                     if !traces_own {
                         continue;
                     }
-                    if horizon.is_some_and(|h| h.clears(i, cos)) {
+                    let cleared = match (horizon, map) {
+                        (_, Some((m, true))) => m.clears(i, &m.position(normal, light.sun, cos)),
+                        (_, Some((m, false))) => {
+                            counts.horizon_lookups += 1;
+                            let at = m.position(normal, light.sun, cos);
+                            if at.elevation <= m.horizon(i, &at).elevation {
+                                *e = 0.0;
+                                counts.shadowed += 1;
+                            }
+                            continue;
+                        }
+                        (OwnHorizon::Bound(bound), None) => bound.clears(i, cos),
+                        _ => false,
+                    };
+                    if cleared {
                         counts.above_horizon += 1;
                     } else {
                         rays.push(OwnRay {
@@ -233,28 +304,21 @@ impl<'w> Direct<'w> {
             )
     }
 
-    /// Darkens the facets of body `b` still lit in `out` (not `dark` already) whose ray
-    /// another body blocks.
-    fn shade_by_others(
-        &self,
-        b: usize,
-        light: &Sunlight<'_>,
-        out: &mut [f64],
-        dark: &[bool],
-    ) -> StepCounts {
+    /// Darkens the facets of body `b` still lit in `out` whose ray (from the centroid
+    /// toward the Sun's centre) another body blocks.
+    fn shade_by_others(&self, b: usize, light: &Sunlight<'_>, out: &mut [f64]) -> StepCounts {
         let mesh = &self.world.bodies[b].mesh;
         out.par_iter_mut()
             .enumerate()
-            .filter(|&(i, _)| !dark[i])
+            .filter(|(_, e)| **e > 0.0)
             .map(|(i, e)| {
                 let mut counts = StepCounts::default();
-                let cos = mesh.normals[i].dot(light.sun);
-                if cos > 0.0 {
-                    let t_min = self.t_min(b, i, cos);
-                    if light.blocked_by_others(mesh.centroids[i], t_min, &mut counts) {
-                        *e = 0.0;
-                        counts.shadowed += 1;
-                    }
+                // A disk can light a facet whose plane hides the Sun's centre.
+                let cos = mesh.normals[i].dot(light.sun).max(1e-6);
+                let t_min = self.t_min(b, i, cos);
+                if light.blocked_by_others(mesh.centroids[i], t_min, &mut counts) {
+                    *e = 0.0;
+                    counts.shadowed += 1;
                 }
                 counts
             })
@@ -288,6 +352,20 @@ impl<'w> Direct<'w> {
         }
     }
 
+    /// The share of the flux a facet receives from a disk Sun of angular radius
+    /// `radius` whose centre stands at `sin_elevation` above its plane, with `horizon`
+    /// (approximated by a straight line across the disk; [`crate::horizon::disk`]).
+    fn disk_share(&self, sin_elevation: f64, horizon: LocalHorizon, radius: f64) -> f64 {
+        let e = sin_elevation.clamp(-1.0, 1.0).asin();
+        let tilt = horizon.slope / e.cos().max(1e-6);
+        let across = (1.0 + tilt * tilt).sqrt();
+        let seen = self
+            .disk
+            .visible((e - horizon.elevation) / (radius * across));
+        let centroid = e + radius * seen.centroid / across;
+        seen.fraction * centroid.sin().max(0.0)
+    }
+
     /// The least distance along the Sun ray at which a hit on facet `i` of body `b` counts
     /// as a shadow, for the Sun at `cos_i` from its normal (the module doc's `h_min`).
     pub fn t_min(&self, b: usize, i: usize, cos_i: f64) -> f64 {
@@ -307,6 +385,8 @@ struct OwnRay {
 pub(crate) struct Sunlight<'q> {
     sun: DVec3,
     flux: f64,
+    /// The Sun's angular radius, radians (0 for a point Sun).
+    radius: f64,
     own: Option<Box<dyn ShadowQuery + 'q>>,
     foreign: Vec<ForeignCaster<'q>>,
 }

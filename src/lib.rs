@@ -66,6 +66,7 @@ pub mod ephemeris;
 pub mod error;
 #[cfg(feature = "imaging")]
 pub mod fit;
+pub mod horizon;
 pub mod illum;
 #[cfg(feature = "imaging")]
 pub mod image;

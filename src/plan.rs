@@ -110,6 +110,20 @@ impl Plan {
 }
 
 impl Plan {
+    /// Puts each horizon-map decision after the self-shadowing decision of its body
+    /// (stage "horizon map of 'name'"), or at the end.
+    pub fn set_horizon_maps(&mut self, decisions: Vec<Decision>) {
+        for d in decisions {
+            let body = d.stage.trim_start_matches("horizon map of ");
+            let at = self
+                .decisions
+                .iter()
+                .position(|x| x.stage == format!("self-shadowing of {body}"))
+                .map_or(self.decisions.len(), |i| i + 1);
+            self.decisions.insert(at, d);
+        }
+    }
+
     /// Replaces the scattered-light decision by the scattering stage's own decisions.
     pub fn set_scatter(&mut self, decisions: Vec<Decision>) {
         let at = self

@@ -16,12 +16,13 @@ use crate::ephemeris::spin::{Spin, SpinModel};
 use crate::ephemeris::synthetic::{CircularOrbit, SyntheticMotion};
 use crate::ephemeris::{flux_at, Ephemeris, EpochState};
 use crate::error::{Error, Result};
+use crate::horizon::Shadows;
 use crate::mesh::generate::ellipsoid;
 use crate::mesh::inspect::inspect;
 use crate::mesh::projection::PolarStereographic;
 use crate::mesh::{read_mesh, LengthUnit, Mesh, RawMesh};
 use crate::output::record::{input_file, BodyRecord, InputFile};
-use crate::plan::Plan;
+use crate::plan::{Decision, Plan};
 use crate::progress::Timings;
 use crate::scatter::Settings as ScatterSettings;
 use crate::scene::{
@@ -85,6 +86,10 @@ pub struct Prepared {
     pub bins: Bins,
     /// What runs and what is left out, and why.
     pub plan: Plan,
+    /// How the bodies' own shadows are found.
+    pub shadows: Shadows,
+    /// Per body, whether it uses a horizon map.
+    pub horizon_maps: Vec<bool>,
 }
 
 /// [`assemble`], then every step's geometry, the scattered-light settings, the CDF bins
@@ -109,9 +114,21 @@ pub fn prepare(scene: &Scene, budget: &Budget, timings: &mut Timings) -> Result<
     demand.form_factor_entries = scatter
         .as_ref()
         .map_or(0.0, |s| s.estimated_entries(world, &states));
+    let shadows = scene.shadows();
+    let (horizon_maps, map_decisions): (Vec<bool>, Vec<Decision>) =
+        shadows.choose(world, states.len()).into_iter().unzip();
+    demand.horizon_map_bytes = shadows.map_bytes(world, &horizon_maps);
+    let map_decisions = world
+        .bodies
+        .iter()
+        .zip(map_decisions)
+        .filter(|(b, _)| !b.convex)
+        .map(|(_, d)| d)
+        .collect();
     let memory = demand.estimate();
     budget.check(&memory)?;
     let mut plan = Plan::new(scene, world, states.len());
+    plan.set_horizon_maps(map_decisions);
     if let Some(settings) = &scatter {
         plan.set_scatter(settings.decisions(world, &states));
     }
@@ -122,6 +139,8 @@ pub fn prepare(scene: &Scene, budget: &Budget, timings: &mut Timings) -> Result<
         states,
         scatter,
         plan,
+        shadows,
+        horizon_maps,
     })
 }
 
@@ -181,6 +200,7 @@ fn scene_demand(scene: &Scene) -> Demand {
         history: scene.output.history,
         form_factor_entries: 0.0,
         kernel_bytes: kernel_bytes(scene),
+        horizon_map_bytes: 0.0,
     }
 }
 

@@ -36,6 +36,8 @@ pub fn run_scene(
         scatter,
         bins,
         plan,
+        shadows,
+        horizon_maps,
     } = prepare(scene, budget, &mut timings)?;
     // Only now that the scene is known to run is the earlier run cleared away.
     clear_previous_run(out_dir, previous)?;
@@ -54,6 +56,8 @@ pub fn run_scene(
     let options = Options {
         tracer: scene.run.tracer,
         bins,
+        shadows,
+        horizon_maps,
         scatter,
         bands: bands.as_mut(),
     };
@@ -97,6 +101,7 @@ pub fn run_scene(
         bodies: assembly.bodies,
         plan,
         counts: sim.counts,
+        horizon_maps: sim.horizon_maps,
         scatter: sim.parts.map(|p| p.record),
         bins_w_m2: bins,
         duration_s: assembly.ephemeris.duration_s(),

@@ -10,6 +10,9 @@
 use crate::bands::Bands;
 use crate::ephemeris::EpochState;
 use crate::error::{Error, Result};
+use crate::horizon::map::HorizonMap;
+use crate::horizon::shadows::MapRecord;
+use crate::horizon::Shadows;
 use crate::illum::{Direct, StepCounts};
 use crate::progress::{Progress, Silent, Timings};
 use crate::scatter::{Scatter, ScatterRecord, Settings as ScatterSettings, LANES};
@@ -21,6 +24,10 @@ use crate::world::World;
 pub struct Options<'a> {
     pub tracer: TracerKind,
     pub bins: Bins,
+    /// How the bodies' own shadows are found and the Sun's shape.
+    pub shadows: Shadows,
+    /// Per body (scene order), whether it uses a horizon map (empty: none does).
+    pub horizon_maps: Vec<bool>,
     /// Scattered light (none: direct sunlight only).
     pub scatter: Option<ScatterSettings>,
     /// Spectral bands, which accumulate their own statistics (none: one broad band).
@@ -33,6 +40,8 @@ impl Options<'_> {
         Options {
             tracer,
             bins,
+            shadows: Shadows::default(),
+            horizon_maps: Vec::new(),
             scatter: None,
             bands: None,
         }
@@ -47,6 +56,8 @@ pub struct Simulation {
     /// With scattering: statistics of the direct and the scattered parts, and what the
     /// scattered-light stage did.
     pub parts: Option<ScatterParts>,
+    /// Where each horizon map used came from.
+    pub horizon_maps: Vec<MapRecord>,
 }
 
 /// Direct and scattered statistics of a run with scattered light.
@@ -79,13 +90,20 @@ pub fn simulate(
     let Options {
         tracer,
         bins,
+        shadows,
+        horizon_maps,
         scatter,
         mut bands,
     } = options;
-    if tracer == TracerKind::Bvh {
+    let (maps, records) = timings.time("horizon maps", || {
+        obtain_maps(world, &shadows, &horizon_maps, progress)
+    })?;
+    if tracer == TracerKind::Bvh && maps.iter().any(Option::is_none) {
         announce_bvh_build(world, progress);
     }
-    let direct = timings.time("trace build", || Direct::new(world, tracer));
+    let direct = timings.time("trace build", || {
+        Direct::with_maps(world, tracer, maps, &shadows)
+    });
     let mut scatter = scatter.map(|settings| {
         timings.time("form factors", || {
             let first = settings.first_bounce.scatterer();
@@ -136,7 +154,30 @@ pub fn simulate(
                 scattered,
                 record: stage.record,
             }),
+        horizon_maps: records,
     })
+}
+
+/// The horizon maps of the bodies flagged in `uses` (none for the others), each read
+/// from the cache or built, and where each came from.
+fn obtain_maps(
+    world: &World,
+    shadows: &Shadows,
+    uses: &[bool],
+    progress: &dyn Progress,
+) -> Result<(Vec<Option<HorizonMap>>, Vec<MapRecord>)> {
+    let mut records = Vec::new();
+    let mut maps = Vec::with_capacity(world.bodies.len());
+    for (b, body) in world.bodies.iter().enumerate() {
+        if !uses.get(b).copied().unwrap_or(false) {
+            maps.push(None);
+            continue;
+        }
+        let (map, record) = shadows.obtain(body, progress)?;
+        records.push(record);
+        maps.push(Some(map));
+    }
+    Ok((maps, records))
 }
 
 /// The steps computed together: with scattered light on a single body, whose exchange

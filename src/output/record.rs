@@ -42,6 +42,9 @@ pub struct RunRecord {
     pub bodies: Vec<BodyRecord>,
     pub plan: Plan,
     pub counts: StepCounts,
+    /// Where each horizon map came from (none when no body used one).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub horizon_maps: Vec<crate::horizon::shadows::MapRecord>,
     /// The scattered-light stage: form factors per body and the solver's report over all
     /// steps (absent without scattering).
     #[serde(skip_serializing_if = "Option::is_none")]

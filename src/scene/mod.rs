@@ -21,6 +21,9 @@ pub use schema::*;
 pub use validate::{camera_size_problem, MAX_BODIES, MAX_SPAN_S, MAX_STEPS};
 
 use crate::error::{printable, Error, Result};
+use crate::horizon::disk::SolarDisk;
+use crate::horizon::shadows::cache_dir_for;
+use crate::horizon::Shadows;
 use hifitime::Epoch;
 use serde::Deserialize;
 use std::path::{Path, PathBuf};
@@ -92,6 +95,21 @@ impl Scene {
         };
         scene.validate()?;
         Ok(scene)
+    }
+
+    /// The scene's shadow settings, the cache folder resolved.
+    pub fn shadows(&self) -> Shadows {
+        let folder = self.path.parent().unwrap_or(Path::new("."));
+        Shadows {
+            method: self.run.shadows,
+            mode: self.run.horizon_mode,
+            azimuths: self.run.horizon_azimuths,
+            sun: self.run.sun,
+            disk: SolarDisk {
+                limb_darkening: self.run.limb_darkening,
+            },
+            cache_dir: cache_dir_for(folder, self.run.cache_dir.as_deref()),
+        }
     }
 
     /// An error at `key` of this scene ([`Error::scene`]: shown printable and bounded).

@@ -5,6 +5,8 @@
 //! relative to the scene file by [`super::Scene::parse`]. Defaults are stated beside each
 //! key; `docs/scene.md` documents every key with a complete example.
 
+use crate::horizon::shadows::DEFAULT_AZIMUTHS;
+use crate::horizon::{HorizonMode, ShadowMethod, SunShape};
 use crate::mesh::projection::Pole;
 use crate::mesh::{LengthUnit, MeshFormat};
 use crate::trace::TracerKind;
@@ -66,6 +68,22 @@ pub struct RunSection {
     pub tracer: TracerKind,
     /// Width of the CDF bins, W/m².
     pub bin_width_w_m2: f64,
+    /// A body's own shadows: "auto" (default: a horizon map when cached or when the run
+    /// is long enough to pay for it), "rays" or "horizon".
+    pub shadows: ShadowMethod,
+    /// How a horizon map decides: "exact" (default: rays where it is not certain, so a
+    /// point Sun's shadows equal the tracers') or "approximate" (the map alone).
+    pub horizon_mode: HorizonMode,
+    /// Azimuth wedges of a horizon map (default 128, 2.8° each; 8 to 4096).
+    pub horizon_azimuths: u32,
+    /// The Sun as a "point" (default) or a "disk" (visible share above the horizon).
+    pub sun: SunShape,
+    /// Linear limb-darkening coefficient of the disk Sun, 0 (uniform, default) to 1.
+    pub limb_darkening: f64,
+    /// Folder of the horizon-map cache, relative to the scene file (default:
+    /// `$SLIM_CACHE_DIR`, else `$XDG_CACHE_HOME/slim/horizon`, else
+    /// `~/.cache/slim/horizon`).
+    pub cache_dir: Option<PathBuf>,
 }
 
 impl Default for RunSection {
@@ -74,6 +92,12 @@ impl Default for RunSection {
             name: None,
             tracer: TracerKind::default(),
             bin_width_w_m2: 10.0,
+            shadows: ShadowMethod::default(),
+            horizon_mode: HorizonMode::default(),
+            horizon_azimuths: DEFAULT_AZIMUTHS,
+            sun: SunShape::default(),
+            limb_darkening: 0.0,
+            cache_dir: None,
         }
     }
 }

@@ -21,6 +21,7 @@ pub const MAX_SPAN_S: f64 = 1e12;
 impl Scene {
     pub(super) fn validate(&self) -> Result<()> {
         positive(self, "run.bin_width_w_m2", self.run.bin_width_w_m2)?;
+        self.shadows().check().map_err(|msg| self.err("run", msg))?;
         check_name(self, "run.name", &self.name)?;
         if self.bodies.is_empty() {
             return Err(self.err("body", "a scene needs at least one [[body]]"));

@@ -13,7 +13,7 @@
 //!   into a 2-D grid; a shadow query is then a point lookup in one cell.
 //! - [`bvh::Bvh`]: a bounding-volume hierarchy built once for every direction (also the
 //!   facet-to-facet visibility of scattered light). With it, the direct stage also builds
-//!   each body's [`horizon::HorizonBound`], which answers without a ray whenever the Sun
+//!   each body's [`crate::horizon::bound::HorizonBound`], which answers without a ray whenever the Sun
 //!   stands above everything a facet can see.
 //!
 //! All decide a hit with the same exact predicate ([`ray::blocks`]), evaluated in a
@@ -24,7 +24,6 @@
 pub mod bvh;
 mod cells;
 pub mod grid;
-pub mod horizon;
 pub mod ray;
 pub mod sunview;
 

@@ -1,107 +1,34 @@
-//! Horizon bound: per facet, the highest elevation at which its centroid sees any other
-//! facet of its body, so that a Sun above it needs no shadow ray.
+//! Horizon geometry: how high a box or a triangle rises above a plane, seen from a point.
 //!
-//! In: a mesh (metres, body frame) and its [`Bvh`]. Out: [`HorizonBound`], per facet the
-//! sine of the largest elevation above the facet's plane of any point of any other facet
-//! with an area, seen from the facet's centroid (0 when nothing rises above the plane).
-//! A shadow ray leaves the centroid at the Sun's elevation (`sin e = n·s`); when that is
-//! above the bound, every point the ray passes lies higher than anything of the body in
-//! that direction, so no facet can block it, and [`HorizonBound::clears`] answers
-//! without tracing. The answer is then the exact tracers' answer, not an approximation:
-//! on a convex patch of a surface nothing rises above the facet's plane, and on a real
-//! shape model most Sun-facing facets see the Sun above their highest horizon at most
-//! steps.
+//! In: a viewpoint `c` and the unit normal `n` of its plane (metres, body frame), and a box
+//! or triangle. Out: sines of elevation above that plane (`n·u` for a unit direction `u`
+//! from `c`), exact for triangles and an upper bound for boxes, and the distance from a
+//! point to a triangle. The horizon bound and the horizon maps are built from these.
 //!
 //! The elevation of a triangle seen from a point is maximal at a corner, on an edge (the
 //! highest point of the great-circle arc between two corner directions) or, when the
-//! facet's normal points into the triangle's cone of directions, straight up (sin = 1).
-//! The bound is computed exactly that way for every triangle the tree cannot rule out,
-//! each triangle widened by the rounding of the exact predicate (a few units in the last
-//! place of the mesh's coordinates, `ROUNDING_ULPS · ε · |v|max`), so that a ray the
-//! tracers call blocked through rounding is never cleared. The branch and bound stops
-//! refining within `SEARCH_SLACK` (0.02 in sine, about 1°) of the highest horizon, which
-//! it adds to the bound: a Sun less than that above the horizon is simply traced.
-//!
-//! Cost: a tree search per facet, parallel over facets; about 3 s per 49k facets on one
-//! core, growing a little faster than the facet count. Memory: 8 bytes per facet.
+//! normal points into the triangle's cone of directions, straight up (sin = 1).
 
-use super::bvh::Bvh;
 use crate::mesh::Mesh;
 use glam::DVec3;
-use rayon::prelude::*;
-use std::cell::Cell;
 
 /// The exact predicate's position error as a multiple of `ε · |v|max` (its edge
 /// functions combine three roundings of coordinates that size; this is far above).
 const ROUNDING_ULPS: f64 = 1024.0;
 
-/// How far above the highest horizon found the bound may lie (sine): the search skips
-/// whatever cannot rise more than this above it, which keeps it to the few hundred
-/// triangles near each facet and the far ones that form its horizon.
-const SEARCH_SLACK: f64 = 0.02;
-
-/// Least gap between the Sun's `sin e` and the bound for a ray to be cleared, over and
-/// above the widened triangles: the rounding of `n·s` itself.
-const SIN_MARGIN: f64 = 1e-9;
-
-/// Per facet, the sine of the highest elevation of any other facet seen from its centroid.
-#[derive(Debug, Clone)]
-pub struct HorizonBound {
-    sin_max: Vec<f64>,
-}
-
-impl HorizonBound {
-    /// The bound of every facet of `mesh`, using `bvh` (built over the same mesh).
-    pub fn new(mesh: &Mesh, bvh: &Bvh) -> HorizonBound {
-        let reach = mesh
-            .vertices
-            .iter()
-            .fold(0.0f64, |m, v| m.max(v.abs().max_element()));
-        let widening = ROUNDING_ULPS * f64::EPSILON * reach;
-        let sin_max = (0..mesh.len())
-            .into_par_iter()
-            .map(|i| {
-                let (c, n) = (mesh.centroids[i], mesh.normals[i]);
-                if n == DVec3::ZERO || mesh.areas[i] <= 0.0 {
-                    return 1.0;
-                }
-                let best = Cell::new(0.0f64);
-                bvh.search(
-                    |lo, hi| {
-                        let bound = box_bound(c, n, lo, hi, widening);
-                        (bound > best.get() + SEARCH_SLACK).then_some(bound)
-                    },
-                    |id, tri| {
-                        if id as usize != i {
-                            let threshold = best.get() + SEARCH_SLACK;
-                            let value = triangle_bound(c, n, tri, widening, threshold);
-                            best.set(best.get().max(value));
-                        }
-                    },
-                );
-                let found = best.get();
-                (found + SEARCH_SLACK).min(1.0)
-            })
-            .collect();
-        HorizonBound { sin_max }
-    }
-
-    /// True when a Sun at `sin_elevation` (n·s) above facet `i`'s plane is higher than
-    /// everything else of the body seen from its centroid: its shadow ray is unblocked.
-    #[inline]
-    pub fn clears(&self, i: usize, sin_elevation: f64) -> bool {
-        sin_elevation > self.sin_max[i] + SIN_MARGIN
-    }
-
-    /// Per facet, the sine of the highest elevation (for tests and reports).
-    pub fn sin_max(&self) -> &[f64] {
-        &self.sin_max
-    }
+/// How far (metres) a triangle of `mesh` is widened so that a ray the exact tracers call
+/// blocked through rounding is never cleared: `ROUNDING_ULPS · ε · |v|max`.
+pub(crate) fn rounding_widening(mesh: &Mesh) -> f64 {
+    let reach = mesh
+        .vertices
+        .iter()
+        .fold(0.0f64, |m, v| m.max(v.abs().max_element()));
+    ROUNDING_ULPS * f64::EPSILON * reach
 }
 
 /// An upper bound of the elevation sine from `c` (plane normal `n`) of every point of the
 /// box `lo..hi` widened by `widening`; 0 when the box lies on or below the plane.
-fn box_bound(c: DVec3, n: DVec3, lo: DVec3, hi: DVec3, widening: f64) -> f64 {
+pub(crate) fn box_bound(c: DVec3, n: DVec3, lo: DVec3, hi: DVec3, widening: f64) -> f64 {
     let (lo, hi) = (lo - widening, hi + widening);
     let mid = (lo + hi) * 0.5;
     let rise = n.dot(mid - c) + n.abs().dot((hi - lo) * 0.5);
@@ -120,7 +47,13 @@ fn box_bound(c: DVec3, n: DVec3, lo: DVec3, hi: DVec3, widening: f64) -> f64 {
 /// `widening` of triangle `tri`: the exact maximum over the triangle plus `widening` over
 /// the distance to it, or anything not above `threshold` when a cheap bound (the
 /// triangle's box) shows that it is not higher.
-fn triangle_bound(c: DVec3, n: DVec3, tri: &[DVec3; 3], widening: f64, threshold: f64) -> f64 {
+pub(crate) fn triangle_bound(
+    c: DVec3,
+    n: DVec3,
+    tri: &[DVec3; 3],
+    widening: f64,
+    threshold: f64,
+) -> f64 {
     let (lo, hi) = (
         tri[0].min(tri[1]).min(tri[2]),
         tri[0].max(tri[1]).max(tri[2]),
@@ -137,8 +70,13 @@ fn triangle_bound(c: DVec3, n: DVec3, tri: &[DVec3; 3], widening: f64, threshold
 
 /// The exact largest elevation sine from `c` of a point of triangle `tri`, which does not
 /// contain `c`.
-fn triangle_max_sin(c: DVec3, n: DVec3, tri: &[DVec3; 3]) -> f64 {
-    let [a, b, d] = tri.map(|p| (p - c).normalize());
+pub(crate) fn triangle_max_sin(c: DVec3, n: DVec3, tri: &[DVec3; 3]) -> f64 {
+    directions_max_sin(n, tri.map(|p| (p - c).normalize()))
+}
+
+/// The exact largest `n·u` over the unit directions `u` of a triangle whose corners lie
+/// in the unit directions `a`, `b`, `d` from the viewpoint (which it does not contain).
+pub(crate) fn directions_max_sin(n: DVec3, [a, b, d]: [DVec3; 3]) -> f64 {
     if normal_in_cone(n, a, b, d) {
         return 1.0;
     }
@@ -164,7 +102,7 @@ fn normal_in_cone(n: DVec3, a: DVec3, b: DVec3, d: DVec3) -> bool {
 /// The largest `n·u` over the unit directions `u` of the segment between the directions
 /// of unit vectors `ua` and `ub` (seen from the origin): an end, or the top of the
 /// great-circle arc between them. A segment through the origin gives 1.
-fn arc_max_sin(n: DVec3, ua: DVec3, ub: DVec3) -> f64 {
+pub(crate) fn arc_max_sin(n: DVec3, ua: DVec3, ub: DVec3) -> f64 {
     let ends = n.dot(ua).max(n.dot(ub));
     let k = ua.cross(ub);
     let k_len = k.length();
@@ -192,7 +130,7 @@ fn arc_max_sin(n: DVec3, ua: DVec3, ub: DVec3) -> f64 {
 /// Distance from `p` to the triangle `tri`: its closest point found by which feature's
 /// region (corner, edge or face) `p` falls in, the textbook method (Ericson, *Real-Time
 /// Collision Detection*, 5.1.5).
-fn distance_to_triangle(p: DVec3, tri: &[DVec3; 3]) -> f64 {
+pub(crate) fn distance_to_triangle(p: DVec3, tri: &[DVec3; 3]) -> f64 {
     let [a, b, c] = *tri;
     let (ab, ac, ap) = (b - a, c - a, p - a);
     let (d1, d2) = (ab.dot(ap), ac.dot(ap));
@@ -234,8 +172,6 @@ fn distance_to_triangle(p: DVec3, tri: &[DVec3; 3]) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::mesh::generate::icosphere;
-    use crate::mesh::{LengthUnit, RawMesh};
     use crate::TestRng;
 
     fn random_point(rng: &mut TestRng, size: f64) -> DVec3 {
@@ -338,50 +274,5 @@ mod tests {
                 "{exact} {sampled}"
             );
         }
-    }
-
-    /// A floor (two triangles, z = 0) and a vertical wall of height `h` along x = `wall_x`,
-    /// wide enough that the top edge's nearest point is straight across from the floor
-    /// facets' centroids: seen from a centroid `c`, the wall's top rises to
-    /// sin e = h / √(h² + (wall_x − c.x)²).
-    #[test]
-    fn a_wall_beside_a_floor_is_the_floors_horizon() {
-        let (h, wall_x, half) = (3.0, 4.0, 50.0);
-        let raw = RawMesh {
-            vertices: vec![
-                DVec3::new(-1.0, -1.0, 0.0),
-                DVec3::new(1.0, -1.0, 0.0),
-                DVec3::new(1.0, 1.0, 0.0),
-                DVec3::new(-1.0, 1.0, 0.0),
-                DVec3::new(wall_x, -half, 0.0),
-                DVec3::new(wall_x, half, 0.0),
-                DVec3::new(wall_x, half, h),
-                DVec3::new(wall_x, -half, h),
-            ],
-            triangles: vec![[0, 1, 2], [0, 2, 3], [4, 5, 6], [4, 6, 7]],
-        };
-        let mesh = Mesh::from_raw(raw, LengthUnit::M);
-        let bound = HorizonBound::new(&mesh, &Bvh::build(&mesh));
-        for i in 0..2 {
-            let c = mesh.centroids[i];
-            let expected = h / (h * h + (wall_x - c.x).powi(2)).sqrt();
-            let got = bound.sin_max()[i];
-            assert!(
-                got >= expected && got <= expected + SEARCH_SLACK + 1e-9,
-                "facet {i}: bound {got}, closed form {expected}"
-            );
-            // A Sun just above the wall's top is cleared, one just below it is not.
-            assert!(bound.clears(i, got + 2.0 * SIN_MARGIN));
-            assert!(!bound.clears(i, expected - 1e-6));
-        }
-    }
-
-    #[test]
-    fn a_convex_body_hides_nothing_above_any_facets_plane() {
-        let mesh = Mesh::from_raw(icosphere(3, 1.0, DVec3::new(5e3, 0.0, 0.0)), LengthUnit::Km);
-        let bound = HorizonBound::new(&mesh, &Bvh::build(&mesh));
-        let worst = bound.sin_max().iter().fold(0.0f64, |m, &s| m.max(s));
-        // Nothing rises above a face of a convex solid: only the search's slack remains.
-        assert!(worst <= SEARCH_SLACK + 1e-6, "{worst}");
     }
 }

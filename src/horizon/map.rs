@@ -1,0 +1,628 @@
+//! Horizon maps: per facet, the horizon as a function of azimuth, built once per mesh.
+//!
+//! In: a mesh (metres, body frame), its [`Bvh`] and a number of azimuth wedges `A`.
+//! Out: a [`HorizonMap`] — for every facet centroid, in the facet's own frame (zenith the
+//! facet normal, azimuth measured in its tangent plane from [`tangent_frame`]'s first
+//! axis), two elevations per wedge `[2πk/A, 2π(k+1)/A)`, quantised to 16 bits over 0–90°
+//! (0.0014°):
+//!
+//! - **upper**: an exact upper bound of the elevation of every point of every other facet
+//!   that lies in the wedge (each triangle clipped to the wedge, its highest point found
+//!   at a corner, on an arc or straight up; widened by the exact predicate's rounding and
+//!   rounded up when quantised). A Sun above it in that wedge lights the facet for
+//!   certain: the exact ray tracers would find nothing.
+//! - **centre**: the horizon at the wedge's centre azimuth, the highest point of any
+//!   facet in that vertical half-plane (exact, rounded to the nearest quantum). Linear
+//!   interpolation between wedge centres is the approximate horizon.
+//!
+//! Folded shapes: under an overhang the blocked elevations at one azimuth are not one
+//! interval (sky below an arch, rock above it). The map keeps only the top of the
+//! blocked set, so the approximate horizon calls a Sun seen under an overhang dark; the
+//! exact mode never relies on it below the upper bound and traces a ray instead.
+//!
+//! Cost: one tree search per facet, parallel over facets, that prunes every box lower
+//! than the upper bounds of the wedges it spans. Memory: `4·A` bytes per facet.
+
+use super::geometry::{
+    arc_max_sin, box_bound, directions_max_sin, distance_to_triangle, rounding_widening,
+};
+use crate::mesh::Mesh;
+use crate::trace::bvh::Bvh;
+use glam::DVec3;
+use rayon::prelude::*;
+use std::cell::RefCell;
+use std::f64::consts::{FRAC_PI_2, TAU};
+
+/// Quanta per radian of elevation: 0–90° onto 0–65535.
+const QUANTA_PER_RAD: f64 = 65535.0 / FRAC_PI_2;
+
+/// Least and most wedges a map may have (a wedge must be narrower than half a turn).
+pub const AZIMUTHS_MIN: u32 = 8;
+pub const AZIMUTHS_MAX: u32 = 4096;
+
+/// Extra width (radians) given to each wedge on both sides when the upper bound is
+/// built, so that the rounding of the Sun's azimuth at lookup never picks a wedge that
+/// misses a blocker near its edge.
+const WEDGE_OVERLAP: f64 = 1e-9;
+
+/// The horizon of every facet of one mesh.
+#[derive(Debug, Clone, PartialEq)]
+pub struct HorizonMap {
+    azimuths: u32,
+    /// Per facet, per wedge: [upper, centre] elevation in quanta.
+    cells: Vec<[u16; 2]>,
+}
+
+/// Where the Sun stands in a facet's sky: its wedge, its place between wedge centres
+/// and its elevation above the facet's plane.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SkyPosition {
+    /// The wedge the azimuth falls in.
+    pub wedge: usize,
+    /// Azimuth in wedge widths past the centre of wedge `wedge - 1`'s… precisely: the
+    /// continuous wedge coordinate `φ/Δ − ½` (Δ the wedge width), in `[−½, A − ½)`.
+    pub between: f64,
+    /// Elevation above the facet's plane, radians.
+    pub elevation: f64,
+}
+
+/// The approximate horizon toward the Sun: its elevation and slope.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LocalHorizon {
+    /// Elevation of the horizon at the Sun's azimuth, radians.
+    pub elevation: f64,
+    /// Its rate of change with azimuth, radians per radian.
+    pub slope: f64,
+}
+
+impl HorizonMap {
+    /// Builds the map of every facet of `mesh` with `azimuths` wedges (within
+    /// [`AZIMUTHS_MIN`]..=[`AZIMUTHS_MAX`]), searching `bvh` (built over the same mesh);
+    /// `None` when `cancelled` turns true (asked between batches of facets).
+    pub fn build(
+        mesh: &Mesh,
+        bvh: &Bvh,
+        azimuths: u32,
+        cancelled: &(dyn Fn() -> bool + Sync),
+    ) -> Option<HorizonMap> {
+        const BATCH: usize = 4096;
+        const RUN: usize = 64;
+        let azimuths = azimuths.clamp(AZIMUTHS_MIN, AZIMUTHS_MAX);
+        let wedges = Wedges::new(azimuths as usize);
+        let widening = rounding_widening(mesh);
+        let mut cells = Vec::with_capacity(mesh.len() * azimuths as usize);
+        for first in (0..mesh.len()).step_by(BATCH) {
+            if cancelled() {
+                return None;
+            }
+            let end = (first + BATCH).min(mesh.len());
+            // Runs of neighbouring facets (in file order, which is spatially coherent in
+            // shape models and terrain) are built in turn, each seeded with the triangles
+            // that set the previous one's horizon.
+            let rows: Vec<Vec<[u16; 2]>> = (first..end)
+                .step_by(RUN)
+                .collect::<Vec<_>>()
+                .into_par_iter()
+                .flat_map_iter(|start| {
+                    let mut seeds = Vec::new();
+                    (start..(start + RUN).min(end))
+                        .map(|i| {
+                            let (row, setters) =
+                                facet_horizon(mesh, bvh, i, &wedges, widening, &seeds);
+                            seeds = setters;
+                            row
+                        })
+                        .collect::<Vec<_>>()
+                })
+                .collect();
+            rows.into_iter().for_each(|r| cells.extend(r));
+        }
+        Some(HorizonMap { azimuths, cells })
+    }
+
+    /// A map from stored cells (the cache); `None` when their number does not fit.
+    pub(super) fn from_cells(azimuths: u32, facets: usize, cells: Vec<[u16; 2]>) -> Option<Self> {
+        ((AZIMUTHS_MIN..=AZIMUTHS_MAX).contains(&azimuths)
+            && cells.len() == facets * azimuths as usize)
+            .then_some(HorizonMap { azimuths, cells })
+    }
+
+    /// The stored cells, facet by facet (for the cache).
+    pub(super) fn cells(&self) -> &[[u16; 2]] {
+        &self.cells
+    }
+
+    /// Number of azimuth wedges.
+    pub fn azimuths(&self) -> u32 {
+        self.azimuths
+    }
+
+    /// Number of facets.
+    pub fn facets(&self) -> usize {
+        self.cells.len() / self.azimuths as usize
+    }
+
+    /// Memory held, bytes.
+    pub fn bytes(&self) -> usize {
+        self.cells.len() * 4
+    }
+
+    /// Where the unit Sun direction `sun` (body frame) stands in the sky of a facet with
+    /// unit normal `normal`, given `sin_elevation = normal·sun`.
+    #[inline]
+    pub fn position(&self, normal: DVec3, sun: DVec3, sin_elevation: f64) -> SkyPosition {
+        let (t1, t2) = tangent_frame(normal);
+        let a = self.azimuths as f64;
+        let mut phi = sun.dot(t2).atan2(sun.dot(t1));
+        if phi < 0.0 {
+            phi += TAU;
+        }
+        let w = phi * (a / TAU);
+        SkyPosition {
+            wedge: (w as usize).min(self.azimuths as usize - 1),
+            between: w - 0.5,
+            elevation: sin_elevation.clamp(-1.0, 1.0).asin(),
+        }
+    }
+
+    /// True when facet `i` sees a Sun at `at` for certain: above the upper bound of its
+    /// wedge (the exact tracers agree).
+    #[inline]
+    pub fn clears(&self, i: usize, at: &SkyPosition) -> bool {
+        let upper = self.cell(i, at.wedge)[0];
+        at.elevation > upper as f64 / QUANTA_PER_RAD + 1e-9
+    }
+
+    /// The approximate horizon of facet `i` at the Sun's azimuth: linear between the
+    /// horizons at the two nearest wedge centres.
+    #[inline]
+    pub fn horizon(&self, i: usize, at: &SkyPosition) -> LocalHorizon {
+        let a = self.azimuths as usize;
+        let below = at.between.floor();
+        let t = at.between - below;
+        let k0 = (below as isize).rem_euclid(a as isize) as usize;
+        let k1 = (k0 + 1) % a;
+        let (h0, h1) = (
+            self.cell(i, k0)[1] as f64 / QUANTA_PER_RAD,
+            self.cell(i, k1)[1] as f64 / QUANTA_PER_RAD,
+        );
+        LocalHorizon {
+            elevation: h0 + (h1 - h0) * t,
+            slope: (h1 - h0) * (a as f64 / TAU),
+        }
+    }
+
+    /// The [upper, centre] elevations (radians) of facet `i` in wedge `k` (tests, reports).
+    pub fn wedge(&self, i: usize, k: usize) -> [f64; 2] {
+        self.cell(i, k).map(|q| q as f64 / QUANTA_PER_RAD)
+    }
+
+    #[inline]
+    fn cell(&self, i: usize, k: usize) -> [u16; 2] {
+        self.cells[i * self.azimuths as usize + k]
+    }
+}
+
+/// An orthonormal tangent basis `(t1, t2)` of the plane with unit normal `n`, with
+/// `t1 × t2 = n`; a fixed function of `n` alone (Duff et al. 2017, "Building an
+/// orthonormal basis, revisited"), so maps and lookups agree without storing it.
+#[inline]
+pub fn tangent_frame(n: DVec3) -> (DVec3, DVec3) {
+    let sign = 1.0f64.copysign(n.z);
+    let a = -1.0 / (sign + n.z);
+    let b = n.x * n.y * a;
+    (
+        DVec3::new(1.0 + sign * n.x * n.x * a, sign * b, -sign * n.x),
+        DVec3::new(b, sign + n.y * n.y * a, -n.y),
+    )
+}
+
+/// The wedges' boundary and centre azimuths, as in-plane unit vectors per facet frame
+/// (cosine and sine pairs; the same for every facet).
+struct Wedges {
+    count: usize,
+    /// cos, sin of the boundary azimuths 2πk/A, k = 0..=A.
+    edges: Vec<(f64, f64)>,
+    /// cos, sin of the centre azimuths 2π(k+½)/A.
+    centres: Vec<(f64, f64)>,
+}
+
+impl Wedges {
+    fn new(count: usize) -> Wedges {
+        let at = |x: f64| {
+            let phi = TAU * x / count as f64;
+            (phi.cos(), phi.sin())
+        };
+        Wedges {
+            count,
+            edges: (0..=count).map(|k| at(k as f64)).collect(),
+            centres: (0..count).map(|k| at(k as f64 + 0.5)).collect(),
+        }
+    }
+
+    fn width(&self) -> f64 {
+        TAU / self.count as f64
+    }
+
+    /// The wedges met by an azimuth span, each once, in order.
+    fn covering(&self, span: Span) -> impl Iterator<Item = usize> + '_ {
+        let (first, len) = match span {
+            Span::All => (0, self.count),
+            Span::Range(lo, hi) => {
+                let first = (lo / self.width()).floor();
+                let last = (hi / self.width()).floor();
+                (
+                    (first as isize).rem_euclid(self.count as isize) as usize,
+                    ((last - first) as usize + 1).min(self.count),
+                )
+            }
+        };
+        (first..first + len).map(move |k| k % self.count)
+    }
+}
+
+/// An azimuth span in a facet's frame: every azimuth, or `[lo, hi]` in radians with
+/// `lo ≤ hi < lo + π` (not reduced to one turn).
+#[derive(Debug, Clone, Copy)]
+enum Span {
+    All,
+    Range(f64, f64),
+}
+
+impl Span {
+    /// The span of points `rel` (relative to the viewpoint) projected on the tangent
+    /// plane `(t1, t2)`, or `All` when `contains_axis`.
+    fn of(rel: &[DVec3], t1: DVec3, t2: DVec3, contains_axis: bool) -> Span {
+        if contains_axis {
+            return Span::All;
+        }
+        let first = (rel[0].dot(t1), rel[0].dot(t2));
+        let phi0 = first.1.atan2(first.0);
+        let (mut lo, mut hi) = (0.0f64, 0.0f64);
+        for p in &rel[1..] {
+            let (x, y) = (p.dot(t1), p.dot(t2));
+            let turn = (first.0 * y - first.1 * x).atan2(first.0 * x + first.1 * y);
+            lo = lo.min(turn);
+            hi = hi.max(turn);
+        }
+        if hi - lo >= std::f64::consts::PI {
+            return Span::All;
+        }
+        Span::Range(phi0 + lo, phi0 + hi)
+    }
+
+    /// The span widened by `by` radians on both sides.
+    fn widened(self, by: f64) -> Span {
+        match self {
+            Span::Range(lo, hi) if hi - lo + 2.0 * by < std::f64::consts::PI => {
+                Span::Range(lo - by, hi + by)
+            }
+            _ => Span::All,
+        }
+    }
+
+    /// True when the span holds azimuth `phi` (any turn).
+    fn holds(self, phi: f64) -> bool {
+        match self {
+            Span::All => true,
+            Span::Range(lo, hi) => {
+                let phi = lo + (phi - lo).rem_euclid(TAU);
+                phi <= hi
+            }
+        }
+    }
+}
+
+/// One facet's row of the map, and the triangles that set its horizon. Triangles in
+/// `seeds` (a neighbour's horizon setters) are taken first: they are likely high here
+/// too, and the higher the horizon found early, the more of the tree is pruned.
+fn facet_horizon(
+    mesh: &Mesh,
+    bvh: &Bvh,
+    i: usize,
+    wedges: &Wedges,
+    widening: f64,
+    seeds: &[u32],
+) -> (Vec<[u16; 2]>, Vec<u32>) {
+    let (c, n) = (mesh.centroids[i], mesh.normals[i]);
+    if n == DVec3::ZERO || mesh.areas[i] <= 0.0 {
+        // Never lit (n·s = 0): any horizon will do; the highest is the safe one.
+        return (vec![[u16::MAX; 2]; wedges.count], Vec::new());
+    }
+    let sky = RefCell::new(FacetSky::new(c, n, wedges, widening));
+    for &id in seeds.iter().filter(|&&id| id as usize != i) {
+        sky.borrow_mut()
+            .add_triangle(id, &mesh.corners(id as usize));
+    }
+    bvh.search(
+        |lo, hi| sky.borrow().box_priority(lo, hi),
+        |id, tri| {
+            if id as usize != i {
+                sky.borrow_mut().add_triangle(id, tri);
+            }
+        },
+    );
+    let sky = sky.into_inner();
+    let mut setters: Vec<u32> = sky
+        .setter
+        .iter()
+        .copied()
+        .filter(|&s| s != u32::MAX)
+        .collect();
+    setters.sort_unstable();
+    setters.dedup();
+    (sky.quantised(), setters)
+}
+
+/// A facet's horizon while it is being built: sines of elevation per wedge.
+struct FacetSky<'a> {
+    c: DVec3,
+    n: DVec3,
+    t1: DVec3,
+    t2: DVec3,
+    wedges: &'a Wedges,
+    widening: f64,
+    upper: Vec<f64>,
+    centre: Vec<f64>,
+    /// Per wedge, the triangle that set its centre horizon (`u32::MAX`: none).
+    setter: Vec<u32>,
+    /// The lowest centre horizon of all wedges.
+    lowest_anywhere: f64,
+}
+
+impl<'a> FacetSky<'a> {
+    fn new(c: DVec3, n: DVec3, wedges: &'a Wedges, widening: f64) -> FacetSky<'a> {
+        let (t1, t2) = tangent_frame(n);
+        FacetSky {
+            c,
+            n,
+            t1,
+            t2,
+            wedges,
+            widening,
+            upper: vec![0.0; wedges.count],
+            centre: vec![0.0; wedges.count],
+            setter: vec![u32::MAX; wedges.count],
+            lowest_anywhere: 0.0,
+        }
+    }
+
+    /// Whether to open the box `lo..hi` and with which priority: not when nothing in it
+    /// can rise above the upper bounds of the wedges it spans.
+    fn box_priority(&self, lo: DVec3, hi: DVec3) -> Option<f64> {
+        let bound = box_bound(self.c, self.n, lo, hi, self.widening);
+        if bound <= self.lowest(Span::All) {
+            return None;
+        }
+        let (lo, hi) = (lo - self.widening, hi + self.widening);
+        let corners: [DVec3; 8] = std::array::from_fn(|k| {
+            DVec3::new(
+                if k & 1 == 0 { lo.x } else { hi.x },
+                if k & 2 == 0 { lo.y } else { hi.y },
+                if k & 4 == 0 { lo.z } else { hi.z },
+            ) - self.c
+        });
+        let axis = line_meets_box(self.c, self.n, lo, hi);
+        let span = Span::of(&corners, self.t1, self.t2, axis);
+        (bound > self.lowest(span)).then_some(bound)
+    }
+
+    /// The least height something in `span` must exceed to change the row: per wedge it
+    /// meets, the centre horizon (never above the upper bound).
+    fn lowest(&self, span: Span) -> f64 {
+        if let Span::All = span {
+            return self.lowest_anywhere;
+        }
+        self.wedges
+            .covering(span.widened(WEDGE_OVERLAP))
+            .map(|k| self.centre[k])
+            .fold(f64::INFINITY, f64::min)
+    }
+
+    /// Raises the wedges' upper bounds and centre horizons by triangle `tri`.
+    fn add_triangle(&mut self, id: u32, tri: &[DVec3; 3]) {
+        let rel = tri.map(|p| p - self.c);
+        if rel.iter().all(|p| p.dot(self.n) < -self.widening) {
+            return;
+        }
+        let gap = distance_to_triangle(self.c, tri);
+        if gap <= 64.0 * self.widening {
+            // The triangle touches the viewpoint (a degenerate mesh): it may hide anything.
+            self.upper.fill(1.0);
+            return;
+        }
+        let margin = self.widening / (gap - self.widening);
+        // Cheap first: the triangle's box, over the wedges its corners span (or all of
+        // them when the zenith might lie inside it).
+        let (lo, hi) = (
+            tri[0].min(tri[1]).min(tri[2]),
+            tri[0].max(tri[1]).max(tri[2]),
+        );
+        let boxed = box_bound(self.c, self.n, lo, hi, self.widening);
+        let rough = Span::of(
+            &rel,
+            self.t1,
+            self.t2,
+            line_meets_box(self.c, self.n, lo, hi),
+        );
+        if boxed + margin <= self.lowest(rough.widened(margin + WEDGE_OVERLAP)) {
+            return;
+        }
+        let unit = rel.map(DVec3::normalize);
+        let top = directions_max_sin(self.n, unit);
+        let axis = top >= 1.0;
+        let span = Span::of(&rel, self.t1, self.t2, axis);
+        // Widening moves points by `margin` radians, which moves their azimuth by at
+        // most `margin / cos e`: near the zenith the span is every azimuth.
+        let cos_top = (1.0 - (top + margin).min(1.0).powi(2)).sqrt();
+        let overlap = WEDGE_OVERLAP + margin / cos_top.max(1e-300);
+        if top + margin <= self.lowest(span.widened(overlap)) {
+            return;
+        }
+        let near_zenith = overlap >= 0.25 * self.wedges.width();
+        for k in self.wedges.covering(span.widened(overlap)) {
+            let sin = if near_zenith {
+                Some(top)
+            } else {
+                self.clipped_max_sin(&rel, k, overlap)
+            };
+            let Some(sin) = sin else {
+                continue;
+            };
+            self.upper[k] = self.upper[k].max((sin + margin).min(1.0));
+            let (cos_c, sin_c) = self.wedges.centres[k];
+            if span.holds(sin_c.atan2(cos_c)) {
+                let u = self.t1 * cos_c + self.t2 * sin_c;
+                let m = self.t2 * cos_c - self.t1 * sin_c;
+                let sin = half_plane_max_sin(&rel, self.n, u, m);
+                if sin > self.centre[k] {
+                    let was_lowest = self.centre[k] == self.lowest_anywhere;
+                    self.centre[k] = sin;
+                    self.setter[k] = id;
+                    if was_lowest {
+                        self.lowest_anywhere =
+                            self.centre.iter().copied().fold(f64::INFINITY, f64::min);
+                    }
+                }
+            }
+        }
+    }
+
+    /// The largest elevation sine of the part of the triangle `rel` (relative to the
+    /// viewpoint) in wedge `k` widened by `overlap` radians; `None` when none of it is.
+    fn clipped_max_sin(&self, rel: &[DVec3; 3], k: usize, overlap: f64) -> Option<f64> {
+        let (t1, t2) = (self.t1, self.t2);
+        let in_plane = |(cos, sin): (f64, f64)| (t1 * cos + t2 * sin, t2 * cos - t1 * sin);
+        let (u_lo, m_lo) = in_plane(self.wedges.edges[k]);
+        let (u_hi, m_hi) = in_plane(self.wedges.edges[k + 1]);
+        let (co, so) = (overlap.cos(), overlap.sin());
+        // Azimuth ≥ lower edge − overlap, and ≤ upper edge + overlap.
+        let above_lo = m_lo * co + u_lo * so;
+        let below_hi = -(m_hi * co - u_hi * so);
+        let mut poly = Polygon::from(rel);
+        poly.clip(above_lo);
+        poly.clip(below_hi);
+        let pts = poly.points().iter().map(|p| p.normalize());
+        let dirs: Vec<DVec3> = pts.collect();
+        match dirs.len() {
+            0 => None,
+            1 => Some(self.n.dot(dirs[0])),
+            2 => Some(arc_max_sin(self.n, dirs[0], dirs[1])),
+            _ => Some(
+                (1..dirs.len() - 1)
+                    .map(|j| directions_max_sin(self.n, [dirs[0], dirs[j], dirs[j + 1]]))
+                    .fold(f64::NEG_INFINITY, f64::max),
+            ),
+        }
+    }
+
+    /// The row in quanta: upper bounds rounded up, centre horizons to the nearest, each
+    /// centre no higher than its wedge's upper bound.
+    fn quantised(&self) -> Vec<[u16; 2]> {
+        let quanta = |sin: f64| sin.clamp(0.0, 1.0).asin() * QUANTA_PER_RAD;
+        self.upper
+            .iter()
+            .zip(&self.centre)
+            .map(|(&up, &mid)| {
+                let up = quanta(up).ceil().min(65535.0) as u16;
+                let mid = quanta(mid).round().min(65535.0) as u16;
+                [up, mid.min(up)]
+            })
+            .collect()
+    }
+}
+
+/// True when the line `c + λ·n` (any λ) meets the box `lo..hi`.
+fn line_meets_box(c: DVec3, n: DVec3, lo: DVec3, hi: DVec3) -> bool {
+    let (mut enter, mut leave) = (f64::NEG_INFINITY, f64::INFINITY);
+    for a in 0..3 {
+        if n[a] == 0.0 {
+            if c[a] < lo[a] || c[a] > hi[a] {
+                return false;
+            }
+            continue;
+        }
+        let (t0, t1) = ((lo[a] - c[a]) / n[a], (hi[a] - c[a]) / n[a]);
+        enter = enter.max(t0.min(t1));
+        leave = leave.min(t0.max(t1));
+    }
+    enter <= leave
+}
+
+/// The highest elevation sine of the triangle `rel` (relative to the viewpoint) in the
+/// vertical half-plane spanned by the unit zenith `n` and the in-plane direction `u`
+/// (`m` its normal): the triangle cut by the plane is a segment (or, lying in it, the
+/// triangle itself), and the elevation along a line seen from a point off it changes
+/// monotonically, so the highest point of the cut within the half-plane is one of its
+/// ends, or straight up where it crosses the zenith.
+fn half_plane_max_sin(rel: &[DVec3; 3], n: DVec3, u: DVec3, m: DVec3) -> f64 {
+    let mut poly = Polygon::default();
+    let g = rel.map(|p| p.dot(m));
+    for j in 0..3 {
+        let (a, b) = (rel[j], rel[(j + 1) % 3]);
+        let (ga, gb) = (g[j], g[(j + 1) % 3]);
+        if ga == 0.0 {
+            poly.push(a);
+        }
+        if ga * gb < 0.0 {
+            poly.push(a + (b - a) * (ga / (ga - gb)));
+        }
+    }
+    poly.clip(u);
+    poly.points()
+        .iter()
+        .map(|p| {
+            let (x, y) = (p.dot(u), p.dot(n));
+            let r = x.hypot(y);
+            if r == 0.0 {
+                1.0
+            } else {
+                y / r
+            }
+        })
+        .fold(0.0, f64::max)
+}
+
+/// A small convex polygon (at most a triangle clipped twice) for Sutherland–Hodgman
+/// clipping by half-spaces through the origin.
+#[derive(Debug, Default, Clone)]
+struct Polygon {
+    pts: [DVec3; 8],
+    len: usize,
+}
+
+impl Polygon {
+    fn from(tri: &[DVec3; 3]) -> Polygon {
+        let mut p = Polygon::default();
+        tri.iter().for_each(|&v| p.push(v));
+        p
+    }
+
+    fn push(&mut self, v: DVec3) {
+        if self.len < self.pts.len() {
+            self.pts[self.len] = v;
+            self.len += 1;
+        }
+    }
+
+    fn points(&self) -> &[DVec3] {
+        &self.pts[..self.len]
+    }
+
+    /// Keeps the part with `p·keep ≥ 0`.
+    fn clip(&mut self, keep: DVec3) {
+        let src = self.clone();
+        self.len = 0;
+        let n = src.len;
+        for j in 0..n {
+            let (a, b) = (src.pts[j], src.pts[(j + 1) % n]);
+            let (da, db) = (a.dot(keep), b.dot(keep));
+            if da >= 0.0 {
+                self.push(a);
+            }
+            if (da >= 0.0) != (db >= 0.0) && n > 1 {
+                self.push(a + (b - a) * (da / (da - db)));
+            }
+        }
+    }
+}

@@ -1,0 +1,20 @@
+//! Horizon: what each facet can see of the sky above its plane, computed once per mesh.
+//!
+//! In: a body's mesh (metres, body frame) and its BVH. Out, per facet:
+//! - [`bound::HorizonBound`]: the sine of the highest elevation of anything else, which
+//!   spares the exact tracers every ray toward a Sun above it;
+//! - [`map::HorizonMap`]: the horizon as a function of azimuth (an exact upper bound and
+//!   the horizon at the centre of each wedge), kept on disk by [`cache`] and used by the
+//!   step loop instead of rays when it pays;
+//! - [`disk::SolarDisk`]: the share of a limb-darkened solar disk above a horizon.
+//!
+//! [`geometry`] holds the elevation bounds of boxes and triangles they are built from.
+
+pub mod bound;
+pub mod cache;
+pub mod disk;
+mod geometry;
+pub mod map;
+pub mod shadows;
+
+pub use shadows::{HorizonMode, ShadowMethod, Shadows, SunShape};

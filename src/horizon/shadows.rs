@@ -1,0 +1,296 @@
+//! Shadows: how each body's own shadows are found, chosen before the run.
+//!
+//! In: the scene's `[run]` keys `shadows`, `horizon_mode`, `horizon_azimuths`, `sun`,
+//! `limb_darkening` and `cache_dir` ([`Shadows`]), the world and the number of steps.
+//! Out: per body, rays or a [`HorizonMap`] (with the reason, printed in the plan and
+//! kept in `run.json`), and the maps themselves — read from the cache or built there.
+//!
+//! `shadows = "auto"` picks a map when one is cached for the mesh, or when the run is
+//! long enough that building one costs less than the rays it spares (break-even below).
+//! In the exact horizon mode every facet–step the map cannot decide for certain is
+//! traced, so the choice never changes a result; the approximate mode and the Sun as a
+//! disk read the horizon from the map alone.
+
+use super::cache::{self, Lookup};
+use super::disk::SolarDisk;
+use super::map::{HorizonMap, AZIMUTHS_MAX, AZIMUTHS_MIN};
+use crate::error::{Error, Result};
+use crate::plan::Decision;
+use crate::progress::Progress;
+use crate::trace::bvh::Bvh;
+use crate::world::{Body, World};
+use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+/// `[run] shadows`: how a body's own shadows are found.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "lowercase")]
+pub enum ShadowMethod {
+    /// A horizon map when it is cached or pays for itself, rays otherwise.
+    #[default]
+    Auto,
+    /// A shadow ray per facet facing the Sun, every step.
+    Rays,
+    /// A horizon map per body that can shadow itself.
+    Horizon,
+}
+
+/// `[run] horizon_mode`: how a horizon map decides.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "lowercase")]
+pub enum HorizonMode {
+    /// The map decides where it is certain (the Sun above its wedge's upper bound); a ray
+    /// decides the rest, so a point Sun's lit/dark classification equals the tracers'.
+    #[default]
+    Exact,
+    /// The map decides everything from its interpolated horizon (no rays).
+    Approximate,
+}
+
+/// `[run] sun`: the Sun as a point or as a disk.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "lowercase")]
+pub enum SunShape {
+    #[default]
+    Point,
+    /// A disk of the angular radius seen at each step's Sun distance: the visible share
+    /// above the horizon, from the map (or the facet's own plane on a convex body).
+    Disk,
+}
+
+/// The shadow settings of a run.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Shadows {
+    pub method: ShadowMethod,
+    pub mode: HorizonMode,
+    pub azimuths: u32,
+    pub sun: SunShape,
+    pub disk: SolarDisk,
+    /// Where maps are cached; `None`: not cached.
+    pub cache_dir: Option<PathBuf>,
+}
+
+impl Default for Shadows {
+    fn default() -> Self {
+        Shadows {
+            method: ShadowMethod::Rays,
+            mode: HorizonMode::Exact,
+            azimuths: DEFAULT_AZIMUTHS,
+            sun: SunShape::Point,
+            disk: SolarDisk {
+                limb_darkening: 0.0,
+            },
+            cache_dir: None,
+        }
+    }
+}
+
+/// Azimuth wedges of a map unless the scene says otherwise (2.8° each).
+pub const DEFAULT_AZIMUTHS: u32 = 128;
+
+/// Measured costs behind `auto` (one core of the development machine, Itokawa 49k and
+/// the Haworth patch, 128 wedges; see docs/performance.md): seconds to build a map per
+/// facet, and seconds per facet and step that a map spares over rays.
+const BUILD_S_PER_FACET: f64 = 60e-6;
+const SAVED_S_PER_FACET_STEP: f64 = 0.15e-6;
+
+impl Shadows {
+    /// Checks the settings, naming the key at fault.
+    pub fn check(&self) -> std::result::Result<(), String> {
+        if !(AZIMUTHS_MIN..=AZIMUTHS_MAX).contains(&self.azimuths) {
+            return Err(format!(
+                "run.horizon_azimuths = {} is outside {AZIMUTHS_MIN}..={AZIMUTHS_MAX}",
+                self.azimuths
+            ));
+        }
+        let u = self.disk.limb_darkening;
+        if !(0.0..=1.0).contains(&u) {
+            return Err(format!("run.limb_darkening = {u} is outside 0..=1"));
+        }
+        if self.sun == SunShape::Disk && self.method == ShadowMethod::Rays {
+            return Err(
+                "run.sun = \"disk\" takes the visible part of the disk from horizon \
+                        maps: set run.shadows = \"horizon\" or \"auto\""
+                    .into(),
+            );
+        }
+        Ok(())
+    }
+
+    /// Per body, whether it uses a horizon map, and the plan's decision saying why.
+    pub fn choose(&self, world: &World, steps: usize) -> Vec<(bool, Decision)> {
+        world
+            .bodies
+            .iter()
+            .map(|b| {
+                let (uses, reason) = self.choose_for(b, steps);
+                let stage = format!("horizon map of '{}'", b.name);
+                (
+                    uses,
+                    Decision {
+                        stage,
+                        runs: uses,
+                        reason,
+                    },
+                )
+            })
+            .collect()
+    }
+
+    fn choose_for(&self, body: &Body, steps: usize) -> (bool, String) {
+        if body.convex {
+            return (
+                false,
+                "closed convex surface: nothing of it rises above a facet's plane".into(),
+            );
+        }
+        let facets = body.mesh.len();
+        let bytes = facets as f64 * self.azimuths as f64 * 4.0;
+        let size = format!(
+            "{facets} facets × {} wedges, {:.1} MB",
+            self.azimuths,
+            bytes / 1e6
+        );
+        let mode = match self.mode {
+            HorizonMode::Exact => "exact: rays where the map is not certain",
+            HorizonMode::Approximate => "approximate: no rays",
+        };
+        match self.method {
+            ShadowMethod::Rays => (
+                false,
+                "run.shadows = \"rays\": a ray per facet facing the Sun".into(),
+            ),
+            ShadowMethod::Horizon => (true, format!("run.shadows = \"horizon\" ({mode}); {size}")),
+            ShadowMethod::Auto => {
+                if self.sun == SunShape::Disk {
+                    return (
+                        true,
+                        format!("the Sun as a disk needs the horizon ({mode}); {size}"),
+                    );
+                }
+                if let Some(file) = self.cached_file(body) {
+                    return (
+                        true,
+                        format!("cached in {} ({mode}); {size}", file.display()),
+                    );
+                }
+                let break_even = (BUILD_S_PER_FACET / SAVED_S_PER_FACET_STEP).ceil() as usize;
+                if steps >= break_even {
+                    (
+                        true,
+                        format!(
+                            "{steps} steps ≥ {break_even}, where building it (about {:.0} s on \
+                             one core) costs less than the rays it spares ({mode}); {size}",
+                            facets as f64 * BUILD_S_PER_FACET
+                        ),
+                    )
+                } else {
+                    (
+                        false,
+                        format!(
+                            "{steps} steps < {break_even}: rays cost less than building a map \
+                             (run.shadows = \"horizon\" forces one)"
+                        ),
+                    )
+                }
+            }
+        }
+    }
+
+    /// The cache file of `body`'s map when one is there (not yet checked).
+    fn cached_file(&self, body: &Body) -> Option<PathBuf> {
+        let dir = self.cache_dir.as_deref()?;
+        let file = cache::file_for(dir, &cache::content_key(&body.mesh, self.azimuths));
+        file.is_file().then_some(file)
+    }
+
+    /// Memory the maps of the bodies in `uses` hold, bytes.
+    pub fn map_bytes(&self, world: &World, uses: &[bool]) -> f64 {
+        world
+            .bodies
+            .iter()
+            .zip(uses)
+            .filter(|(_, &u)| u)
+            .map(|(b, _)| b.mesh.len() as f64 * self.azimuths as f64 * 4.0)
+            .sum()
+    }
+
+    /// The map of `body`: read from the cache when an intact one is there, built (and
+    /// stored) otherwise.
+    pub fn obtain(&self, body: &Body, progress: &dyn Progress) -> Result<(HorizonMap, MapRecord)> {
+        let key = cache::content_key(&body.mesh, self.azimuths);
+        let file = self.cache_dir.as_deref().map(|d| cache::file_for(d, &key));
+        let mut record = MapRecord {
+            body: body.name.clone(),
+            azimuths: self.azimuths,
+            bytes: 0,
+            source: "built".into(),
+            file: file.clone(),
+            build_s: 0.0,
+        };
+        if let Some(file) = &file {
+            match cache::load(file, &key, body.mesh.len(), self.azimuths) {
+                Lookup::Hit(map) => {
+                    progress.note(&format!(
+                        "horizon map of '{}': read from {}",
+                        body.name,
+                        file.display()
+                    ));
+                    record.source = "cache".into();
+                    record.bytes = map.bytes();
+                    return Ok((map, record));
+                }
+                Lookup::Missing => {}
+                Lookup::Rejected(why) => progress.note(&format!(
+                    "warning: horizon map cache {} not used ({why}); rebuilding it",
+                    file.display()
+                )),
+            }
+        }
+        progress.note(&format!(
+            "building the horizon map of '{}' ({} facets × {} wedges; about {:.0} s on one core)",
+            body.name,
+            body.mesh.len(),
+            self.azimuths,
+            body.mesh.len() as f64 * BUILD_S_PER_FACET
+        ));
+        let started = Instant::now();
+        let bvh = Bvh::build(&body.mesh);
+        let map = HorizonMap::build(&body.mesh, &bvh, self.azimuths, &|| progress.cancelled())
+            .ok_or(Error::Cancelled)?;
+        record.build_s = started.elapsed().as_secs_f64();
+        record.bytes = map.bytes();
+        if let Some(file) = &file {
+            if let Err(e) = cache::store(file, &key, &map) {
+                progress.note(&format!("warning: horizon map not cached: {e}"));
+                record.file = None;
+            }
+        }
+        Ok((map, record))
+    }
+}
+
+/// Where a run's horizon map came from (kept in `run.json`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct MapRecord {
+    pub body: String,
+    pub azimuths: u32,
+    /// Memory the map holds, bytes.
+    pub bytes: usize,
+    /// "cache" or "built".
+    pub source: String,
+    /// The cache file read or written.
+    pub file: Option<PathBuf>,
+    /// Seconds spent building it (0 when read).
+    pub build_s: f64,
+}
+
+/// The folder maps are cached in: the scene's `run.cache_dir` (relative to the scene
+/// file), else [`cache::default_dir`].
+pub fn cache_dir_for(scene_dir: &Path, key: Option<&Path>) -> Option<PathBuf> {
+    match key {
+        Some(p) => Some(scene_dir.join(p)),
+        None => cache::default_dir().map(|d| d.join("horizon")),
+    }
+}
