@@ -104,7 +104,12 @@ impl<'w> Direct<'w> {
             .iter()
             .zip(maps)
             .map(|(b, map)| match (map, kind) {
-                (Some(map), _) => (trace::build(kind, &b.mesh), OwnHorizon::Map { map, exact }),
+                // The few rays a map leaves are traced by the BVH, which costs nothing per
+                // step (every tracer classifies each ray identically).
+                (Some(map), _) => (
+                    Box::new(Bvh::build(&b.mesh)) as Box<dyn Tracer + 'w>,
+                    OwnHorizon::Map { map, exact },
+                ),
                 (None, TracerKind::Bvh) if !b.convex => {
                     let bvh = Bvh::build(&b.mesh);
                     let bound = OwnHorizon::Bound(HorizonBound::new(&b.mesh, &bvh));
@@ -165,9 +170,19 @@ impl<'w> Direct<'w> {
                 SunShape::Point => 0.0,
                 SunShape::Disk => SolarDisk::angular_radius(state.bodies[b].sun_distance_m),
             },
-            own: (!body.convex).then(|| self.tracers[b].toward(sun)),
+            own: self.traces_own(b).then(|| self.tracers[b].toward(sun)),
             foreign: self.foreign_casters(b, state, sun),
         })
+    }
+
+    /// Whether body `b`'s own shadows need rays: it can shadow itself, and no horizon
+    /// map decides alone (approximate mode, or the Sun as a disk).
+    fn traces_own(&self, b: usize) -> bool {
+        let decides_alone = match &self.horizons[b] {
+            OwnHorizon::Map { exact, .. } => !exact || self.sun == SunShape::Disk,
+            _ => false,
+        };
+        !self.world.bodies[b].convex && !decides_alone
     }
 
     /// Bodies whose bounding spheres can reach into the receiver's shadow cylinder.
@@ -248,7 +263,7 @@ impl<'w> Direct<'w> {
                         continue;
                     }
                     let map = match horizon {
-                        OwnHorizon::Map { map, exact } if traces_own => Some((map, *exact)),
+                        OwnHorizon::Map { map, exact } => Some((map, *exact)),
                         _ => None,
                     };
                     if self.sun == SunShape::Disk {
@@ -265,7 +280,7 @@ impl<'w> Direct<'w> {
                         continue;
                     }
                     *e = light.flux * cos;
-                    if !traces_own {
+                    if !traces_own && map.is_none() {
                         continue;
                     }
                     let cleared = match (horizon, map) {

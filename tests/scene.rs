@@ -916,3 +916,21 @@ fn a_run_spanning_beyond_any_calendar_is_refused() {
     assert_rejected(&fixed, &["ephemeris.step_s", "at most 1e12 s"]);
     parse(&edit(SPIN, "spin_period_h = 5.0", "spin_period_h = 8760.0")).expect("a year");
 }
+
+#[test]
+fn shadow_and_sun_keys_are_checked_with_the_key_named() {
+    let with = |keys: &str| edit(SPIN, "[run]\n", &format!("[run]\n{keys}\n"));
+    let ok = parse(&with("shadows = \"horizon\"\nhorizon_mode = \"approximate\"\nsun = \"disk\"\nlimb_darkening = 0.6\nhorizon_azimuths = 64"))
+        .expect("valid shadow keys");
+    assert_eq!(ok.shadows().azimuths, 64);
+    assert_rejected(
+        &with("sun = \"disk\"\nshadows = \"rays\""),
+        &["run", "sun = \"disk\"", "horizon"],
+    );
+    assert_rejected(
+        &with("horizon_azimuths = 3"),
+        &["run.horizon_azimuths", "8..=4096"],
+    );
+    assert_rejected(&with("limb_darkening = 1.5"), &["run.limb_darkening"]);
+    assert_rejected(&with("shadows = \"sometimes\""), &["shadows"]);
+}

@@ -167,3 +167,52 @@ pub fn default_dir() -> Option<PathBuf> {
         .or_else(|| var("XDG_CACHE_HOME").map(|d| d.join("slim")))
         .or_else(|| var("HOME").map(|d| d.join(".cache").join("slim")))
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::mesh::generate::icosphere;
+    use crate::mesh::LengthUnit;
+    use crate::trace::bvh::Bvh;
+
+    #[test]
+    fn a_stored_map_reads_back_and_any_damage_or_other_content_is_refused() {
+        let dir = std::env::temp_dir().join(format!("slim-horizon-cache-{}", std::process::id()));
+        let mesh = Mesh::from_raw(icosphere(1, 1.0, glam::DVec3::ZERO), LengthUnit::Km);
+        let map = HorizonMap::build(&mesh, &Bvh::build(&mesh), 16, &|| false).expect("map");
+        let key = content_key(&mesh, 16);
+        let file = file_for(&dir, &key);
+        assert!(matches!(load(&file, &key, mesh.len(), 16), Lookup::Missing));
+        store(&file, &key, &map).expect("store");
+        match load(&file, &key, mesh.len(), 16) {
+            Lookup::Hit(read) => assert_eq!(read, map),
+            other => panic!("{other:?}"),
+        }
+        // Another wedge count or mesh gives another key; the same file under it is refused.
+        let other = content_key(&mesh, 32);
+        assert_ne!(other, key);
+        assert!(matches!(
+            load(&file, &other, mesh.len(), 16),
+            Lookup::Rejected(_)
+        ));
+        let bytes = std::fs::read(&file).expect("read");
+        let mut flipped = bytes.clone();
+        flipped[HEADER + 5] ^= 1;
+        std::fs::write(&file, &flipped).expect("write");
+        match load(&file, &key, mesh.len(), 16) {
+            Lookup::Rejected(why) => assert!(why.contains("checksum"), "{why}"),
+            other => panic!("{other:?}"),
+        }
+        std::fs::write(&file, &bytes[..bytes.len() - 7]).expect("write");
+        assert!(matches!(
+            load(&file, &key, mesh.len(), 16),
+            Lookup::Rejected(_)
+        ));
+        std::fs::write(&file, b"").expect("write");
+        assert!(matches!(
+            load(&file, &key, mesh.len(), 16),
+            Lookup::Rejected(_)
+        ));
+        std::fs::remove_dir_all(&dir).ok();
+    }
+}

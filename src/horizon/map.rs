@@ -626,3 +626,169 @@ impl Polygon {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::mesh::{LengthUnit, RawMesh};
+    use crate::trace::TracerKind;
+    use crate::TestRng;
+
+    fn mesh(vertices: Vec<DVec3>, triangles: Vec<[u32; 3]>) -> Mesh {
+        Mesh::from_raw(
+            RawMesh {
+                vertices,
+                triangles,
+            },
+            LengthUnit::M,
+        )
+    }
+
+    fn build(mesh: &Mesh, azimuths: u32) -> HorizonMap {
+        HorizonMap::build(mesh, &Bvh::build(mesh), azimuths, &|| false).expect("not cancelled")
+    }
+
+    /// A floor (two triangles facing +z) and a wall of height `h` along x = `d`: seen
+    /// from a floor centroid, the wall's top at azimuth φ (from +x, which is the first
+    /// tangent axis for the normal +z) stands at atan(h·cos φ / (d − x)).
+    #[test]
+    fn a_wall_matches_its_closed_form_in_every_wedge_that_sees_it() {
+        let (h, d, half) = (3.0, 4.0, 1e4);
+        let m = mesh(
+            vec![
+                DVec3::new(-1.0, -1.0, 0.0),
+                DVec3::new(1.0, -1.0, 0.0),
+                DVec3::new(1.0, 1.0, 0.0),
+                DVec3::new(-1.0, 1.0, 0.0),
+                DVec3::new(d, -half, 0.0),
+                DVec3::new(d, half, 0.0),
+                DVec3::new(d, half, h),
+                DVec3::new(d, -half, h),
+            ],
+            vec![[0, 1, 2], [0, 2, 3], [4, 5, 6], [4, 6, 7]],
+        );
+        assert_eq!(tangent_frame(DVec3::Z).0, DVec3::X);
+        let a = 64;
+        let map = build(&m, a);
+        let width = TAU / a as f64;
+        let quantum = 1.0 / QUANTA_PER_RAD;
+        for i in 0..2 {
+            let gap = d - m.centroids[i].x;
+            let y = m.centroids[i].y;
+            for k in 0..a as usize {
+                let [upper, centre] = map.wedge(i, k);
+                let phi = (k as f64 + 0.5) * width;
+                if phi.cos() > 0.05 {
+                    let expected = (h * phi.cos() / gap).atan();
+                    assert!(
+                        (centre - expected).abs() <= quantum,
+                        "facet {i} wedge {k}: {centre} vs {expected}"
+                    );
+                } else if phi.cos() < -0.05 {
+                    assert_eq!(centre, 0.0, "facet {i} wedge {k} looks away from the wall");
+                }
+                // The highest point of the wall within the wedge: at the edge nearer +x
+                // (the floor's other triangle is coplanar: nothing of it rises).
+                let nearest = [k as f64 * width, (k + 1) as f64 * width]
+                    .map(|p| p.cos())
+                    .into_iter()
+                    .fold(f64::NEG_INFINITY, f64::max);
+                let straight = (k as f64 * width..=(k + 1) as f64 * width).contains(&0.0)
+                    || k == a as usize - 1;
+                let cos_max = if straight { 1.0 } else { nearest };
+                if cos_max > 0.05 {
+                    let expected = (h * cos_max / gap).atan();
+                    assert!(
+                        upper >= expected && upper <= expected + 2.0 * quantum,
+                        "facet {i} wedge {k}: upper {upper} vs {expected} (y {y})"
+                    );
+                }
+            }
+        }
+    }
+
+    /// A random rough height field: every ray the exact tracer calls blocked lies no
+    /// higher than its wedge's upper bound; and the centre horizon is where the tracer
+    /// changes its answer along the wedge's centre azimuth (a height field's blocked
+    /// elevations at one azimuth form one interval, seen from above it).
+    #[test]
+    fn upper_bounds_hold_and_centres_match_ray_casts_on_a_rough_terrain() {
+        let mut rng = TestRng::new(11);
+        let n = 14;
+        let mut vertices = Vec::new();
+        for j in 0..=n {
+            for i in 0..=n {
+                let z = 2.0 * rng.unit() + 0.05 * ((i * i + j) as f64);
+                vertices.push(DVec3::new(i as f64 * 5.0, j as f64 * 5.0, z));
+            }
+        }
+        let v = |i: usize, j: usize| (j * (n + 1) + i) as u32;
+        let mut triangles = Vec::new();
+        for j in 0..n {
+            for i in 0..n {
+                triangles.push([v(i, j), v(i + 1, j), v(i + 1, j + 1)]);
+                triangles.push([v(i, j), v(i + 1, j + 1), v(i, j + 1)]);
+            }
+        }
+        let m = mesh(vertices, triangles);
+        let a = 32u32;
+        let map = build(&m, a);
+        let tracer = crate::trace::build(TracerKind::Grid, &m);
+        let (mut blocked_rays, mut centres_checked) = (0, 0);
+        for i in (0..m.len()).step_by(7) {
+            let (c, nrm) = (m.centroids[i], m.normals[i]);
+            let (t1, t2) = tangent_frame(nrm);
+            let dir =
+                |phi: f64, e: f64| (t1 * phi.cos() + t2 * phi.sin()) * e.cos() + nrm * e.sin();
+            let blocked = |s: DVec3| tracer.toward(s).blocked(c, 1e-9, Some(i as u32));
+            for _ in 0..200 {
+                let (phi, e) = (rng.unit() * TAU, rng.unit() * 0.6);
+                let s = dir(phi, e);
+                if blocked(s) {
+                    blocked_rays += 1;
+                    let at = map.position(nrm, s, nrm.dot(s));
+                    assert!(
+                        !map.clears(i, &at),
+                        "facet {i}: blocked ray at φ {phi} e {e} cleared"
+                    );
+                }
+            }
+            for k in 0..a as usize {
+                let phi = (k as f64 + 0.5) * TAU / a as f64;
+                let centre = map.wedge(i, k)[1];
+                let (lo, hi) = (centre - 2e-3, centre + 2e-3);
+                if centre > 3e-3 && centre < 1.2 {
+                    centres_checked += 1;
+                    assert!(
+                        blocked(dir(phi, lo)),
+                        "facet {i} wedge {k}: open below the horizon {centre}"
+                    );
+                    assert!(
+                        !blocked(dir(phi, hi)),
+                        "facet {i} wedge {k}: blocked above the horizon {centre}"
+                    );
+                }
+            }
+        }
+        assert!(
+            blocked_rays > 100 && centres_checked > 50,
+            "{blocked_rays} {centres_checked}"
+        );
+    }
+
+    #[test]
+    fn sky_positions_fall_in_the_wedge_of_their_azimuth() {
+        let map = HorizonMap::from_cells(16, 1, vec![[0, 0]; 16]).expect("cells");
+        let n = DVec3::new(0.2, -0.3, 0.9).normalize();
+        let (t1, t2) = tangent_frame(n);
+        assert!((t1.cross(t2) - n).length() < 1e-12);
+        for k in 0..16 {
+            let phi = (k as f64 + 0.25) * TAU / 16.0;
+            let s = ((t1 * phi.cos() + t2 * phi.sin()) * 0.8 + n * 0.6).normalize();
+            let at = map.position(n, s, n.dot(s));
+            assert_eq!(at.wedge, k);
+            assert!((at.between - (k as f64 - 0.25)).abs() < 1e-9);
+            assert!((at.elevation - n.dot(s).asin()).abs() < 1e-15);
+        }
+    }
+}

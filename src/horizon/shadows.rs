@@ -89,11 +89,12 @@ impl Default for Shadows {
 /// Azimuth wedges of a map unless the scene says otherwise (2.8° each).
 pub const DEFAULT_AZIMUTHS: u32 = 128;
 
-/// Measured costs behind `auto` (one core of the development machine, Itokawa 49k and
-/// the Haworth patch, 128 wedges; see docs/performance.md): seconds to build a map per
-/// facet, and seconds per facet and step that a map spares over rays.
-const BUILD_S_PER_FACET: f64 = 60e-6;
-const SAVED_S_PER_FACET_STEP: f64 = 0.15e-6;
+/// Measured costs behind `auto` (CPU seconds, 128 wedges, 2026-11-24; see
+/// docs/performance.md): building a map, per facet (m1phobos 1.4 ms, Itokawa 12k 0.9 ms,
+/// the Haworth terrain 3 ms), and what a map spares over Sun-view rays per facet and
+/// step in the exact mode (m1phobos, 360 steps: 0.37 µs).
+const BUILD_S_PER_FACET: f64 = 1.5e-3;
+const SAVED_S_PER_FACET_STEP: f64 = 0.37e-6;
 
 impl Shadows {
     /// Checks the settings, naming the key at fault.

@@ -164,6 +164,13 @@ pub struct Planned {
 pub fn plan(dir: &Path, text: &SceneText, limits: &Limits) -> ApiResult<Planned> {
     let scene = text.parse(dir)?;
     check_files(dir, &scene)?;
+    if scene.run.cache_dir.is_some() {
+        // A scene must not choose where the service writes: it keeps its own cache.
+        return Err(ApiError::unprocessable(
+            "bad_scene",
+            "run.cache_dir is not accepted here: the service keeps its own horizon-map cache",
+        ));
+    }
     check_counts(&scene, limits)?;
     let prepared =
         prepare(&scene, &limits.job_budget(), &mut Timings::default()).map_err(|e| match e {
