@@ -58,6 +58,7 @@
 #![forbid(unsafe_code)]
 
 pub mod analytic;
+pub mod atomic;
 pub mod bands;
 pub mod budget;
 #[cfg(feature = "imaging")]

@@ -115,15 +115,19 @@ pub fn prepare(scene: &Scene, budget: &Budget, timings: &mut Timings) -> Result<
         .as_ref()
         .map_or(0.0, |s| s.estimated_entries(world, &states));
     let shadows = scene.shadows();
-    let (horizon_maps, map_decisions): (Vec<bool>, Vec<Decision>) =
+    let (horizon_maps, reasons): (Vec<bool>, Vec<String>) =
         shadows.choose(world, states.len()).into_iter().unzip();
     demand.horizon_map_bytes = shadows.map_bytes(world, &horizon_maps);
     let map_decisions = world
         .bodies
         .iter()
-        .zip(map_decisions)
+        .zip(horizon_maps.iter().zip(reasons))
         .filter(|(b, _)| !b.convex)
-        .map(|(_, d)| d)
+        .map(|(b, (&runs, reason))| Decision {
+            stage: format!("horizon map of '{}'", b.name),
+            runs,
+            reason,
+        })
         .collect();
     let memory = demand.estimate();
     budget.check(&memory)?;

@@ -21,9 +21,9 @@
 //! reported and the map is rebuilt (and the file replaced).
 
 use super::map::HorizonMap;
+use crate::atomic::write_atomic;
 use crate::error::{Error, Result};
 use crate::mesh::Mesh;
-use crate::output::atomic::write_atomic;
 use sha2::{Digest, Sha256};
 use std::path::{Path, PathBuf};
 

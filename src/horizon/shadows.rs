@@ -15,7 +15,6 @@ use super::cache::{self, Lookup};
 use super::disk::SolarDisk;
 use super::map::{HorizonMap, AZIMUTHS_MAX, AZIMUTHS_MIN};
 use crate::error::{Error, Result};
-use crate::plan::Decision;
 use crate::progress::Progress;
 use crate::trace::bvh::Bvh;
 use crate::world::{Body, World};
@@ -119,23 +118,12 @@ impl Shadows {
         Ok(())
     }
 
-    /// Per body, whether it uses a horizon map, and the plan's decision saying why.
-    pub fn choose(&self, world: &World, steps: usize) -> Vec<(bool, Decision)> {
+    /// Per body, whether it uses a horizon map, and why (for the plan).
+    pub fn choose(&self, world: &World, steps: usize) -> Vec<(bool, String)> {
         world
             .bodies
             .iter()
-            .map(|b| {
-                let (uses, reason) = self.choose_for(b, steps);
-                let stage = format!("horizon map of '{}'", b.name);
-                (
-                    uses,
-                    Decision {
-                        stage,
-                        runs: uses,
-                        reason,
-                    },
-                )
-            })
+            .map(|b| self.choose_for(b, steps))
             .collect()
     }
 

@@ -8,8 +8,8 @@
 //! image's header (COMMENT, HISTORY and structural keywords excluded).
 
 use super::{Card, Image, Value};
+use crate::atomic::write_atomic;
 use crate::error::{Error, Result};
-use crate::output::atomic::write_atomic;
 use std::path::Path;
 
 const BLOCK: usize = 2880;

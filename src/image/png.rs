@@ -8,8 +8,8 @@
 //! a `slim:stretch` chunk the values are returned in physical units, otherwise as DN/DNmax.
 
 use super::{Image, Value};
+use crate::atomic::write_atomic;
 use crate::error::{Error, Result};
-use crate::output::atomic::write_atomic;
 use std::path::Path;
 
 /// How values map to digital numbers.

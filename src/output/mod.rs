@@ -15,7 +15,6 @@
 //! Every file is written under a `.partial` name and renamed when complete; `run.json` is
 //! written last, so a folder holds a complete run exactly when it holds `run.json`.
 
-pub mod atomic;
 pub mod columns;
 #[cfg(feature = "parquet")]
 mod parquet_file;

@@ -4,8 +4,8 @@
 //! Parquet file, one row group per batch up to [`ROW_GROUP_ROWS`] rows, written under its
 //! `.partial` name and renamed when finished.
 
-use super::atomic::{commit, partial};
 use super::columns::{Table, Values};
+use crate::atomic::{commit, partial};
 use crate::error::{Error, Result};
 use arrow::array::{ArrayRef, Float64Array, StringArray, UInt32Array, UInt64Array};
 use arrow::datatypes::{DataType, Field, Schema, SchemaRef};

@@ -4,7 +4,7 @@
 //! float vertex coordinates (metres, body frame) and per-face float properties
 //! `mean_w_m2`, `max_w_m2`, `min_w_m2`, `lit_fraction`, written atomically.
 
-use super::atomic::{commit, create_partial};
+use crate::atomic::{commit, create_partial};
 use crate::error::{Error, Result};
 use crate::mesh::Mesh;
 use crate::stats::FacetStats;

@@ -94,7 +94,7 @@ impl RunRecord {
     pub fn write(&self, dir: &Path) -> Result<PathBuf> {
         let path = dir.join("run.json");
         let json = serde_json::to_vec_pretty(self).map_err(|e| Error::output(&path, e))?;
-        super::atomic::write_atomic(&path, &json)?;
+        crate::atomic::write_atomic(&path, &json)?;
         Ok(path)
     }
 }

@@ -7,10 +7,10 @@
 //! `NAME.ext.partial` and renamed only by [`TableWriter::finish`], so an interrupted run
 //! never leaves a file that looks complete.
 
-use super::atomic::{commit, partial};
 use super::columns::{Table, Values};
 #[cfg(feature = "parquet")]
 use super::parquet_file::ParquetFile;
+use crate::atomic::{commit, partial};
 use crate::error::{Error, Result};
 use std::fs::File;
 use std::io::{BufWriter, Write};

@@ -10,8 +10,8 @@
 use super::colormap::Colormap;
 use super::figure::{legend, rgb, xy_chart, Axes, DrawResult, Figure};
 use super::select::Chosen;
+use crate::atomic::write_atomic;
 use crate::error::Result;
-use crate::output::atomic::write_atomic;
 use crate::output::read::RunData;
 use plotters::coord::Shift;
 use plotters::prelude::*;

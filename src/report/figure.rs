@@ -5,8 +5,8 @@
 //! Text uses DejaVu Sans, embedded in the binary and registered with plotters' ab_glyph
 //! renderer, so no system font or library is needed.
 
+use crate::atomic::write_atomic;
 use crate::error::{Error, Result};
-use crate::output::atomic::write_atomic;
 use plotters::coord::types::RangedCoordf64;
 use plotters::coord::Shift;
 use plotters::prelude::*;

@@ -7,8 +7,8 @@
 
 use super::figure::short_number;
 use super::summary::{Accuracy, GeometrySummary};
+use crate::atomic::write_atomic;
 use crate::error::{Error, Result};
-use crate::output::atomic::write_atomic;
 use crate::output::read::RunData;
 use base64::Engine;
 use std::fmt::Write;

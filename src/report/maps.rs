@@ -16,9 +16,9 @@ use super::figure::{rgb, short_number, text, write_png, DrawResult, Figure};
 use super::raster::{
     equirectangular, is_patch, orthographic, overhead_view, Framing, IdRaster, VIEWS,
 };
+use crate::atomic::write_atomic;
 use crate::error::{Error, Result};
 use crate::mesh::Mesh;
-use crate::output::atomic::write_atomic;
 use crate::output::read::{Facets, RunData};
 use plotters::coord::Shift;
 use plotters::prelude::*;

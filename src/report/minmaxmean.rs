@@ -10,8 +10,8 @@
 use super::cdf_plot::csv_field;
 use super::colormap::Colormap;
 use super::figure::{legend, rgb, text, xy_chart, Axes, DrawResult, Figure};
+use crate::atomic::write_atomic;
 use crate::error::Result;
-use crate::output::atomic::write_atomic;
 use crate::output::read::{Facets, RunData};
 use plotters::coord::Shift;
 use plotters::prelude::*;

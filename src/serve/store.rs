@@ -6,8 +6,8 @@
 //! crash leaves either the old record or the new one, never half of one; a run's files
 //! are complete exactly when the record says `succeeded` (`run.json` is written last).
 
+use crate::atomic::write_atomic;
 use crate::error::{Error, Result};
-use crate::output::atomic::write_atomic;
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 
