@@ -262,40 +262,39 @@ impl<'w> Direct<'w> {
                         *e = 0.0;
                         continue;
                     }
-                    let map = match horizon {
-                        OwnHorizon::Map { map, exact } => Some((map, *exact)),
-                        _ => None,
-                    };
                     if self.sun == SunShape::Disk {
-                        let ground = LocalHorizon {
-                            elevation: 0.0,
-                            slope: 0.0,
+                        let h = match horizon {
+                            OwnHorizon::Map { map, .. } => {
+                                counts.horizon_lookups += 1;
+                                map.horizon(i, &map.position(normal, light.sun, cos))
+                            }
+                            // Only the facet's own plane.
+                            _ => LocalHorizon {
+                                elevation: 0.0,
+                                slope: 0.0,
+                            },
                         };
-                        let h = map.map_or(ground, |(m, _)| {
-                            counts.horizon_lookups += 1;
-                            m.horizon(i, &m.position(normal, light.sun, cos))
-                        });
                         *e = light.flux * self.disk_share(cos, h, light.radius);
                         counts.shadowed += (*e == 0.0) as u64;
                         continue;
                     }
                     *e = light.flux * cos;
-                    if !traces_own && map.is_none() {
-                        continue;
-                    }
-                    let cleared = match (horizon, map) {
-                        (_, Some((m, true))) => m.clears(i, &m.position(normal, light.sun, cos)),
-                        (_, Some((m, false))) => {
+                    let cleared = match horizon {
+                        OwnHorizon::Map { map, exact: true } => {
+                            map.clears(i, &map.position(normal, light.sun, cos))
+                        }
+                        OwnHorizon::Map { map, exact: false } => {
                             counts.horizon_lookups += 1;
-                            let at = m.position(normal, light.sun, cos);
-                            if at.elevation <= m.horizon(i, &at).elevation {
+                            let at = map.position(normal, light.sun, cos);
+                            if at.elevation <= map.horizon(i, &at).elevation {
                                 *e = 0.0;
                                 counts.shadowed += 1;
                             }
                             continue;
                         }
-                        (OwnHorizon::Bound(bound), None) => bound.clears(i, cos),
-                        _ => false,
+                        OwnHorizon::Bound(bound) => bound.clears(i, cos),
+                        OwnHorizon::None if traces_own => false,
+                        OwnHorizon::None => continue,
                     };
                     if cleared {
                         counts.above_horizon += 1;

@@ -94,7 +94,7 @@ impl HorizonBound {
 mod tests {
     use super::*;
     use crate::mesh::generate::icosphere;
-    use crate::mesh::{LengthUnit, RawMesh};
+    use crate::mesh::LengthUnit;
 
     /// A floor (two triangles, z = 0) and a vertical wall of height `h` along x = `wall_x`,
     /// wide enough that the top edge's nearest point is straight across from the floor
@@ -103,20 +103,7 @@ mod tests {
     #[test]
     fn a_wall_beside_a_floor_is_the_floors_horizon() {
         let (h, wall_x, half) = (3.0, 4.0, 50.0);
-        let raw = RawMesh {
-            vertices: vec![
-                DVec3::new(-1.0, -1.0, 0.0),
-                DVec3::new(1.0, -1.0, 0.0),
-                DVec3::new(1.0, 1.0, 0.0),
-                DVec3::new(-1.0, 1.0, 0.0),
-                DVec3::new(wall_x, -half, 0.0),
-                DVec3::new(wall_x, half, 0.0),
-                DVec3::new(wall_x, half, h),
-                DVec3::new(wall_x, -half, h),
-            ],
-            triangles: vec![[0, 1, 2], [0, 2, 3], [4, 5, 6], [4, 6, 7]],
-        };
-        let mesh = Mesh::from_raw(raw, LengthUnit::M);
+        let mesh = super::super::floor_and_wall(h, wall_x, half);
         let bound = HorizonBound::new(&mesh, &Bvh::build(&mesh));
         for i in 0..2 {
             let c = mesh.centroids[i];

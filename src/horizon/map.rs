@@ -271,11 +271,9 @@ enum Span {
 
 impl Span {
     /// The span of points `rel` (relative to the viewpoint) projected on the tangent
-    /// plane `(t1, t2)`, or `All` when `contains_axis`.
-    fn of(rel: &[DVec3], t1: DVec3, t2: DVec3, contains_axis: bool) -> Span {
-        if contains_axis {
-            return Span::All;
-        }
+    /// plane `(t1, t2)`. Their hull must not hold the zenith axis (then every azimuth is
+    /// spanned, which the caller knows from another test).
+    fn of(rel: &[DVec3], t1: DVec3, t2: DVec3) -> Span {
         let first = (rel[0].dot(t1), rel[0].dot(t2));
         let phi0 = first.1.atan2(first.0);
         let (mut lo, mut hi) = (0.0f64, 0.0f64);
@@ -402,8 +400,11 @@ impl<'a> FacetSky<'a> {
                 if k & 4 == 0 { lo.z } else { hi.z },
             ) - self.c
         });
-        let axis = line_meets_box(self.c, self.n, lo, hi);
-        let span = Span::of(&corners, self.t1, self.t2, axis);
+        let span = if line_meets_box(self.c, self.n, lo, hi) {
+            Span::All
+        } else {
+            Span::of(&corners, self.t1, self.t2)
+        };
         (bound > self.lowest(span)).then_some(bound)
     }
 
@@ -439,19 +440,20 @@ impl<'a> FacetSky<'a> {
             tri[0].max(tri[1]).max(tri[2]),
         );
         let boxed = box_bound(self.c, self.n, lo, hi, self.widening);
-        let rough = Span::of(
-            &rel,
-            self.t1,
-            self.t2,
-            line_meets_box(self.c, self.n, lo, hi),
-        );
+        // The corners' span, once: the box test and the exact test differ only in how
+        // they learn that the zenith may lie inside.
+        let corners = Span::of(&rel, self.t1, self.t2);
+        let rough = if line_meets_box(self.c, self.n, lo, hi) {
+            Span::All
+        } else {
+            corners
+        };
         if boxed + margin <= self.lowest(rough.widened(margin + WEDGE_OVERLAP)) {
             return;
         }
         let unit = rel.map(DVec3::normalize);
         let top = directions_max_sin(self.n, unit);
-        let axis = top >= 1.0;
-        let span = Span::of(&rel, self.t1, self.t2, axis);
+        let span = if top >= 1.0 { Span::All } else { corners };
         // Widening moves points by `margin` radians, which moves their azimuth by at
         // most `margin / cos e`: near the zenith the span is every azimuth.
         let cos_top = (1.0 - (top + margin).min(1.0).powi(2)).sqrt();
@@ -502,8 +504,10 @@ impl<'a> FacetSky<'a> {
         let mut poly = Polygon::from(rel);
         poly.clip(above_lo);
         poly.clip(below_hi);
-        let pts = poly.points().iter().map(|p| p.normalize());
-        let dirs: Vec<DVec3> = pts.collect();
+        poly.pts[..poly.len]
+            .iter_mut()
+            .for_each(|p| *p = p.normalize());
+        let dirs = poly.points();
         match dirs.len() {
             0 => None,
             1 => Some(self.n.dot(dirs[0])),
@@ -654,19 +658,7 @@ mod tests {
     #[test]
     fn a_wall_matches_its_closed_form_in_every_wedge_that_sees_it() {
         let (h, d, half) = (3.0, 4.0, 1e4);
-        let m = mesh(
-            vec![
-                DVec3::new(-1.0, -1.0, 0.0),
-                DVec3::new(1.0, -1.0, 0.0),
-                DVec3::new(1.0, 1.0, 0.0),
-                DVec3::new(-1.0, 1.0, 0.0),
-                DVec3::new(d, -half, 0.0),
-                DVec3::new(d, half, 0.0),
-                DVec3::new(d, half, h),
-                DVec3::new(d, -half, h),
-            ],
-            vec![[0, 1, 2], [0, 2, 3], [4, 5, 6], [4, 6, 7]],
-        );
+        let m = super::super::floor_and_wall(h, d, half);
         assert_eq!(tangent_frame(DVec3::Z).0, DVec3::X);
         let a = 64;
         let map = build(&m, a);
