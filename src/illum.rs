@@ -15,6 +15,7 @@ use crate::ephemeris::EpochState;
 use crate::error::{Error, Result};
 use crate::horizon::bound::HorizonBound;
 use crate::horizon::disk::SolarDisk;
+use crate::horizon::eclipse::Ellipsoid;
 use crate::horizon::map::{HorizonMap, LocalHorizon};
 use crate::horizon::{HorizonMode, Shadows, SunShape};
 use crate::trace::bvh::Bvh;
@@ -60,6 +61,9 @@ pub struct Direct<'w> {
     horizons: Vec<OwnHorizon>,
     sun: SunShape,
     disk: SolarDisk,
+    /// Equal-flux points of the disk (units of its radius) that sample the share a mesh
+    /// of another body hides.
+    disk_samples: Vec<(f64, f64)>,
     min_height_m: Vec<Vec<f64>>,
     offsets: Vec<usize>,
 }
@@ -74,11 +78,27 @@ enum OwnHorizon {
     Map { map: HorizonMap, exact: bool },
 }
 
-/// Another body that may shadow a receiver at this step: its query and the transform
-/// taking receiver-frame points into its frame.
+/// Another body that may shadow a receiver at this step, with the transform taking
+/// receiver-frame points into its frame.
 struct ForeignCaster<'q> {
-    query: Box<dyn ShadowQuery + 'q>,
     to_caster: FrameTransform,
+    /// The Sun's centre, caster frame.
+    sun: DVec3,
+    /// Radius of a sphere about the caster's origin that holds it, metres.
+    reach_m: f64,
+    shadow: CasterShadow<'q>,
+}
+
+/// How another body's shadow is found.
+enum CasterShadow<'q> {
+    /// Rays through its mesh: toward the Sun's centre, and for a disk Sun toward each of
+    /// the disk's equal-flux samples.
+    Rays {
+        centre: Box<dyn ShadowQuery + 'q>,
+        disk: Vec<Box<dyn ShadowQuery + 'q>>,
+    },
+    /// A generated ellipsoid under a disk Sun: the hidden share in closed form.
+    Ellipsoid(Ellipsoid),
 }
 
 impl<'w> Direct<'w> {
@@ -124,6 +144,10 @@ impl<'w> Direct<'w> {
             horizons,
             sun: shadows.sun,
             disk: shadows.disk,
+            disk_samples: match shadows.sun {
+                SunShape::Point => Vec::new(),
+                SunShape::Disk => shadows.disk.samples(shadows.sun_samples as usize),
+            },
             min_height_m: world.bodies.iter().map(min_blocker_heights).collect(),
             offsets: world.offsets(),
         }
@@ -163,15 +187,17 @@ impl<'w> Direct<'w> {
     pub(crate) fn sunlight(&self, b: usize, state: &EpochState) -> Result<Sunlight<'_>> {
         let body = &self.world.bodies[b];
         let sun = checked_sun(body, state, b)?;
+        let radius = match self.sun {
+            SunShape::Point => 0.0,
+            SunShape::Disk => SolarDisk::angular_radius(state.bodies[b].sun_distance_m),
+        };
         Ok(Sunlight {
             sun,
             flux: state.bodies[b].flux_w_m2,
-            radius: match self.sun {
-                SunShape::Point => 0.0,
-                SunShape::Disk => SolarDisk::angular_radius(state.bodies[b].sun_distance_m),
-            },
+            radius,
+            disk: self.disk,
             own: self.traces_own(b).then(|| self.tracers[b].toward(sun)),
-            foreign: self.foreign_casters(b, state, sun),
+            foreign: self.foreign_casters(b, state, sun, radius),
         })
     }
 
@@ -185,12 +211,14 @@ impl<'w> Direct<'w> {
         !self.world.bodies[b].convex && !decides_alone
     }
 
-    /// Bodies whose bounding spheres can reach into the receiver's shadow cylinder.
+    /// Bodies whose bounding spheres can reach into the receiver's shadow: the cylinder
+    /// toward the Sun's centre, widened by the cone of a disk Sun of angular `radius`.
     fn foreign_casters(
         &self,
         receiver: usize,
         state: &EpochState,
         sun: DVec3,
+        radius: f64,
     ) -> Vec<ForeignCaster<'_>> {
         let bodies = &self.world.bodies;
         let rx = &state.bodies[receiver];
@@ -202,12 +230,39 @@ impl<'w> Direct<'w> {
                 let along = centre.dot(sun);
                 let across = (centre - along * sun).length();
                 let reach = bodies[receiver].bounding_radius_m + bodies[c].bounding_radius_m;
-                (along > -reach && across <= reach).then(|| ForeignCaster {
-                    query: self.tracers[c].toward(to_caster.vector(sun)),
-                    to_caster,
-                })
+                let penumbra = (along + reach).max(0.0) * radius.tan();
+                (along > -reach && across <= reach + penumbra)
+                    .then(|| self.foreign_caster(c, to_caster, to_caster.vector(sun), radius))
             })
             .collect()
+    }
+
+    /// Body `c` as a caster of shadows, for the Sun along `sun` (its frame).
+    fn foreign_caster(
+        &self,
+        c: usize,
+        to_caster: FrameTransform,
+        sun: DVec3,
+        radius: f64,
+    ) -> ForeignCaster<'_> {
+        let body = &self.world.bodies[c];
+        let shadow = match (self.sun, body.ellipsoid_radii_m) {
+            (SunShape::Disk, Some(radii_m)) => CasterShadow::Ellipsoid(Ellipsoid { radii_m }),
+            _ => CasterShadow::Rays {
+                centre: self.tracers[c].toward(sun),
+                disk: self
+                    .disk_samples
+                    .iter()
+                    .map(|&offset| self.tracers[c].toward(disk_point(sun, radius, offset)))
+                    .collect(),
+            },
+        };
+        ForeignCaster {
+            to_caster,
+            sun,
+            reach_m: body.bounding_radius_m,
+            shadow,
+        }
     }
 
     /// Irradiance of every facet of body `b` into `out`: first as if nothing blocked the
@@ -318,8 +373,10 @@ impl<'w> Direct<'w> {
             )
     }
 
-    /// Darkens the facets of body `b` still lit in `out` whose ray (from the centroid
-    /// toward the Sun's centre) another body blocks.
+    /// Darkens the facets of body `b` still lit in `out` that other bodies shadow: a
+    /// point Sun when the ray from the centroid toward it is blocked; a disk Sun by the
+    /// share of it they hide (taken as independent of the share the facet's own horizon
+    /// hides, which is exact whenever only one of them cuts the disk).
     fn shade_by_others(&self, b: usize, light: &Sunlight<'_>, out: &mut [f64]) -> StepCounts {
         let mesh = &self.world.bodies[b].mesh;
         out.par_iter_mut()
@@ -330,10 +387,15 @@ impl<'w> Direct<'w> {
                 // A disk can light a facet whose plane hides the Sun's centre.
                 let cos = mesh.normals[i].dot(light.sun).max(1e-6);
                 let t_min = self.t_min(b, i, cos);
-                if light.blocked_by_others(mesh.centroids[i], t_min, &mut counts) {
-                    *e = 0.0;
-                    counts.shadowed += 1;
+                let point = mesh.centroids[i];
+                match self.sun {
+                    SunShape::Point if light.blocked_by_others(point, t_min, &mut counts) => {
+                        *e = 0.0
+                    }
+                    SunShape::Point => {}
+                    SunShape::Disk => *e *= light.visible_past_others(point, t_min, &mut counts),
                 }
+                counts.shadowed += (*e == 0.0) as u64;
                 counts
             })
             .reduce(StepCounts::default, |mut a, b| {
@@ -401,6 +463,7 @@ pub(crate) struct Sunlight<'q> {
     flux: f64,
     /// The Sun's angular radius, radians (0 for a point Sun).
     radius: f64,
+    disk: SolarDisk,
     own: Option<Box<dyn ShadowQuery + 'q>>,
     foreign: Vec<ForeignCaster<'q>>,
 }
@@ -422,13 +485,63 @@ impl Sunlight<'_> {
         blocked_by_self || self.blocked_by_others(point, t_min, counts)
     }
 
-    /// True when a facet of another body blocks the Sun from `point` farther than `t_min`.
+    /// True when another body blocks the Sun's centre from `point` farther than `t_min`.
     fn blocked_by_others(&self, point: DVec3, t_min: f64, counts: &mut StepCounts) -> bool {
         self.foreign.iter().any(|f| {
-            counts.rays += 1;
-            f.query.blocked(f.to_caster.point(point), t_min, None)
+            let at = f.to_caster.point(point);
+            match &f.shadow {
+                CasterShadow::Rays { centre, .. } => {
+                    counts.rays += 1;
+                    centre.blocked(at, t_min, None)
+                }
+                CasterShadow::Ellipsoid(e) => e.blocks(at, f.sun),
+            }
         })
     }
+
+    /// The share of the disk Sun's flux that no other body hides from `point`.
+    fn visible_past_others(&self, point: DVec3, t_min: f64, counts: &mut StepCounts) -> f64 {
+        self.foreign
+            .iter()
+            .map(|f| {
+                let at = f.to_caster.point(point);
+                if !f.may_cover(at, self.radius) {
+                    return 1.0;
+                }
+                match &f.shadow {
+                    CasterShadow::Ellipsoid(e) => {
+                        1.0 - e.hidden_share(at, f.sun, self.radius, &self.disk)
+                    }
+                    CasterShadow::Rays { disk, .. } => {
+                        counts.rays += disk.len() as u64;
+                        let clear = disk.iter().filter(|q| !q.blocked(at, t_min, None)).count();
+                        clear as f64 / disk.len() as f64
+                    }
+                }
+            })
+            .product()
+    }
+}
+
+impl ForeignCaster<'_> {
+    /// Whether the caster's bounding sphere reaches into the cone of a disk Sun of
+    /// angular `radius` seen from `at` (caster frame).
+    fn may_cover(&self, at: DVec3, radius: f64) -> bool {
+        let distance = at.length();
+        if distance <= self.reach_m {
+            return true;
+        }
+        let apart = self.sun.dot(-at / distance).clamp(-1.0, 1.0).acos();
+        apart <= (self.reach_m / distance).asin() + radius
+    }
+}
+
+/// The direction toward a point of the solar disk: `offset` (units of the angular
+/// `radius`) from the centre `sun`, on the plane tangent to the sky there.
+fn disk_point(sun: DVec3, radius: f64, offset: (f64, f64)) -> DVec3 {
+    let e1 = sun.any_orthonormal_vector();
+    let e2 = sun.cross(e1);
+    (sun + radius.tan() * (offset.0 * e1 + offset.1 * e2)).normalize()
 }
 
 /// The body's Sun direction at this step, checked to be a finite unit vector.

@@ -5,6 +5,7 @@
 //! scene pays only for what it needs.
 
 use crate::budget::Estimate;
+use crate::horizon::SunShape;
 use crate::scene::Scene;
 use crate::world::World;
 use serde::{Deserialize, Serialize};
@@ -63,21 +64,7 @@ impl Plan {
                 }
             });
         }
-        decisions.push(if world.bodies.len() > 1 {
-            Decision {
-                stage: "shadows between bodies".into(),
-                runs: true,
-                reason: "each step, only pairs whose bounding spheres can reach into each \
-                         other's shadow are traced"
-                    .into(),
-            }
-        } else {
-            Decision {
-                stage: "shadows between bodies".into(),
-                runs: false,
-                reason: "one body".into(),
-            }
-        });
+        decisions.push(between_bodies(scene, world));
         decisions.push(Decision {
             stage: "scattered light".into(),
             runs: false,
@@ -106,6 +93,46 @@ impl Plan {
             decisions,
             memory: Estimate::default(),
         }
+    }
+}
+
+/// How other bodies' shadows are found, and for a disk Sun what each caster costs.
+fn between_bodies(scene: &Scene, world: &World) -> Decision {
+    let stage = "shadows between bodies".to_string();
+    if world.bodies.len() < 2 {
+        return Decision {
+            stage,
+            runs: false,
+            reason: "one body".into(),
+        };
+    }
+    let pairs = "each step, only pairs whose bounding spheres can reach into each other's \
+                 shadow are traced";
+    let reason = match scene.run.sun {
+        SunShape::Point => pairs.to_string(),
+        SunShape::Disk => {
+            let casters: Vec<String> = world
+                .bodies
+                .iter()
+                .map(|b| match b.ellipsoid_radii_m {
+                    Some(_) => format!("'{}' hides the disk in closed form (an ellipsoid)", b.name),
+                    None => format!(
+                        "'{}' by {} rays per facet through the disk (run.sun_samples; {}× a \
+                         point Sun's rays)",
+                        b.name, scene.run.sun_samples, scene.run.sun_samples
+                    ),
+                })
+                .collect();
+            format!(
+                "{pairs}, and only facets whose view of the disk a caster can reach: {}",
+                casters.join("; ")
+            )
+        }
+    };
+    Decision {
+        stage,
+        runs: true,
+        reason,
     }
 }
 

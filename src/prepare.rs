@@ -239,7 +239,12 @@ pub fn build_world(
     let mut records = Vec::new();
     let mut warnings = Vec::new();
     for (i, b) in scene.bodies.iter().enumerate() {
-        let (mut mesh, file, shape) = load_shape(scene, i, kernels)?;
+        let LoadedShape {
+            mut mesh,
+            file,
+            shape,
+            ellipsoid_radii_m,
+        } = load_shape(scene, i, kernels)?;
         let mut report = inspect(&mesh);
         let flip = match b.orient {
             Orient::AsIs => false,
@@ -274,17 +279,28 @@ pub fn build_world(
             shape,
             report,
         });
-        world.bodies.push(Body::new(b.name.clone(), mesh, convex));
+        let body = Body::new(b.name.clone(), mesh, convex);
+        world.bodies.push(match ellipsoid_radii_m {
+            Some(radii_m) => body.with_ellipsoid(radii_m),
+            None => body,
+        });
     }
     Ok((world, records, warnings))
 }
 
-/// Body `i`'s mesh, its file record (none when generated) and a description.
-fn load_shape(
-    scene: &Scene,
-    i: usize,
-    kernels: Option<&Kernels>,
-) -> Result<(Mesh, Option<InputFile>, String)> {
+/// A body's mesh as read or generated.
+struct LoadedShape {
+    mesh: Mesh,
+    /// The mesh file's record (none when generated).
+    file: Option<InputFile>,
+    /// What the shape is, for the plan.
+    shape: String,
+    /// A generated ellipsoid's semi-axes, metres.
+    ellipsoid_radii_m: Option<DVec3>,
+}
+
+/// Body `i`'s shape.
+fn load_shape(scene: &Scene, i: usize, kernels: Option<&Kernels>) -> Result<LoadedShape> {
     let b = &scene.bodies[i];
     match b.shape() {
         Shape::File {
@@ -300,12 +316,12 @@ fn load_shape(
                 };
                 raw = projection.apply(raw);
             }
-            let mesh = Mesh::from_raw(raw, units);
-            Ok((
-                mesh,
-                Some(input_file(path)?),
-                format!("mesh file {}", path.display()),
-            ))
+            Ok(LoadedShape {
+                mesh: Mesh::from_raw(raw, units),
+                file: Some(input_file(path)?),
+                shape: format!("mesh file {}", path.display()),
+                ellipsoid_radii_m: None,
+            })
         }
         Shape::Ellipsoid { radii_km, levels } => {
             let radii = match (radii_km, b.naif_id, kernels) {
@@ -331,7 +347,12 @@ fn load_shape(
                 radii.z,
                 mesh.len()
             );
-            Ok((mesh, None, shape))
+            Ok(LoadedShape {
+                mesh,
+                file: None,
+                shape,
+                ellipsoid_radii_m: Some(radii * LengthUnit::Km.metres()),
+            })
         }
     }
 }

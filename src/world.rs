@@ -67,6 +67,10 @@ pub struct Body {
     pub convex: bool,
     /// Radius of a sphere about the body origin that contains every vertex, metres.
     pub bounding_radius_m: f64,
+    /// For a generated ellipsoid, its semi-axes along the frame's x, y, z (metres): a disk
+    /// Sun behind it is hidden in closed form ([`crate::horizon::eclipse`]), not by rays
+    /// through the mesh.
+    pub ellipsoid_radii_m: Option<DVec3>,
 }
 
 impl Body {
@@ -83,7 +87,16 @@ impl Body {
             mesh,
             convex,
             bounding_radius_m,
+            ellipsoid_radii_m: None,
         }
+    }
+
+    /// Marks the body as the generated ellipsoid of semi-axes `radii_m` (metres) its mesh
+    /// approximates; the bounding sphere then holds the ellipsoid, not only the mesh.
+    pub fn with_ellipsoid(mut self, radii_m: DVec3) -> Body {
+        self.bounding_radius_m = self.bounding_radius_m.max(radii_m.max_element());
+        self.ellipsoid_radii_m = Some(radii_m);
+        self
     }
 }
 

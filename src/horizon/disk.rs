@@ -65,7 +65,7 @@ impl SolarDisk {
         }
         let u = self.limb_darkening;
         let s = (1.0 - d * d).sqrt();
-        let whole = (1.0 - u) * PI + 2.0 * PI * u / 3.0;
+        let whole = self.whole_flux();
         let flux = (1.0 - u) * (PI / 2.0 + d * s + d.asin())
             + u * (PI / 2.0) * (2.0 / 3.0 + d - d * d * d / 3.0);
         let moment = (1.0 - u) * (2.0 / 3.0) * s * s * s + u * (PI / 8.0) * (s * s) * (s * s);
@@ -74,6 +74,139 @@ impl SolarDisk {
             centroid: if flux > 0.0 { moment / flux } else { 1.0 },
         }
     }
+
+    /// The share of the disk's flux inside a circle of `radius` whose centre lies
+    /// `distance` from the disk's centre (both in units of ρ): what a round occluder
+    /// hides. Rings of the disk are integrated in closed form around (the arc of each
+    /// ring inside the circle) and by Gauss–Legendre quadrature across, piece by piece
+    /// between the radii where a ring enters or leaves the circle.
+    pub fn hidden_by_circle(&self, distance: f64, radius: f64) -> f64 {
+        if distance >= radius + 1.0 {
+            return 0.0;
+        }
+        if radius >= distance + 1.0 {
+            return 1.0;
+        }
+        let arc_inside = |s: f64| {
+            if s + distance <= radius {
+                2.0 * PI
+            } else if (s - distance).abs() >= radius {
+                0.0
+            } else {
+                let cos =
+                    (s * s + (distance - radius) * (distance + radius)) / (2.0 * s * distance);
+                2.0 * cos.clamp(-1.0, 1.0).acos()
+            }
+        };
+        let mut cuts = [
+            0.0,
+            (distance - radius).abs().min(1.0),
+            (distance + radius).min(1.0),
+            1.0,
+        ];
+        cuts.sort_by(f64::total_cmp);
+        let hidden: f64 = cuts
+            .windows(2)
+            .filter(|w| w[1] > w[0])
+            .map(|w| smooth_quadrature(w[0], w[1], |s| s * self.intensity(s) * arc_inside(s)))
+            .sum();
+        (hidden / self.whole_flux()).clamp(0.0, 1.0)
+    }
+
+    /// `n` points on the unit disk (units of ρ) that each carry an equal share of its
+    /// flux: radii at the flux quantiles `(j + ½)/n`, angles stepped by the golden angle
+    /// (a sunflower pattern, even in every direction).
+    pub fn samples(&self, n: usize) -> Vec<(f64, f64)> {
+        let golden = PI * (3.0 - 5f64.sqrt());
+        (0..n)
+            .map(|j| {
+                let share = (j as f64 + 0.5) / n as f64;
+                let (mut lo, mut hi) = (0.0, 1.0);
+                for _ in 0..60 {
+                    let mid = 0.5 * (lo + hi);
+                    if self.flux_within(mid) < share {
+                        lo = mid;
+                    } else {
+                        hi = mid;
+                    }
+                }
+                let r = 0.5 * (lo + hi);
+                let angle = golden * j as f64;
+                (r * angle.cos(), r * angle.sin())
+            })
+            .collect()
+    }
+
+    /// Intensity at `s` radii from the centre, relative to the centre's.
+    fn intensity(&self, s: f64) -> f64 {
+        let mu = (1.0 - s * s).max(0.0).sqrt();
+        1.0 - self.limb_darkening * (1.0 - mu)
+    }
+
+    /// The whole disk's flux, `∫ I(s) 2πs ds` over the unit disk.
+    fn whole_flux(&self) -> f64 {
+        let u = self.limb_darkening;
+        (1.0 - u) * PI + 2.0 * PI * u / 3.0
+    }
+
+    /// The share of the flux within `s` radii of the centre.
+    fn flux_within(&self, s: f64) -> f64 {
+        let u = self.limb_darkening;
+        let rim = (1.0 - s * s).max(0.0).powf(1.5);
+        2.0 * PI * ((1.0 - u) * s * s / 2.0 + u * (1.0 - rim) / 3.0) / self.whole_flux()
+    }
+}
+
+/// `∫ f` over `[lo, hi]` by 24-point Gauss–Legendre after `s = lo + (hi − lo)(1 − cos t)/2`,
+/// which takes out the square-root behaviour of `f` at both ends (a ring entering a
+/// circle, the disk's limb).
+fn smooth_quadrature(lo: f64, hi: f64, f: impl Fn(f64) -> f64) -> f64 {
+    gauss_legendre()
+        .iter()
+        .map(|&(x, w)| {
+            let t = PI * (x + 1.0) / 2.0;
+            let s = lo + (hi - lo) * (1.0 - t.cos()) / 2.0;
+            let ds_dt = (hi - lo) * t.sin() / 2.0;
+            w * (PI / 2.0) * ds_dt * f(s)
+        })
+        .sum()
+}
+
+/// Nodes and weights of 24-point Gauss–Legendre quadrature on [−1, 1], found once by
+/// Newton's method on the Legendre polynomial from the usual cosine first guesses.
+fn gauss_legendre() -> &'static [(f64, f64)] {
+    static NODES: std::sync::OnceLock<Vec<(f64, f64)>> = std::sync::OnceLock::new();
+    NODES.get_or_init(|| {
+        const N: usize = 24;
+        (0..N)
+            .map(|i| {
+                let mut x = (PI * (i as f64 + 0.75) / (N as f64 + 0.5)).cos();
+                let mut slope = 1.0;
+                for _ in 0..50 {
+                    let (value, derivative) = legendre(N, x);
+                    slope = derivative;
+                    let step = value / derivative;
+                    x -= step;
+                    if step.abs() < 1e-15 {
+                        break;
+                    }
+                }
+                (x, 2.0 / ((1.0 - x * x) * slope * slope))
+            })
+            .collect()
+    })
+}
+
+/// `P_n(x)` and its derivative, by the three-term recurrence.
+fn legendre(n: usize, x: f64) -> (f64, f64) {
+    let (mut previous, mut value) = (1.0, x);
+    for k in 2..=n {
+        let k = k as f64;
+        let next = ((2.0 * k - 1.0) * x * value - (k - 1.0) * previous) / k;
+        previous = value;
+        value = next;
+    }
+    (value, n as f64 * (x * value - previous) / (x * x - 1.0))
 }
 
 #[cfg(test)]
@@ -138,6 +271,75 @@ mod tests {
         .visible(0.0);
         assert!((v.fraction - 0.5).abs() < 1e-15);
         assert!((v.centroid - 4.0 / (3.0 * PI)).abs() < 1e-15);
+    }
+
+    #[test]
+    fn the_quadrature_integrates_polynomials_to_degree_47_exactly() {
+        let nodes = gauss_legendre();
+        let weights: f64 = nodes.iter().map(|n| n.1).sum();
+        assert!((weights - 2.0).abs() < 1e-13, "{weights}");
+        let x46: f64 = nodes.iter().map(|&(x, w)| w * x.powi(46)).sum();
+        assert!((x46 - 2.0 / 47.0).abs() < 1e-13, "{x46}");
+    }
+
+    /// The lens two circles share (radii 1 and `big`, centres `d` apart), over π: what a
+    /// round occluder hides of a uniform disk, in closed form.
+    fn lens_share(d: f64, big: f64) -> f64 {
+        let a = ((d * d + 1.0 - big * big) / (2.0 * d))
+            .clamp(-1.0, 1.0)
+            .acos();
+        let b = ((d * d + big * big - 1.0) / (2.0 * d * big))
+            .clamp(-1.0, 1.0)
+            .acos();
+        let k = (-d + 1.0 + big) * (d + 1.0 - big) * (d - 1.0 + big) * (d + 1.0 + big);
+        (a + big * big * b - 0.5 * k.max(0.0).sqrt()) / PI
+    }
+
+    #[test]
+    fn a_circle_hides_of_a_uniform_disk_the_lens_they_share() {
+        let uniform = SolarDisk {
+            limb_darkening: 0.0,
+        };
+        let mut rng = TestRng::new(11);
+        for _ in 0..200 {
+            let big = 0.2 + 5.0 * rng.unit();
+            let d = (big - 1.0).abs() + (2.0 * big.min(1.0)) * rng.unit();
+            let h = uniform.hidden_by_circle(d, big);
+            assert!((h - lens_share(d, big)).abs() < 1e-9, "d {d} R {big}: {h}");
+        }
+        assert_eq!(uniform.hidden_by_circle(3.0, 1.9), 0.0);
+        assert_eq!(uniform.hidden_by_circle(0.5, 1.6), 1.0);
+        // An annular transit: a small circle well inside hides its area.
+        assert!((uniform.hidden_by_circle(0.3, 0.2) - 0.04).abs() < 1e-12);
+    }
+
+    #[test]
+    fn a_huge_circle_hides_what_a_straight_horizon_does_of_a_darkened_disk() {
+        let mut rng = TestRng::new(12);
+        for _ in 0..50 {
+            let disk = SolarDisk {
+                limb_darkening: rng.unit(),
+            };
+            let d = 2.0 * rng.unit() - 1.0;
+            let big = 1e7;
+            let hidden = disk.hidden_by_circle(big + d, big);
+            let below = 1.0 - disk.visible(d).fraction;
+            assert!((hidden - below).abs() < 1e-6, "d {d}: {hidden} vs {below}");
+        }
+    }
+
+    #[test]
+    fn equal_flux_samples_split_the_disk_as_a_horizon_does() {
+        let disk = SolarDisk {
+            limb_darkening: 0.6,
+        };
+        let samples = disk.samples(2000);
+        for d in [-0.8, -0.3, 0.0, 0.45, 0.9] {
+            let above = samples.iter().filter(|p| p.1 > -d).count() as f64 / 2000.0;
+            let exact = disk.visible(d).fraction;
+            assert!((above - exact).abs() < 5e-3, "d {d}: {above} vs {exact}");
+        }
+        assert!(samples.iter().all(|p| p.0.hypot(p.1) < 1.0));
     }
 
     #[test]

@@ -13,6 +13,7 @@
 pub mod bound;
 pub mod cache;
 pub mod disk;
+pub mod eclipse;
 mod geometry;
 pub mod map;
 pub mod shadows;

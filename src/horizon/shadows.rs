@@ -66,6 +66,9 @@ pub struct Shadows {
     pub azimuths: u32,
     pub sun: SunShape,
     pub disk: SolarDisk,
+    /// Rays per facet through the disk Sun toward another body's mesh (generated
+    /// ellipsoids need none: their share is a closed form).
+    pub sun_samples: u32,
     /// Where maps are cached; `None`: not cached.
     pub cache_dir: Option<PathBuf>,
 }
@@ -80,6 +83,7 @@ impl Default for Shadows {
             disk: SolarDisk {
                 limb_darkening: 0.0,
             },
+            sun_samples: DEFAULT_SUN_SAMPLES,
             cache_dir: None,
         }
     }
@@ -87,6 +91,13 @@ impl Default for Shadows {
 
 /// Azimuth wedges of a map unless the scene says otherwise (2.8° each).
 pub const DEFAULT_AZIMUTHS: u32 = 128;
+
+/// Disk samples toward other bodies' meshes unless the scene says otherwise: the hidden
+/// share then comes in steps of 1/32 (see docs/accuracy.md).
+pub const DEFAULT_SUN_SAMPLES: u32 = 32;
+
+/// The most disk samples a scene may ask for.
+pub const SUN_SAMPLES_MAX: u32 = 1024;
 
 /// Measured costs behind `auto` (CPU seconds, 128 wedges, 2026-11-24; see
 /// docs/performance.md): building a map, per facet (m1phobos 1.4 ms, Itokawa 12k 0.9 ms,
@@ -107,6 +118,12 @@ impl Shadows {
         let u = self.disk.limb_darkening;
         if !(0.0..=1.0).contains(&u) {
             return Err(format!("run.limb_darkening = {u} is outside 0..=1"));
+        }
+        if !(1..=SUN_SAMPLES_MAX).contains(&self.sun_samples) {
+            return Err(format!(
+                "run.sun_samples = {} is outside 1..={SUN_SAMPLES_MAX}",
+                self.sun_samples
+            ));
         }
         if self.sun == SunShape::Disk && self.method == ShadowMethod::Rays {
             return Err(
@@ -141,9 +158,10 @@ impl Shadows {
             self.azimuths,
             bytes / 1e6
         );
-        let mode = match self.mode {
-            HorizonMode::Exact => "exact: rays where the map is not certain",
-            HorizonMode::Approximate => "approximate: no rays",
+        let mode = match (self.sun, self.mode) {
+            (SunShape::Disk, _) => "the disk's visible share from the map's horizon, no rays",
+            (_, HorizonMode::Exact) => "exact: rays where the map is not certain",
+            (_, HorizonMode::Approximate) => "approximate: no rays",
         };
         match self.method {
             ShadowMethod::Rays => (

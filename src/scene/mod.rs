@@ -108,6 +108,7 @@ impl Scene {
             disk: SolarDisk {
                 limb_darkening: self.run.limb_darkening,
             },
+            sun_samples: self.run.sun_samples,
             cache_dir: cache_dir_for(folder, self.run.cache_dir.as_deref()),
         }
     }

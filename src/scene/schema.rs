@@ -5,7 +5,7 @@
 //! relative to the scene file by [`super::Scene::parse`]. Defaults are stated beside each
 //! key; `docs/scene.md` documents every key with a complete example.
 
-use crate::horizon::shadows::DEFAULT_AZIMUTHS;
+use crate::horizon::shadows::{DEFAULT_AZIMUTHS, DEFAULT_SUN_SAMPLES};
 use crate::horizon::{HorizonMode, ShadowMethod, SunShape};
 use crate::mesh::projection::Pole;
 use crate::mesh::{LengthUnit, MeshFormat};
@@ -80,6 +80,9 @@ pub struct RunSection {
     pub sun: SunShape,
     /// Linear limb-darkening coefficient of the disk Sun, 0 (uniform, default) to 1.
     pub limb_darkening: f64,
+    /// Rays per facet through a disk Sun toward another body's mesh (default 32, 1 to
+    /// 1024); a generated ellipsoid's share is a closed form and needs none.
+    pub sun_samples: u32,
     /// Folder of the horizon-map cache, relative to the scene file (default:
     /// `$SLIM_CACHE_DIR`, else `$XDG_CACHE_HOME/slim/horizon`, else
     /// `~/.cache/slim/horizon`).
@@ -97,6 +100,7 @@ impl Default for RunSection {
             horizon_azimuths: DEFAULT_AZIMUTHS,
             sun: SunShape::default(),
             limb_darkening: 0.0,
+            sun_samples: DEFAULT_SUN_SAMPLES,
             cache_dir: None,
         }
     }
