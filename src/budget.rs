@@ -122,6 +122,8 @@ pub fn human_bytes(bytes: u64) -> String {
 pub struct Demand {
     /// Facets of all bodies.
     pub facets: f64,
+    /// Facets of surrounding terrain, which only casts shadows.
+    pub surrounding_facets: f64,
     pub bodies: f64,
     pub steps: f64,
     /// CDF thresholds per facet (0 before they are known).
@@ -245,8 +247,8 @@ impl Demand {
         );
         e.push(
             "meshes and shadow index",
-            self.facets * GEOMETRY_BYTES_PER_FACET,
-            "use a coarser mesh (fewer facets or ellipsoid levels)",
+            (self.facets + self.surrounding_facets) * GEOMETRY_BYTES_PER_FACET,
+            "use a coarser mesh (fewer facets or ellipsoid levels) or coarser surroundings",
         );
         e.push(
             "step geometry",

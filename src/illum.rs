@@ -127,15 +127,16 @@ impl<'w> Direct<'w> {
                 // The few rays a map leaves are traced by the BVH, which costs nothing per
                 // step (every tracer classifies each ray identically).
                 (Some(map), _) => (
-                    Box::new(Bvh::build(&b.mesh)) as Box<dyn Tracer + 'w>,
+                    Box::new(Bvh::build(b.shadow_mesh())) as Box<dyn Tracer + 'w>,
                     OwnHorizon::Map { map, exact },
                 ),
                 (None, TracerKind::Bvh) if !b.convex => {
-                    let bvh = Bvh::build(&b.mesh);
-                    let bound = OwnHorizon::Bound(HorizonBound::new(&b.mesh, &bvh));
+                    let bvh = Bvh::build(b.shadow_mesh());
+                    let bound =
+                        OwnHorizon::Bound(HorizonBound::new(b.shadow_mesh(), b.mesh.len(), &bvh));
                     (Box::new(bvh) as Box<dyn Tracer + 'w>, bound)
                 }
-                (None, _) => (trace::build(kind, &b.mesh), OwnHorizon::None),
+                (None, _) => (trace::build(kind, b.shadow_mesh()), OwnHorizon::None),
             })
             .unzip();
         Direct {

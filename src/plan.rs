@@ -54,6 +54,16 @@ impl Plan {
                              hidden by the same body"
                         .into(),
                 }
+            } else if body.casters.is_some() {
+                Decision {
+                    stage: format!("self-shadowing of '{}'", body.name),
+                    runs: true,
+                    reason: format!(
+                        "the mesh and its surroundings ({} facets that only cast shadows): one \
+                         shadow ray per facet facing the Sun",
+                        body.shadow_mesh().len() - body.mesh.len()
+                    ),
+                }
             } else {
                 Decision {
                     stage: format!("self-shadowing of '{}'", body.name),

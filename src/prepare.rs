@@ -20,7 +20,7 @@ use crate::horizon::Shadows;
 use crate::mesh::generate::ellipsoid;
 use crate::mesh::inspect::inspect;
 use crate::mesh::projection::PolarStereographic;
-use crate::mesh::{read_mesh, LengthUnit, Mesh, RawMesh};
+use crate::mesh::{read_mesh, LengthUnit, Mesh, MeshFormat, RawMesh};
 use crate::output::record::{input_file, BodyRecord, InputFile};
 use crate::plan::{Decision, Plan};
 use crate::progress::Timings;
@@ -33,6 +33,7 @@ use crate::stats::Bins;
 use crate::world::{Body, Pose, World};
 use glam::{DMat3, DVec3};
 use rayon::prelude::*;
+use std::path::Path;
 
 /// A scene's bodies and ephemeris: what every use of a scene starts from.
 pub struct Assembly {
@@ -99,6 +100,12 @@ pub fn prepare(scene: &Scene, budget: &Budget, timings: &mut Timings) -> Result<
     let mut assembly = assemble(scene, budget, timings)?;
     let mut demand = Demand {
         facets: assembly.world.facet_count() as f64,
+        surrounding_facets: assembly
+            .world
+            .bodies
+            .iter()
+            .map(|b| (b.shadow_mesh().len() - b.mesh.len()) as f64)
+            .sum(),
         ..scene_demand(scene)
     };
     budget.check(&demand.estimate())?;
@@ -194,6 +201,7 @@ fn scene_demand(scene: &Scene) -> Demand {
     let bands = scene.bands.len() as f64;
     Demand {
         facets: generated_facets(scene),
+        surrounding_facets: 0.0,
         bodies: scene.bodies.len() as f64,
         steps: scene.step_count(),
         bins: 0.0,
@@ -273,19 +281,45 @@ pub fn build_world(
                 .map(|p| format!("body '{}': {p}", b.name)),
         );
         let convex = report.convex;
+        let mut body = Body::new(b.name.clone(), mesh, convex);
+        if let Some(radii_m) = ellipsoid_radii_m {
+            body = body.with_ellipsoid(radii_m);
+        }
+        let mut surroundings_file = None;
+        if let Some(s) = &b.surroundings {
+            let around = read_projected(s.mesh.as_path(), s.units, s.format, b)?;
+            body = body.with_surroundings(&around);
+            surroundings_file = Some(input_file(&s.mesh)?);
+        }
         records.push(BodyRecord {
             name: b.name.clone(),
             mesh: file,
             shape,
             report,
+            surroundings: surroundings_file,
         });
-        let body = Body::new(b.name.clone(), mesh, convex);
-        world.bodies.push(match ellipsoid_radii_m {
-            Some(radii_m) => body.with_ellipsoid(radii_m),
-            None => body,
-        });
+        world.bodies.push(body);
     }
     Ok((world, records, warnings))
+}
+
+/// A mesh file of body `b` in metres, taken through the body's polar-stereographic
+/// projection when it has one.
+fn read_projected(
+    path: &Path,
+    units: LengthUnit,
+    format: Option<MeshFormat>,
+    b: &BodySection,
+) -> Result<Mesh> {
+    let mut raw = read_mesh(path, format)?;
+    if let Some(p) = &b.stereographic {
+        let projection = PolarStereographic {
+            pole: p.pole,
+            radius: p.radius_km * 1000.0 / units.metres(),
+        };
+        raw = projection.apply(raw);
+    }
+    Ok(Mesh::from_raw(raw, units))
 }
 
 /// A body's mesh as read or generated.
@@ -307,22 +341,12 @@ fn load_shape(scene: &Scene, i: usize, kernels: Option<&Kernels>) -> Result<Load
             path,
             units,
             format,
-        } => {
-            let mut raw = read_mesh(path, format)?;
-            if let Some(p) = &b.stereographic {
-                let projection = PolarStereographic {
-                    pole: p.pole,
-                    radius: p.radius_km * 1000.0 / units.metres(),
-                };
-                raw = projection.apply(raw);
-            }
-            Ok(LoadedShape {
-                mesh: Mesh::from_raw(raw, units),
-                file: Some(input_file(path)?),
-                shape: format!("mesh file {}", path.display()),
-                ellipsoid_radii_m: None,
-            })
-        }
+        } => Ok(LoadedShape {
+            mesh: read_projected(path, units, format, b)?,
+            file: Some(input_file(path)?),
+            shape: format!("mesh file {}", path.display()),
+            ellipsoid_radii_m: None,
+        }),
         Shape::Ellipsoid { radii_km, levels } => {
             let radii = match (radii_km, b.naif_id, kernels) {
                 (Some(r), _, _) => DVec3::from_array(r),

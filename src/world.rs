@@ -67,6 +67,9 @@ pub struct Body {
     pub convex: bool,
     /// Radius of a sphere about the body origin that contains every vertex, metres.
     pub bounding_radius_m: f64,
+    /// The mesh followed by terrain around it that only casts shadows (so facet ids of
+    /// the mesh are the same in both); `None`: the mesh alone casts.
+    pub casters: Option<Mesh>,
     /// For a generated ellipsoid, its semi-axes along the frame's x, y, z (metres): a disk
     /// Sun behind it is hidden in closed form ([`crate::horizon::eclipse`]), not by rays
     /// through the mesh.
@@ -88,7 +91,28 @@ impl Body {
             convex,
             bounding_radius_m,
             ellipsoid_radii_m: None,
+            casters: None,
         }
+    }
+
+    /// Adds terrain around the mesh that hides the Sun from its facets but receives
+    /// nothing; the body then counts as able to shadow itself.
+    pub fn with_surroundings(mut self, surroundings: &Mesh) -> Body {
+        let casters = self.mesh.joined(surroundings);
+        let reach = casters
+            .vertices
+            .iter()
+            .map(|v| v.length())
+            .fold(0.0, f64::max);
+        self.bounding_radius_m = self.bounding_radius_m.max(reach);
+        self.convex = false;
+        self.casters = Some(casters);
+        self
+    }
+
+    /// Everything of the body that casts shadows: the mesh, with its surroundings.
+    pub fn shadow_mesh(&self) -> &Mesh {
+        self.casters.as_ref().unwrap_or(&self.mesh)
     }
 
     /// Marks the body as the generated ellipsoid of semi-axes `radii_m` (metres) its mesh

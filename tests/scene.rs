@@ -933,4 +933,59 @@ fn shadow_and_sun_keys_are_checked_with_the_key_named() {
     );
     assert_rejected(&with("limb_darkening = 1.5"), &["run.limb_darkening"]);
     assert_rejected(&with("shadows = \"sometimes\""), &["shadows"]);
+    assert_rejected(&with("sun_samples = 0"), &["run.sun_samples", "1..=1024"]);
+    assert_eq!(
+        parse(&with("sun_samples = 64"))
+            .unwrap()
+            .shadows()
+            .sun_samples,
+        64
+    );
+}
+
+#[test]
+fn surroundings_resolve_beside_the_scene_and_only_surround_mesh_files() {
+    let with = edit(
+        SPIN,
+        "units = \"km\"\n",
+        "units = \"km\"\nsurroundings = { mesh = \"around.obj\", units = \"m\" }\n",
+    );
+    let scene = parse(&with).expect("surroundings accepted");
+    let files: Vec<(String, &Path)> = scene.input_files();
+    assert!(files.contains(&(
+        "body[0].surroundings.mesh".to_string(),
+        Path::new("/nonexistent/scenes/around.obj")
+    )));
+    assert_rejected(
+        &edit(&with, "units = \"m\" }", "}"),
+        &["body[0].surroundings", "units"],
+    );
+    let ellipsoid = edit(
+        &with,
+        "mesh = \"rock.obj\"\nunits = \"km\"",
+        "ellipsoid = { radii_km = [1.0, 1.0, 1.0] }",
+    );
+    assert_rejected(&ellipsoid, &["body[0].surroundings", "terrain patch"]);
+}
+
+#[test]
+fn every_shipped_scene_loads() {
+    let data = Path::new(env!("CARGO_MANIFEST_DIR")).join("data");
+    let mut scenes = 0;
+    for entry in std::fs::read_dir(&data).unwrap() {
+        let path = entry.unwrap().path();
+        if path.extension().is_some_and(|e| e == "toml") {
+            let scene = Scene::load(&path).unwrap_or_else(|e| panic!("{e}"));
+            for (key, file) in scene.input_files() {
+                assert!(
+                    file.is_file(),
+                    "{}: {key} {}",
+                    path.display(),
+                    file.display()
+                );
+            }
+            scenes += 1;
+        }
+    }
+    assert!(scenes >= 5, "{scenes} scenes");
 }

@@ -46,10 +46,11 @@ pub struct HorizonBound {
 }
 
 impl HorizonBound {
-    /// The bound of every facet of `mesh`, using `bvh` (built over the same mesh).
-    pub fn new(mesh: &Mesh, bvh: &Bvh) -> HorizonBound {
+    /// The bound of facets `0..receivers` of `mesh`, using `bvh` (built over all of
+    /// `mesh`, whose other facets only cast shadows).
+    pub fn new(mesh: &Mesh, receivers: usize, bvh: &Bvh) -> HorizonBound {
         let widening = rounding_widening(mesh);
-        let sin_max = (0..mesh.len())
+        let sin_max = (0..receivers)
             .into_par_iter()
             .map(|i| {
                 let (c, n) = (mesh.centroids[i], mesh.normals[i]);
@@ -104,7 +105,7 @@ mod tests {
     fn a_wall_beside_a_floor_is_the_floors_horizon() {
         let (h, wall_x, half) = (3.0, 4.0, 50.0);
         let mesh = super::super::floor_and_wall(h, wall_x, half);
-        let bound = HorizonBound::new(&mesh, &Bvh::build(&mesh));
+        let bound = HorizonBound::new(&mesh, mesh.len(), &Bvh::build(&mesh));
         for i in 0..2 {
             let c = mesh.centroids[i];
             let expected = h / (h * h + (wall_x - c.x).powi(2)).sqrt();
@@ -122,7 +123,7 @@ mod tests {
     #[test]
     fn a_convex_body_hides_nothing_above_any_facets_plane() {
         let mesh = Mesh::from_raw(icosphere(3, 1.0, DVec3::new(5e3, 0.0, 0.0)), LengthUnit::Km);
-        let bound = HorizonBound::new(&mesh, &Bvh::build(&mesh));
+        let bound = HorizonBound::new(&mesh, mesh.len(), &Bvh::build(&mesh));
         let worst = bound.sin_max().iter().fold(0.0f64, |m, &s| m.max(s));
         // Nothing rises above a face of a convex solid: only the search's slack remains.
         assert!(worst <= SEARCH_SLACK + 1e-6, "{worst}");

@@ -35,12 +35,17 @@ pub const FORMAT_VERSION: u32 = 1;
 const HEADER: usize = 8 + 4 + 4 + 8 + 32;
 
 /// The content key of `mesh`'s map with `azimuths` wedges.
-pub fn content_key(mesh: &Mesh, azimuths: u32) -> [u8; 32] {
+pub fn content_key(mesh: &Mesh, receivers: usize, azimuths: u32) -> [u8; 32] {
     let mut h = Sha256::new();
     h.update(b"slim horizon map");
     h.update(FORMAT_VERSION.to_le_bytes());
     h.update(azimuths.to_le_bytes());
     h.update((mesh.len() as u64).to_le_bytes());
+    if receivers < mesh.len() {
+        // Facets after the first `receivers` only cast shadows (surrounding terrain).
+        h.update(b"receivers");
+        h.update((receivers as u64).to_le_bytes());
+    }
     for v in &mesh.vertices {
         for x in v.to_array() {
             h.update(x.to_le_bytes());
@@ -179,8 +184,9 @@ mod tests {
     fn a_stored_map_reads_back_and_any_damage_or_other_content_is_refused() {
         let dir = std::env::temp_dir().join(format!("slim-horizon-cache-{}", std::process::id()));
         let mesh = Mesh::from_raw(icosphere(1, 1.0, glam::DVec3::ZERO), LengthUnit::Km);
-        let map = HorizonMap::build(&mesh, &Bvh::build(&mesh), 16, &|| false).expect("map");
-        let key = content_key(&mesh, 16);
+        let map =
+            HorizonMap::build(&mesh, mesh.len(), &Bvh::build(&mesh), 16, &|| false).expect("map");
+        let key = content_key(&mesh, mesh.len(), 16);
         let file = file_for(&dir, &key);
         assert!(matches!(load(&file, &key, mesh.len(), 16), Lookup::Missing));
         store(&file, &key, &map).expect("store");
@@ -189,7 +195,7 @@ mod tests {
             other => panic!("{other:?}"),
         }
         // Another wedge count or mesh gives another key; the same file under it is refused.
-        let other = content_key(&mesh, 32);
+        let other = content_key(&mesh, mesh.len(), 32);
         assert_ne!(other, key);
         assert!(matches!(
             load(&file, &other, mesh.len(), 16),

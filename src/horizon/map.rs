@@ -81,6 +81,7 @@ impl HorizonMap {
     /// `None` when `cancelled` turns true (asked between batches of facets).
     pub fn build(
         mesh: &Mesh,
+        receivers: usize,
         bvh: &Bvh,
         azimuths: u32,
         cancelled: &(dyn Fn() -> bool + Sync),
@@ -90,12 +91,12 @@ impl HorizonMap {
         let azimuths = azimuths.clamp(AZIMUTHS_MIN, AZIMUTHS_MAX);
         let wedges = Wedges::new(azimuths as usize);
         let widening = rounding_widening(mesh);
-        let mut cells = Vec::with_capacity(mesh.len() * azimuths as usize);
-        for first in (0..mesh.len()).step_by(BATCH) {
+        let mut cells = Vec::with_capacity(receivers * azimuths as usize);
+        for first in (0..receivers).step_by(BATCH) {
             if cancelled() {
                 return None;
             }
-            let end = (first + BATCH).min(mesh.len());
+            let end = (first + BATCH).min(receivers);
             // Runs of neighbouring facets (in file order, which is spatially coherent in
             // shape models and terrain) are built in turn, each seeded with the triangles
             // that set the previous one's horizon.
@@ -649,7 +650,8 @@ mod tests {
     }
 
     fn build(mesh: &Mesh, azimuths: u32) -> HorizonMap {
-        HorizonMap::build(mesh, &Bvh::build(mesh), azimuths, &|| false).expect("not cancelled")
+        HorizonMap::build(mesh, mesh.len(), &Bvh::build(mesh), azimuths, &|| false)
+            .expect("not cancelled")
     }
 
     /// A floor (two triangles facing +z) and a wall of height `h` along x = `d`: seen

@@ -208,7 +208,8 @@ impl Shadows {
     /// The cache file of `body`'s map when one is there (not yet checked).
     fn cached_file(&self, body: &Body) -> Option<PathBuf> {
         let dir = self.cache_dir.as_deref()?;
-        let file = cache::file_for(dir, &cache::content_key(&body.mesh, self.azimuths));
+        let key = cache::content_key(body.shadow_mesh(), body.mesh.len(), self.azimuths);
+        let file = cache::file_for(dir, &key);
         file.is_file().then_some(file)
     }
 
@@ -226,7 +227,7 @@ impl Shadows {
     /// The map of `body`: read from the cache when an intact one is there, built (and
     /// stored) otherwise.
     pub fn obtain(&self, body: &Body, progress: &dyn Progress) -> Result<(HorizonMap, MapRecord)> {
-        let key = cache::content_key(&body.mesh, self.azimuths);
+        let key = cache::content_key(body.shadow_mesh(), body.mesh.len(), self.azimuths);
         let file = self.cache_dir.as_deref().map(|d| cache::file_for(d, &key));
         let mut record = MapRecord {
             body: body.name.clone(),
@@ -263,9 +264,12 @@ impl Shadows {
             body.mesh.len() as f64 * BUILD_S_PER_FACET
         ));
         let started = Instant::now();
-        let bvh = Bvh::build(&body.mesh);
-        let map = HorizonMap::build(&body.mesh, &bvh, self.azimuths, &|| progress.cancelled())
-            .ok_or(Error::Cancelled)?;
+        let casters = body.shadow_mesh();
+        let bvh = Bvh::build(casters);
+        let map = HorizonMap::build(casters, body.mesh.len(), &bvh, self.azimuths, &|| {
+            progress.cancelled()
+        })
+        .ok_or(Error::Cancelled)?;
         record.build_s = started.elapsed().as_secs_f64();
         record.bytes = map.bytes();
         if let Some(file) = &file {

@@ -147,6 +147,25 @@ pub struct Mesh {
 }
 
 impl Mesh {
+    /// This mesh followed by `other` (both in metres, same frame): the facets of `self`
+    /// keep their ids, those of `other` follow.
+    pub fn joined(&self, other: &Mesh) -> Mesh {
+        let shift = self.vertices.len() as u32;
+        let cat = |a: &[DVec3], b: &[DVec3]| [a, b].concat();
+        Mesh {
+            vertices: cat(&self.vertices, &other.vertices),
+            triangles: self
+                .triangles
+                .iter()
+                .copied()
+                .chain(other.triangles.iter().map(|t| t.map(|i| i + shift)))
+                .collect(),
+            centroids: cat(&self.centroids, &other.centroids),
+            normals: cat(&self.normals, &other.normals),
+            areas: [&self.areas[..], &other.areas[..]].concat(),
+        }
+    }
+
     /// Builds the engine mesh from raw file content in `unit`.
     pub fn from_raw(raw: RawMesh, unit: LengthUnit) -> Mesh {
         let scale = unit.metres();

@@ -26,6 +26,9 @@ pub struct BodyRecord {
     /// Where the shape came from, in words.
     pub shape: String,
     pub report: MeshReport,
+    /// The mesh file of terrain around the body that only casts shadows.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub surroundings: Option<InputFile>,
 }
 
 /// Everything `run.json` holds: written by [`RunRecord::write`], read back by

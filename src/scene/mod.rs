@@ -75,6 +75,9 @@ impl Scene {
         for b in &mut bodies {
             b.mesh = b.mesh.as_ref().map(|m| folder.join(m));
             b.albedo_file = b.albedo_file.as_ref().map(|m| folder.join(m));
+            if let Some(s) = &mut b.surroundings {
+                s.mesh = folder.join(&s.mesh);
+            }
         }
         let name = file.run.name.clone().unwrap_or_else(|| {
             path.file_stem()
@@ -126,6 +129,9 @@ impl Scene {
         for (i, b) in self.bodies.iter().enumerate() {
             if let Some(mesh) = &b.mesh {
                 files.push((format!("body[{i}].mesh"), mesh.as_path()));
+            }
+            if let Some(s) = &b.surroundings {
+                files.push((format!("body[{i}].surroundings.mesh"), s.mesh.as_path()));
             }
             if let Some(albedo) = &b.albedo_file {
                 files.push((format!("body[{i}].albedo_file"), albedo.as_path()));

@@ -382,6 +382,18 @@ pub enum Orient {
     Flip,
 }
 
+/// `surroundings = { ... }` of a body: a mesh file of terrain beyond the patch.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SurroundingsSection {
+    /// Mesh file, relative to the scene file.
+    pub mesh: PathBuf,
+    /// Its length unit: "km" or "m".
+    pub units: LengthUnit,
+    /// Mesh format (default: from the extension).
+    pub format: Option<MeshFormat>,
+}
+
 /// One `[[body]]`.
 #[derive(Debug, Clone, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -402,6 +414,10 @@ pub struct BodySection {
     pub orbit: Option<OrbitSection>,
     /// The mesh file holds polar-stereographic map coordinates and heights.
     pub stereographic: Option<StereographicSection>,
+    /// Terrain around a patch that only casts shadows: it hides the Sun from the mesh's
+    /// facets and enters their horizon maps, but gets no statistics and does not
+    /// scatter. In the body's frame; projected like the mesh when `stereographic` is set.
+    pub surroundings: Option<SurroundingsSection>,
     /// Mesh format (default: from the extension).
     pub format: Option<MeshFormat>,
     /// Orientation handling.

@@ -213,6 +213,10 @@ impl Scene {
                 key("stereographic"),
                 "applies to mesh files only, not to a generated ellipsoid",
             )),
+            (None, Some(_), _) if b.surroundings.is_some() => Err(self.err(
+                key("surroundings"),
+                "surround a terrain patch (a mesh file), not a generated ellipsoid",
+            )),
             (None, Some(e), _) => {
                 if let Some(r) = e.radii_km {
                     if r.iter().any(|x| !(x.is_finite() && *x > 0.0)) {
