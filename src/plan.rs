@@ -75,6 +75,15 @@ impl Plan {
             });
         }
         decisions.push(between_bodies(scene, world));
+        decisions.extend(world.bodies.iter().filter(|b| !b.outputs).map(|b| {
+            Decision {
+                stage: format!("outputs of '{}'", b.name),
+                runs: false,
+                reason: "outputs = false: it casts shadows (and scatters light) only; no summary \
+                     or CDF rows, history or PLY (its geometry rows stay)"
+                    .into(),
+            }
+        }));
         decisions.push(Decision {
             stage: "scattered light".into(),
             runs: false,

@@ -89,6 +89,13 @@ pub fn run_scene(
         Ok(files)
     })?;
     outputs.push(out_dir.join("run.json"));
+    let (bodies, occluders) = assembly
+        .bodies
+        .into_iter()
+        .zip(&world.bodies)
+        .partition::<Vec<_>, _>(|(_, b)| b.outputs);
+    let records = |v: Vec<(_, _)>| v.into_iter().map(|(r, _)| r).collect();
+    let (bodies, occluders) = (records(bodies), records(occluders));
     let record = RunRecord {
         program: "slim".into(),
         version: env!("CARGO_PKG_VERSION").into(),
@@ -98,7 +105,8 @@ pub fn run_scene(
             sha256: output::record::sha256_hex(&scene.source),
         },
         kernels,
-        bodies: assembly.bodies,
+        bodies,
+        occluders,
         plan,
         counts: sim.counts,
         horizon_maps: sim.horizon_maps,
@@ -138,6 +146,9 @@ fn named_parts<'a>(
 fn write_plys(out_dir: &Path, world: &World, stats: &FacetStats) -> Result<Vec<PathBuf>> {
     let mut files = Vec::new();
     for (body, offset) in world.bodies.iter().zip(world.offsets()) {
+        if !body.outputs {
+            continue;
+        }
         let path = out_dir.join(format!("{}.ply", body.name));
         output::ply::write_ply(&path, &body.mesh, stats, offset)?;
         files.push(path);
@@ -175,7 +186,12 @@ fn clear_previous_run(dir: &Path, previous: Vec<String>) -> Result<()> {
 /// earlier run's `run.json` does not list it: slim did not write it (an input mesh named
 /// like a body's PLY, say) and will not overwrite it.
 fn refuse_foreign_files(dir: &Path, scene: &Scene, previous: &[String]) -> Result<()> {
-    let bodies: Vec<&str> = scene.bodies.iter().map(|b| b.name.as_str()).collect();
+    let bodies: Vec<&str> = scene
+        .bodies
+        .iter()
+        .filter(|b| b.outputs)
+        .map(|b| b.name.as_str())
+        .collect();
     let o = &scene.output;
     for name in output::file_names(o.csv, o.history, o.ply, &bodies) {
         let path = dir.join(&name);

@@ -67,6 +67,9 @@ pub struct Body {
     pub convex: bool,
     /// Radius of a sphere about the body origin that contains every vertex, metres.
     pub bounding_radius_m: f64,
+    /// Whether its facets' statistics are written (false: it only casts shadows and
+    /// scatters light).
+    pub outputs: bool,
     /// The mesh followed by terrain around it that only casts shadows (so facet ids of
     /// the mesh are the same in both); `None`: the mesh alone casts.
     pub casters: Option<Mesh>,
@@ -90,6 +93,7 @@ impl Body {
             mesh,
             convex,
             bounding_radius_m,
+            outputs: true,
             ellipsoid_radii_m: None,
             casters: None,
         }

@@ -1200,3 +1200,54 @@ fn coincident_bodies_are_a_warning() {
         "{warning}"
     );
 }
+
+#[test]
+fn a_body_without_outputs_shades_others_but_writes_no_rows_of_its_own() {
+    // The pair scene with B only casting shadows: A's rows must equal, byte for byte,
+    // those of the run in which both bodies report; B appears only in the geometry.
+    let both = fixed_run();
+    let dir =
+        std::env::temp_dir().join(format!("slim-outputs-test-{}-occluder", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    let scene = write_fixed_scene(&dir);
+    let text = std::fs::read_to_string(&scene).unwrap();
+    std::fs::write(
+        &scene,
+        text.replace("name = \"B\"\n", "name = \"B\"\noutputs = false\n"),
+    )
+    .unwrap();
+    let out = dir.join("out");
+    let record = run_into(&scene, &out).unwrap();
+    let files = files_in(&out);
+    assert!(
+        files.contains("A.ply") && !files.contains("B.ply"),
+        "{files:?}"
+    );
+    assert_eq!(record.bodies.len(), 1);
+    assert_eq!(record.occluders[0].name, "B");
+    assert!(record
+        .plan
+        .decisions
+        .iter()
+        .any(|d| d.stage == "outputs of 'B'"));
+    for table in ["summary.csv", "cdf.csv", "history.csv"] {
+        let rows = |dir: &Path| -> Vec<String> {
+            std::fs::read_to_string(dir.join(table))
+                .unwrap()
+                .lines()
+                .filter(|l| !l.contains(",B,") && !l.starts_with("B,"))
+                .map(str::to_string)
+                .collect()
+        };
+        let mine = std::fs::read_to_string(out.join(table)).unwrap();
+        assert!(
+            !mine.contains(",B,") && !mine.lines().any(|l| l.starts_with("B,")),
+            "{table}"
+        );
+        assert_eq!(rows(&out), rows(&both.out), "{table}: A's rows differ");
+    }
+    let geometry = std::fs::read_to_string(out.join("geometry.csv")).unwrap();
+    assert!(geometry.contains(",B,"), "B's geometry rows are kept");
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -969,6 +969,16 @@ fn surroundings_resolve_beside_the_scene_and_only_surround_mesh_files() {
 }
 
 #[test]
+fn a_scene_needs_a_body_with_outputs() {
+    let occluder = edit(
+        SPIN,
+        "units = \"km\"\n",
+        "units = \"km\"\noutputs = false\n",
+    );
+    assert_rejected(&occluder, &["body", "outputs = false", "no statistics"]);
+}
+
+#[test]
 fn every_shipped_scene_loads() {
     let data = Path::new(env!("CARGO_MANIFEST_DIR")).join("data");
     let mut scenes = 0;

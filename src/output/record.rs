@@ -42,7 +42,11 @@ pub struct RunRecord {
     pub scene: InputFile,
     /// SPICE kernels used, with checksums.
     pub kernels: Vec<InputFile>,
+    /// The bodies that get statistics and output files.
     pub bodies: Vec<BodyRecord>,
+    /// The bodies that only cast shadows and scatter light (`outputs = false`).
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub occluders: Vec<BodyRecord>,
     pub plan: Plan,
     pub counts: StepCounts,
     /// Where each horizon map came from (none when no body used one).

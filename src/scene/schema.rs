@@ -400,6 +400,11 @@ pub struct SurroundingsSection {
 pub struct BodySection {
     /// Unique name used in outputs.
     pub name: String,
+    /// Whether the body gets statistics and output files (default true). With `false` it
+    /// only casts shadows (and scatters light): no summary or CDF rows, no history, no
+    /// PLY; its per-step geometry is still written.
+    #[serde(default = "yes")]
+    pub outputs: bool,
     /// Mesh file, relative to the scene file (or give `ellipsoid`).
     pub mesh: Option<PathBuf>,
     /// Length unit of the mesh file: "km" or "m".

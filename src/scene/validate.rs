@@ -58,6 +58,7 @@ impl Scene {
                 }
             }
         }
+        self.validate_outputs()?;
         for (i, b) in self.bodies.iter().enumerate() {
             self.validate_shape(i, b)?;
             if b.material.is_some() {
@@ -188,6 +189,18 @@ impl Scene {
             return Err(self.err("camera.steps", "list at least one step (or leave it out)"));
         }
         Ok(())
+    }
+
+    /// At least one body must get outputs, or the run would write nothing.
+    fn validate_outputs(&self) -> Result<()> {
+        if self.bodies.iter().any(|b| b.outputs) {
+            return Ok(());
+        }
+        Err(self.err(
+            "body",
+            "every body has outputs = false: the run would write no statistics; set \
+             outputs = true (the default) on the bodies to report",
+        ))
     }
 
     fn validate_shape(&self, i: usize, b: &BodySection) -> Result<()> {
