@@ -14,7 +14,7 @@ use crate::photometry::Material;
 use crate::scatter::photometric::Photometric;
 use crate::scatter::{albedo::band_albedo, FirstBounce, FirstScatter, Scatter, Settings};
 use crate::scene::Scene;
-use crate::stats::{Bins, FacetStats};
+use crate::stats::{Bins, FacetStats, Selection};
 use crate::world::World;
 
 /// One band's flux share, scattering inputs and statistics.
@@ -30,6 +30,9 @@ struct Band {
 pub struct Bands {
     bands: Vec<Band>,
     sum: FacetStats,
+    /// The facets statistics are kept for (those of the bodies that get outputs).
+    kept: Selection,
+    kept_values: Vec<f64>,
     direct: Vec<f64>,
     scattered: Vec<f64>,
     total: Vec<f64>,
@@ -48,6 +51,7 @@ impl Bands {
             return Ok(None);
         }
         let n = world.facet_count();
+        let kept = Selection::new(world.output_ranges(), n);
         let total_flux = scene.solar_constant_w_m2();
         let bands = scene
             .bands
@@ -64,13 +68,15 @@ impl Bands {
                     name: b.name.clone(),
                     share: b.solar_constant_w_m2 / total_flux,
                     scatter,
-                    stats: FacetStats::new(n, bins),
+                    stats: FacetStats::new(kept.count(), bins),
                 })
             })
             .collect::<Result<Vec<_>>>()?;
         Ok(Some(Bands {
             bands,
-            sum: FacetStats::new(n, bins),
+            sum: FacetStats::new(kept.count(), bins),
+            kept,
+            kept_values: Vec::new(),
             direct: vec![0.0; n],
             scattered: vec![0.0; n],
             total: vec![0.0; n],
@@ -105,13 +111,15 @@ impl Bands {
             for ((t, d), s) in self.total.iter_mut().zip(&self.direct).zip(&self.scattered) {
                 *t = d + s;
             }
-            band.stats.add_step(&self.total);
+            band.stats
+                .add_step(self.kept.pick(&self.total, &mut self.kept_values));
             self.summed
                 .iter_mut()
                 .zip(&self.total)
                 .for_each(|(sum, t)| *sum += t);
         }
-        self.sum.add_step(&self.summed);
+        self.sum
+            .add_step(self.kept.pick(&self.summed, &mut self.kept_values));
     }
 
     /// Named statistics: `band_NAME` for each band, then `bands` for their sum.

@@ -124,6 +124,8 @@ pub struct Demand {
     pub facets: f64,
     /// Facets of surrounding terrain, which only casts shadows.
     pub surrounding_facets: f64,
+    /// Facets of the bodies without outputs (counted in `facets`; no statistics kept).
+    pub silent_facets: f64,
     pub bodies: f64,
     pub steps: f64,
     /// CDF thresholds per facet (0 before they are known).
@@ -236,6 +238,11 @@ impl std::fmt::Display for Estimate {
 }
 
 impl Demand {
+    /// Facets whose statistics are kept and written.
+    fn reported(&self) -> f64 {
+        self.facets - self.silent_facets
+    }
+
     /// The memory these counts take, item by item.
     pub fn estimate(&self) -> Estimate {
         let mut e = Estimate::default();
@@ -257,7 +264,7 @@ impl Demand {
         );
         e.push(
             "statistics",
-            self.stat_sets * self.facets * (MOMENT_BYTES + CDF_COUNT_BYTES * self.bins),
+            self.stat_sets * self.reported() * (MOMENT_BYTES + CDF_COUNT_BYTES * self.bins),
             "use wider CDF bins (run.bin_width_w_m2), fewer bands, or a coarser mesh",
         );
         e.push(
@@ -265,7 +272,7 @@ impl Demand {
             self.facets * 8.0 * (2.0 * self.batch + 2.0 + 3.0 * self.stat_sets),
             "use a coarser mesh",
         );
-        let cdf_rows = (self.facets * self.bins).min(CDF_ROWS_PER_BATCH as f64);
+        let cdf_rows = (self.reported() * self.bins).min(CDF_ROWS_PER_BATCH as f64);
         e.push(
             "CDF table batch",
             cdf_rows * CDF_ROW_BYTES * self.stat_sets.min(3.0),
@@ -274,7 +281,7 @@ impl Demand {
         if self.history {
             e.push(
                 "history buffer",
-                (self.facets * self.steps).min(HISTORY_BUFFER_ROWS) * HISTORY_ROW_BYTES,
+                (self.reported() * self.steps).min(HISTORY_BUFFER_ROWS) * HISTORY_ROW_BYTES,
                 "switch the history off (output.history = false)",
             );
         }

@@ -79,9 +79,10 @@ impl Plan {
             Decision {
                 stage: format!("outputs of '{}'", b.name),
                 runs: false,
-                reason: "outputs = false: it casts shadows (and scatters light) only; no summary \
-                     or CDF rows, history or PLY (its geometry rows stay)"
-                    .into(),
+                reason:
+                    "outputs = false: it casts shadows (and scatters light) only; no statistics, \
+                     summary or CDF rows, history or PLY (its geometry rows stay)"
+                        .into(),
             }
         }));
         decisions.push(Decision {

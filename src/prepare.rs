@@ -100,6 +100,7 @@ pub fn prepare(scene: &Scene, budget: &Budget, timings: &mut Timings) -> Result<
     let mut assembly = assemble(scene, budget, timings)?;
     let mut demand = Demand {
         facets: assembly.world.facet_count() as f64,
+        silent_facets: (assembly.world.facet_count() - assembly.world.output_facet_count()) as f64,
         surrounding_facets: assembly
             .world
             .bodies
@@ -202,6 +203,7 @@ fn scene_demand(scene: &Scene) -> Demand {
     Demand {
         facets: generated_facets(scene),
         surrounding_facets: 0.0,
+        silent_facets: 0.0,
         bodies: scene.bodies.len() as f64,
         steps: scene.step_count(),
         bins: 0.0,

@@ -145,7 +145,7 @@ fn named_parts<'a>(
 /// One `BODY.ply` per body with its facets' statistics.
 fn write_plys(out_dir: &Path, world: &World, stats: &FacetStats) -> Result<Vec<PathBuf>> {
     let mut files = Vec::new();
-    for (body, offset) in world.bodies.iter().zip(world.offsets()) {
+    for (body, offset) in world.bodies.iter().zip(world.output_offsets()) {
         if !body.outputs {
             continue;
         }

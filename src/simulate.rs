@@ -3,9 +3,11 @@
 //!
 //! In: a [`World`] (metres, each body in its own frame), every step's [`EpochState`] and
 //! [`Options`] (tracer, CDF bins, optional scattered light and spectral bands). Out: a
-//! [`Simulation`] — streaming statistics of the total irradiance (W/m²) per facet, and
-//! with scattered light of its direct and scattered parts; each step's irradiance is
-//! handed to a callback as it is computed (global facet order), e.g. to stream history.
+//! [`Simulation`] — streaming statistics of the total irradiance (W/m²) per facet of the
+//! bodies that get outputs (in [`World::output_offsets`] order), and with scattered light
+//! of its direct and scattered parts; each step's irradiance of those facets is handed to
+//! a callback as it is computed, e.g. to stream history. Bodies with `outputs = false`
+//! cast shadows and scatter light but keep no statistics.
 
 use crate::bands::Bands;
 use crate::ephemeris::EpochState;
@@ -16,7 +18,7 @@ use crate::horizon::Shadows;
 use crate::illum::{Direct, StepCounts};
 use crate::progress::{Progress, Silent, Timings};
 use crate::scatter::{Scatter, ScatterRecord, Settings as ScatterSettings, LANES};
-use crate::stats::{Bins, FacetStats};
+use crate::stats::{Bins, FacetStats, Selection};
 use crate::trace::TracerKind;
 use crate::world::World;
 
@@ -50,7 +52,8 @@ impl Options<'_> {
 
 /// The result of stepping through time: statistics and counters.
 pub struct Simulation {
-    /// Statistics of the total irradiance (direct plus scattered).
+    /// Statistics of the total irradiance (direct plus scattered) of the facets that get
+    /// outputs.
     pub stats: FacetStats,
     pub counts: StepCounts,
     /// With scattering: statistics of the direct and the scattered parts, and what the
@@ -67,7 +70,8 @@ pub struct ScatterParts {
     pub record: ScatterRecord,
 }
 
-/// One step's irradiance (W/m², global facet order).
+/// One step's irradiance (W/m²) of the facets that get outputs, body by body (every
+/// facet, in global order, when every body gets outputs).
 #[derive(Debug, Clone, Copy)]
 pub struct StepIrradiance<'a> {
     /// Direct plus scattered.
@@ -111,7 +115,8 @@ pub fn simulate(
         })
     });
     let n = world.facet_count();
-    let mut acc = Accumulators::new(n, bins, scatter.is_some());
+    let kept = Selection::new(world.output_ranges(), n);
+    let mut acc = Accumulators::new(kept, bins, scatter.is_some());
     let batch = steps_per_batch(scatter.is_some(), world.bodies.len());
     let mut directs = vec![vec![0.0; n]; batch];
     let mut scattered = vec![vec![0.0; n]; batch];
@@ -219,16 +224,23 @@ pub fn steps_per_batch(scatter: bool, bodies: usize) -> usize {
 /// The statistics a run accumulates step by step: of the total, and with scattered light
 /// of its direct and scattered parts.
 struct Accumulators {
+    /// The facets statistics are kept for (those of the bodies that get outputs).
+    kept: Selection,
     total_stats: FacetStats,
     /// With scattered light: (direct, scattered).
     part_stats: Option<(FacetStats, FacetStats)>,
     /// The step's total irradiance when it is a sum of parts.
     total: Vec<f64>,
+    /// The kept facets' direct and scattered irradiance, when not every facet is kept.
+    kept_direct: Vec<f64>,
+    kept_scattered: Vec<f64>,
 }
 
 impl Accumulators {
-    fn new(facets: usize, bins: Bins, with_parts: bool) -> Accumulators {
+    fn new(kept: Selection, bins: Bins, with_parts: bool) -> Accumulators {
+        let facets = kept.count();
         Accumulators {
+            kept,
             total_stats: FacetStats::new(facets, bins),
             part_stats: with_parts
                 .then(|| (FacetStats::new(facets, bins), FacetStats::new(facets, bins))),
@@ -237,12 +249,15 @@ impl Accumulators {
             } else {
                 Vec::new()
             },
+            kept_direct: Vec::new(),
+            kept_scattered: Vec::new(),
         }
     }
 
-    /// Adds one step's direct and (with parts) scattered irradiance; returns the step's
-    /// irradiance as the history sees it.
+    /// Adds one step's direct and (with parts) scattered irradiance (global order);
+    /// returns the kept facets' irradiance as the history sees it.
     fn add_step<'a>(&'a mut self, direct: &'a [f64], scattered: &'a [f64]) -> StepIrradiance<'a> {
+        let direct = self.kept.pick(direct, &mut self.kept_direct);
         let Some((direct_stats, scattered_stats)) = self.part_stats.as_mut() else {
             self.total_stats.add_step(direct);
             return StepIrradiance {
@@ -250,6 +265,7 @@ impl Accumulators {
                 parts: None,
             };
         };
+        let scattered = self.kept.pick(scattered, &mut self.kept_scattered);
         self.total
             .iter_mut()
             .zip(direct.iter().zip(scattered))

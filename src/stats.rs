@@ -64,6 +64,52 @@ const EMPTY: Moments = Moments {
     lit: 0,
 };
 
+/// The facets whose statistics a run keeps (those of the bodies that get outputs), as
+/// ranges of global facet ids in order.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Selection {
+    /// `None`: every facet.
+    ranges: Option<Vec<std::ops::Range<usize>>>,
+    count: usize,
+}
+
+impl Selection {
+    /// The facets in `ranges` out of `facets` in all.
+    pub fn new(ranges: Vec<std::ops::Range<usize>>, facets: usize) -> Selection {
+        let count = ranges.iter().map(|r| r.len()).sum();
+        Selection {
+            ranges: (count < facets).then_some(ranges),
+            count,
+        }
+    }
+
+    /// Every one of `facets` facets.
+    pub fn all(facets: usize) -> Selection {
+        Selection {
+            ranges: None,
+            count: facets,
+        }
+    }
+
+    /// Number of selected facets.
+    pub fn count(&self) -> usize {
+        self.count
+    }
+
+    /// The selected values of `values` (one per facet, global order): `values` itself
+    /// when every facet is selected, else gathered into `buffer`.
+    pub fn pick<'a>(&self, values: &'a [f64], buffer: &'a mut Vec<f64>) -> &'a [f64] {
+        let Some(ranges) = &self.ranges else {
+            return values;
+        };
+        buffer.clear();
+        for r in ranges {
+            buffer.extend_from_slice(&values[r.clone()]);
+        }
+        buffer
+    }
+}
+
 /// Statistics of every facet over the steps seen so far.
 #[derive(Debug, Clone, PartialEq)]
 pub struct FacetStats {

@@ -140,14 +140,40 @@ impl World {
         self.bodies.iter().map(|b| b.mesh.len()).sum()
     }
 
+    /// The global facet ids of the bodies that get outputs, body by body.
+    pub fn output_ranges(&self) -> Vec<std::ops::Range<usize>> {
+        self.bodies
+            .iter()
+            .zip(self.offsets())
+            .filter(|(b, _)| b.outputs)
+            .map(|(b, offset)| offset..offset + b.mesh.len())
+            .collect()
+    }
+
+    /// Facets of the bodies that get outputs.
+    pub fn output_facet_count(&self) -> usize {
+        self.output_ranges().iter().map(|r| r.len()).sum()
+    }
+
+    /// Each body's first index among the facets that get outputs (the order of the run's
+    /// statistics and output tables; a body without outputs gets the next body's).
+    pub fn output_offsets(&self) -> Vec<usize> {
+        self.running_sum(|b| if b.outputs { b.mesh.len() } else { 0 })
+    }
+
     /// First global facet id of each body.
     pub fn offsets(&self) -> Vec<usize> {
+        self.running_sum(|b| b.mesh.len())
+    }
+
+    /// Per body, the sum of `count` over the bodies before it.
+    fn running_sum(&self, count: impl Fn(&Body) -> usize) -> Vec<usize> {
         let mut acc = 0;
         self.bodies
             .iter()
             .map(|b| {
                 let o = acc;
-                acc += b.mesh.len();
+                acc += count(b);
                 o
             })
             .collect()

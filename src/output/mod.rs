@@ -236,14 +236,14 @@ pub fn utc_string(state: &EpochState) -> String {
     )
 }
 
-/// Calls `f(body, local facet range, body offset)` for batches of `per_batch` facets,
-/// body by body, over the bodies that get outputs.
+/// Calls `f(body, local facet range, body offset among the statistics)` for batches of
+/// `per_batch` facets, body by body, over the bodies that get outputs.
 fn for_facet_batches(
     world: &World,
     per_batch: usize,
     mut f: impl FnMut(usize, std::ops::Range<usize>, usize) -> Result<()>,
 ) -> Result<()> {
-    for (b, offset) in world.offsets().into_iter().enumerate() {
+    for (b, offset) in world.output_offsets().into_iter().enumerate() {
         if !world.bodies[b].outputs {
             continue;
         }
@@ -261,8 +261,6 @@ pub struct HistoryWriter {
     /// The body and facet columns, the same every step.
     body: Values,
     facet: Values,
-    /// Global facet ids of the bodies that get outputs, body by body.
-    kept: Vec<std::ops::Range<usize>>,
 }
 
 impl HistoryWriter {
@@ -277,37 +275,24 @@ impl HistoryWriter {
                     .collect(),
             ),
             facet: Values::U32(bodies().flat_map(|b| 0..b.mesh.len() as u32).collect()),
-            kept: world
-                .bodies
-                .iter()
-                .zip(world.offsets())
-                .filter(|(b, _)| b.outputs)
-                .map(|(b, offset)| offset..offset + b.mesh.len())
-                .collect(),
         }
     }
 
-    /// Appends one step's irradiance (global facet order): `irradiance_w_m2` is the total;
-    /// with scattering, `direct_w_m2` and `scattered_w_m2` follow.
+    /// Appends one step's irradiance (the facets that get outputs, body by body):
+    /// `irradiance_w_m2` is the total; with scattering, `direct_w_m2` and
+    /// `scattered_w_m2` follow.
     pub fn write_step(&mut self, state: &EpochState, step: StepIrradiance) -> Result<()> {
-        let kept = |values: &[f64]| -> Vec<f64> {
-            self.kept
-                .iter()
-                .flat_map(|r| values[r.clone()].iter().copied())
-                .collect()
-        };
-        let total = kept(step.total);
-        let n = total.len();
+        let n = step.total.len();
         let batch = Table::default()
             .with("step", Values::U64(vec![state.step as u64; n]))
             .with("et_tdb_s", Values::F64(vec![et_tdb_s(state); n]))
             .with("body", self.body.clone())
             .with("facet", self.facet.clone())
-            .with("irradiance_w_m2", Values::F64(total));
+            .with("irradiance_w_m2", Values::F64(step.total.to_vec()));
         let batch = match step.parts {
             Some((direct, scattered)) => batch
-                .with("direct_w_m2", Values::F64(kept(direct)))
-                .with("scattered_w_m2", Values::F64(kept(scattered))),
+                .with("direct_w_m2", Values::F64(direct.to_vec()))
+                .with("scattered_w_m2", Values::F64(scattered.to_vec())),
             None => batch,
         };
         self.writer.write(&batch)
