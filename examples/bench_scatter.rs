@@ -52,6 +52,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         inter_body_tolerance: 1e-4,
         near_field: NearField::default(),
         first_bounce: FirstBounce::Lambertian,
+        planets: Vec::new(),
+        planet: Default::default(),
     };
     let t0 = Instant::now();
     let mut stage = Scatter::new(&world, settings, Box::new(Lambertian));

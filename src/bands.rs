@@ -12,7 +12,9 @@ use crate::ephemeris::EpochState;
 use crate::error::Result;
 use crate::photometry::Material;
 use crate::scatter::photometric::Photometric;
-use crate::scatter::{albedo::band_albedo, FirstBounce, FirstScatter, Scatter, Settings};
+use crate::scatter::{
+    albedo::band_albedo, BandInput, FirstBounce, FirstScatter, Scatter, Settings,
+};
 use crate::scene::Scene;
 use crate::stats::{Bins, FacetStats, Selection};
 use crate::world::World;
@@ -99,12 +101,12 @@ impl Bands {
                 .for_each(|(d, broadband)| *d = band.share * broadband);
             match (&band.scatter, scatter.as_deref_mut()) {
                 (Some((albedo, first)), Some(stage)) => {
-                    stage.step_band(
-                        state,
-                        &self.direct,
-                        Some((albedo, first.as_ref())),
-                        &mut self.scattered,
-                    );
+                    let input = BandInput {
+                        albedo,
+                        first: first.as_ref(),
+                        flux_share: band.share,
+                    };
+                    stage.step_band(state, &self.direct, Some(input), &mut self.scattered);
                 }
                 _ => self.scattered.fill(0.0),
             }

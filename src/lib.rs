@@ -36,6 +36,7 @@
 //! | decisions | [`plan`] | scene and world → the stages that run and why |
 //! | memory | [`budget`] | counts (facets, steps, bins, pairs) → bytes, checked before allocating |
 //! | shadows | [`trace`] | exact shadow rays: uniform grid, Sun-view grid, BVH |
+//! | horizons | [`horizon`] | mesh → horizon bounds and maps (cached); the solar disk; eclipses by ellipsoids |
 //! | direct light | [`illum`] | one epoch → W/m² per facet, with shadows |
 //! | reflectance | [`photometry`] | Lambert, Lommel–Seeliger, Hapke: r (sr⁻¹), I/F |
 //! | scattered light | [`scatter`] | direct W/m² → scattered W/m² (form factors, Jacobi/CG) |
@@ -45,6 +46,7 @@
 //! | files | [`output`] | statistics → Parquet/CSV tables, PLY, `run.json`; and read back |
 //! | a whole run | [`run`] | scene and folder → the files and the [`output::record::RunRecord`] |
 //! | progress | [`progress`] | notes, steps done, stage timings |
+//! | integrals | [`quadrature`] | Gauss–Legendre nodes for disk and cap integrals |
 //! | validation | [`analytic`] | closed-form irradiance of a rotating sphere |
 //! | errors | [`error`] | one typed error with file, line, key, body or epoch |
 //! | images (`imaging`) | `render`, `fit`, `compare`, `image` | camera images, fits of reflectance to images, χ² of histograms, FITS/PNG |
@@ -77,6 +79,7 @@ pub mod photometry;
 pub mod plan;
 pub mod prepare;
 pub mod progress;
+pub mod quadrature;
 #[cfg(feature = "imaging")]
 pub mod render;
 #[cfg(feature = "report")]

@@ -210,7 +210,7 @@ fn scene_demand(scene: &Scene) -> Demand {
         stat_sets: 1.0
             + if scatter { 2.0 } else { 0.0 }
             + if bands > 0.0 { bands + 1.0 } else { 0.0 },
-        batch: crate::simulate::steps_per_batch(scatter, scene.bodies.len()) as f64,
+        batch: crate::simulate::steps_per_batch(None, scatter) as f64,
         history: scene.output.history,
         form_factor_entries: 0.0,
         kernel_bytes: kernel_bytes(scene),

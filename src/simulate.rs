@@ -117,7 +117,7 @@ pub fn simulate(
     let n = world.facet_count();
     let kept = Selection::new(world.output_ranges(), n);
     let mut acc = Accumulators::new(kept, bins, scatter.is_some());
-    let batch = steps_per_batch(scatter.is_some(), world.bodies.len());
+    let batch = steps_per_batch(scatter.as_ref(), scatter.is_some());
     let mut directs = vec![vec![0.0; n]; batch];
     let mut scattered = vec![vec![0.0; n]; batch];
     let mut counts = StepCounts::default();
@@ -212,12 +212,15 @@ fn build_seconds_one_core(facets: usize) -> f64 {
     3.0 * (facets as f64 / 50_000.0).powf(1.2)
 }
 
-/// solved together; otherwise one.
-pub fn steps_per_batch(scatter: bool, bodies: usize) -> usize {
-    if scatter && bodies == 1 {
-        LANES
-    } else {
-        1
+/// Steps computed before their scattered light is solved: up to [`LANES`], solved side by
+/// side, when the scattered-light stage exchanges light through no inter-body block (one
+/// body, or bodies beside planets); otherwise one. Without `scatter` at hand (the memory
+/// estimate), the most a scattering run may take.
+pub fn steps_per_batch(scatter: Option<&Scatter>, scattering: bool) -> usize {
+    match scatter {
+        Some(stage) if !stage.has_inter_body_pairs() => LANES,
+        None if scattering => LANES,
+        _ => 1,
     }
 }
 

@@ -125,6 +125,8 @@ fn settings(albedo: Vec<f64>, solver: SolverKind, tolerance: f64) -> Settings {
         inter_body_tolerance: 0.0,
         near_field: NearField::default(),
         first_bounce: FirstBounce::Lambertian,
+        planets: Vec::new(),
+        planet: Default::default(),
     }
 }
 
@@ -926,4 +928,76 @@ fn solves_that_stop_above_the_tolerance_are_a_warning() {
         "{:?}",
         record.warnings
     );
+}
+
+/// A moon (1,280 facets, radius 11 km) beside a planet (radius 3,390 km, 9,380 km away):
+/// the moon's scattered light with the planet's light from the planet-shine quadrature
+/// and from the planet's 5,120 facets like any body's, for the Sun at `phase_deg` from
+/// the moon–planet line as seen from the planet.
+fn moon_beside_planet(phase_deg: f64) -> (Vec<f64>, Vec<f64>) {
+    let (moon_r, planet_r, d) = (11e3, 3.39e6, 9.38e6);
+    let moon = Mesh::from_raw(icosphere(3, moon_r, DVec3::ZERO), LengthUnit::M);
+    let planet_mesh = Mesh::from_raw(icosphere(4, planet_r, DVec3::ZERO), LengthUnit::M);
+    let mut planet = Body::new("planet", planet_mesh, true).with_ellipsoid(DVec3::splat(planet_r));
+    planet.outputs = false;
+    let world = World {
+        bodies: vec![Body::new("moon", moon, true), planet],
+    };
+    let alpha = phase_deg.to_radians();
+    let sun = DVec3::new(-alpha.cos(), alpha.sin(), 0.0);
+    let flux = 600.0;
+    let at = state(
+        vec![(sun, at(DVec3::ZERO)), (sun, at(DVec3::new(d, 0.0, 0.0)))],
+        flux,
+    );
+    let direct: Vec<f64> = world
+        .bodies
+        .iter()
+        .flat_map(|b| b.mesh.normals.iter().map(|n| flux * n.dot(sun).max(0.0)))
+        .collect();
+    let n_moon = world.bodies[0].mesh.len();
+    let albedo: Vec<f64> = (0..world.facet_count())
+        .map(|i| if i < n_moon { 0.07 } else { 0.25 })
+        .collect();
+    let solve = |planets: Vec<usize>| {
+        let settings = Settings {
+            planets,
+            planet: slim::scatter::planet::PlanetSettings {
+                order: 16,
+                reuse: 0.0,
+            },
+            ..settings(albedo.clone(), SolverKind::Jacobi, 1e-9)
+        };
+        let mut stage = Scatter::new(&world, settings, Box::new(Lambertian));
+        let mut scattered = vec![0.0; world.facet_count()];
+        stage.step(&at, &direct, &mut scattered);
+        scattered[..n_moon].to_vec()
+    };
+    (solve(vec![1]), solve(Vec::new()))
+}
+
+#[test]
+fn planet_shine_by_quadrature_matches_the_planets_facets() {
+    // The facet-level reference flattens the planet into 5,120 facets (chords up to 2 km
+    // inside the sphere, each lit by the Sun at its centroid) and takes each pair's
+    // factor from the facets' exact near field or centroids; the quadrature (16 nodes)
+    // is within 0.5 % of a brute-force integral (unit tests). Seen: 0.14 % of the largest
+    // planet-shine at 20° and 70° phase; 1 % allows for the reference's facets.
+    for phase in [20.0, 70.0, 120.0] {
+        let (quadrature, facets) = moon_beside_planet(phase);
+        let top = facets.iter().copied().fold(0.0, f64::max);
+        assert!(
+            top > 0.1,
+            "phase {phase}: the planet lights the moon with {top} W/m²"
+        );
+        let worst = quadrature
+            .iter()
+            .zip(&facets)
+            .map(|(q, f)| (q - f).abs() / top)
+            .fold(0.0, f64::max);
+        println!(
+            "phase {phase}°: largest planet-shine {top:.2} W/m², worst difference {worst:.4} of it"
+        );
+        assert!(worst < 0.01, "phase {phase}: {worst}");
+    }
 }

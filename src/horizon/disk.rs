@@ -172,41 +172,10 @@ fn smooth_quadrature(lo: f64, hi: f64, f: impl Fn(f64) -> f64) -> f64 {
         .sum()
 }
 
-/// Nodes and weights of 24-point Gauss–Legendre quadrature on [−1, 1], found once by
-/// Newton's method on the Legendre polynomial from the usual cosine first guesses.
+/// The 24-point Gauss–Legendre rule, computed once.
 fn gauss_legendre() -> &'static [(f64, f64)] {
     static NODES: std::sync::OnceLock<Vec<(f64, f64)>> = std::sync::OnceLock::new();
-    NODES.get_or_init(|| {
-        const N: usize = 24;
-        (0..N)
-            .map(|i| {
-                let mut x = (PI * (i as f64 + 0.75) / (N as f64 + 0.5)).cos();
-                let mut slope = 1.0;
-                for _ in 0..50 {
-                    let (value, derivative) = legendre(N, x);
-                    slope = derivative;
-                    let step = value / derivative;
-                    x -= step;
-                    if step.abs() < 1e-15 {
-                        break;
-                    }
-                }
-                (x, 2.0 / ((1.0 - x * x) * slope * slope))
-            })
-            .collect()
-    })
-}
-
-/// `P_n(x)` and its derivative, by the three-term recurrence.
-fn legendre(n: usize, x: f64) -> (f64, f64) {
-    let (mut previous, mut value) = (1.0, x);
-    for k in 2..=n {
-        let k = k as f64;
-        let next = ((2.0 * k - 1.0) * x * value - (k - 1.0) * previous) / k;
-        previous = value;
-        value = next;
-    }
-    (value, n as f64 * (x * value - previous) / (x * x - 1.0))
+    NODES.get_or_init(|| crate::quadrature::gauss_legendre(24))
 }
 
 #[cfg(test)]
@@ -271,15 +240,6 @@ mod tests {
         .visible(0.0);
         assert!((v.fraction - 0.5).abs() < 1e-15);
         assert!((v.centroid - 4.0 / (3.0 * PI)).abs() < 1e-15);
-    }
-
-    #[test]
-    fn the_quadrature_integrates_polynomials_to_degree_47_exactly() {
-        let nodes = gauss_legendre();
-        let weights: f64 = nodes.iter().map(|n| n.1).sum();
-        assert!((weights - 2.0).abs() < 1e-13, "{weights}");
-        let x46: f64 = nodes.iter().map(|&(x, w)| w * x.powi(46)).sum();
-        assert!((x46 - 2.0 / 47.0).abs() < 1e-13, "{x46}");
     }
 
     /// The lens two circles share (radii 1 and `big`, centres `d` apart), over π: what a

@@ -635,19 +635,10 @@ impl Polygon {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::mesh::{LengthUnit, RawMesh};
+    use crate::mesh::in_metres as mesh;
     use crate::trace::TracerKind;
     use crate::TestRng;
 
-    fn mesh(vertices: Vec<DVec3>, triangles: Vec<[u32; 3]>) -> Mesh {
-        Mesh::from_raw(
-            RawMesh {
-                vertices,
-                triangles,
-            },
-            LengthUnit::M,
-        )
-    }
 
     fn build(mesh: &Mesh, azimuths: u32) -> HorizonMap {
         HorizonMap::build(mesh, mesh.len(), &Bvh::build(mesh), azimuths, &|| false)

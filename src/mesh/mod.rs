@@ -146,6 +146,18 @@ pub struct Mesh {
     pub areas: Vec<f64>,
 }
 
+/// A mesh from vertices in metres and triangles (for tests).
+#[cfg(test)]
+pub(crate) fn in_metres(vertices: Vec<DVec3>, triangles: Vec<[u32; 3]>) -> Mesh {
+    Mesh::from_raw(
+        RawMesh {
+            vertices,
+            triangles,
+        },
+        LengthUnit::M,
+    )
+}
+
 impl Mesh {
     /// This mesh followed by `other` (both in metres, same frame): the facets of `self`
     /// keep their ids, those of `other` follow.

@@ -125,6 +125,8 @@ impl BowlCase {
             inter_body_tolerance: 0.0,
             near_field: NearField::default(),
             first_bounce: FirstBounce::Lambertian,
+            planets: Vec::new(),
+            planet: Default::default(),
         };
         let t0 = Instant::now();
         let mut stage = Scatter::new(&world, settings, Box::new(Lambertian));

@@ -30,13 +30,25 @@ pub mod bowl;
 pub mod csr;
 pub mod form_factor;
 pub mod photometric;
+pub mod planet;
 pub mod solve;
 pub mod visibility;
 
 use crate::ephemeris::EpochState;
 use crate::error::Result;
+use crate::horizon::bound::HorizonBound;
 use crate::plan::Decision;
-use crate::scene::{FirstBounceKind, Scene};
+use crate::scene::{FirstBounceKind, PlanetShineKind, Scene};
+use planet::{PlanetSettings, PlanetShine, Receiver};
+
+/// One spectral band's inputs to a solve: its albedo (global ids), its first bounce and
+/// its share of the solar flux.
+#[derive(Clone, Copy)]
+pub struct BandInput<'a> {
+    pub albedo: &'a [f64],
+    pub first: &'a dyn FirstScatter,
+    pub flux_share: f64,
+}
 use crate::trace::bvh::Bvh;
 use crate::world::{FrameTransform, World};
 use csr::{Csr, Lanes};
@@ -64,6 +76,10 @@ pub struct Settings {
     pub near_field: NearField,
     /// The first bounce: Lambertian, or each body's reflectance model.
     pub first_bounce: FirstBounce,
+    /// Bodies whose light reaches the others through [`planet::PlanetShine`] instead of
+    /// facet-to-facet blocks, with how.
+    pub planets: Vec<usize>,
+    pub planet: PlanetSettings,
 }
 
 /// How the first bounce reflects sunlight.
@@ -121,7 +137,26 @@ impl Settings {
                         .collect::<Result<_>>()?,
                 ),
             },
+            planets: match section.planet_shine {
+                PlanetShineKind::Facets => Vec::new(),
+                PlanetShineKind::Quadrature => world
+                    .bodies
+                    .iter()
+                    .enumerate()
+                    .filter(|(_, b)| b.ellipsoid_radii_m.is_some() && !b.outputs)
+                    .map(|(i, _)| i)
+                    .collect(),
+            },
+            planet: PlanetSettings {
+                order: section.planet_order,
+                reuse: section.planet_reuse,
+            },
         }))
+    }
+
+    /// Whether body `b` sends its light through the planet-shine model.
+    fn is_planet(&self, b: usize) -> bool {
+        self.planets.contains(&b)
     }
 
     /// The plan's decisions: whether scattering runs, and for every pair of bodies whether
@@ -154,8 +189,27 @@ impl Settings {
             ),
         }];
         let n = world.bodies.len();
+        for &p in &self.planets {
+            out.push(Decision {
+                stage: format!("light of the planet '{}'", world.bodies[p].name),
+                runs: true,
+                reason: format!(
+                    "a Lambertian ellipsoid, not facets: its visible cap by {} points per \
+                     receiving facet, exact solid angles, the receivers' own shadows by ray \
+                     where their horizon bound cannot clear a point; weights rebuilt when it \
+                     moves by more than {} (radians or fraction of distance), scaled by \
+                     distance in between ({:.0} MB per receiving body of 10⁵ facets)",
+                    2 * self.planet.order * self.planet.order,
+                    self.planet.reuse,
+                    1e5 * 8.0 * (self.planet.order * self.planet.order) as f64 / 1e6
+                ),
+            });
+        }
         for a in 0..n {
             for b in a + 1..n {
+                if self.is_planet(a) || self.is_planet(b) {
+                    continue;
+                }
                 let needed = self.needed_steps(world, states, a, b);
                 let moves = needed
                     .windows(2)
@@ -226,8 +280,18 @@ impl Settings {
             })
             .sum();
         let n = world.bodies.len();
+        let planet_weights: f64 = self
+            .planets
+            .iter()
+            .map(|&p| {
+                let receivers = world.facet_count() - world.bodies[p].mesh.len();
+                // A 4-byte weight is a sixth of a 24-byte form-factor entry.
+                receivers as f64 * (2 * self.planet.order * self.planet.order) as f64 / 6.0
+            })
+            .sum();
         let between: f64 = (0..n)
             .flat_map(|a| (a + 1..n).map(move |b| (a, b)))
+            .filter(|&(a, b)| !self.is_planet(a) && !self.is_planet(b))
             .filter_map(|(a, b)| {
                 let first = *self.needed_steps(world, states, a, b).first()?;
                 let rows = facets(&world.bodies[a].mesh, &SAME_FRAME);
@@ -235,7 +299,7 @@ impl Settings {
                 Some(2.0 * facing_pairs(&rows, &cols, false))
             })
             .sum();
-        own + between
+        own + between + planet_weights
     }
 }
 
@@ -275,6 +339,12 @@ fn inter_body_bound(
 pub trait FirstScatter: Sync {
     /// First-order scattered irradiance at every facet, W/m², into `out`.
     fn first_order(&self, input: &FirstOrderInput, out: &mut [f64]);
+
+    /// True for Lambert's law, `S1 = F ρ D`, which the solver then applies to several
+    /// steps in one pass over the form factors.
+    fn is_lambertian(&self) -> bool {
+        false
+    }
 }
 
 /// What a first bounce may use.
@@ -292,6 +362,10 @@ pub struct FirstOrderInput<'a> {
 pub struct Lambertian;
 
 impl FirstScatter for Lambertian {
+    fn is_lambertian(&self) -> bool {
+        true
+    }
+
     fn first_order(&self, input: &FirstOrderInput, out: &mut [f64]) {
         let emitted: Vec<f64> = input
             .direct
@@ -369,6 +443,11 @@ pub struct ScatterRecord {
     pub inter_body_computed: u64,
     pub inter_body_reused: u64,
     pub inter_body_skipped: u64,
+    /// Planet-shine weights built and reused (summed over planets and receivers).
+    #[serde(default)]
+    pub planet_weights_built: u64,
+    #[serde(default)]
+    pub planet_weights_reused: u64,
 }
 
 impl ScatterRecord {
@@ -417,6 +496,10 @@ pub struct Scatter<'w> {
     areas: Vec<f64>,
     cache: Vec<Option<Cached>>,
     first: Box<dyn FirstScatter + 'w>,
+    /// The planets' light, one per planet.
+    planets: Vec<PlanetShine>,
+    /// Per body, its horizon bound when planet-shine reaches it and it can shadow itself.
+    bounds: Vec<Option<HorizonBound>>,
     pub record: ScatterRecord,
 }
 
@@ -458,8 +541,27 @@ impl<'w> Scatter<'w> {
         }
         let max_albedo = settings.albedo.iter().copied().fold(0.0, f64::max);
         let n = world.bodies.len();
+        let planets: Vec<PlanetShine> = settings
+            .planets
+            .iter()
+            .filter_map(|&p| {
+                let radii = world.bodies[p].ellipsoid_radii_m?;
+                Some(PlanetShine::new(p, radii, n, settings.planet))
+            })
+            .collect();
+        let bounds = world
+            .bodies
+            .iter()
+            .enumerate()
+            .map(|(b, body)| {
+                (!planets.is_empty() && !body.convex && !settings.planets.contains(&b))
+                    .then(|| HorizonBound::new(&body.mesh, body.mesh.len(), &bvhs[b]))
+            })
+            .collect();
         Scatter {
             world,
+            planets,
+            bounds,
             method: solve::resolve(settings.solver, max_albedo),
             settings,
             bvhs,
@@ -512,7 +614,7 @@ impl<'w> Scatter<'w> {
         let mut done = 0;
         while done < states.len() {
             let left = states.len() - done;
-            let lanes = if self.world.bodies.len() > 1 {
+            let lanes = if self.has_inter_body_pairs() {
                 1 // inter-body blocks change with the poses
             } else {
                 [LANES, 4, 2].into_iter().find(|&k| k <= left).unwrap_or(1)
@@ -531,14 +633,20 @@ impl<'w> Scatter<'w> {
         reports
     }
 
+    /// Whether two bodies that are not planets may exchange light through a block.
+    pub fn has_inter_body_pairs(&self) -> bool {
+        let others = (0..self.world.bodies.len()).filter(|&b| !self.settings.is_planet(b));
+        others.count() > 1
+    }
+
     /// [`Scatter::step`] for one spectral band: `band` gives the band's albedo (global
-    /// ids) and first bounce instead of the broadband ones; `direct` is the band's direct
-    /// irradiance. The form factors are shared by every band.
+    /// ids), first bounce and share of the flux instead of the broadband ones; `direct` is
+    /// the band's direct irradiance. The form factors are shared by every band.
     pub fn step_band(
         &mut self,
         state: &EpochState,
         direct: &[f64],
-        band: Option<(&[f64], &dyn FirstScatter)>,
+        band: Option<BandInput>,
         scattered: &mut [f64],
     ) -> SolveReport {
         let [report] = self.solve_steps::<1>(
@@ -555,35 +663,54 @@ impl<'w> Scatter<'w> {
         &mut self,
         states: &[EpochState],
         directs: &[&[f64]],
-        band: Option<(&[f64], &dyn FirstScatter)>,
+        band: Option<BandInput>,
         scattered: &mut [&mut [f64]],
     ) -> [SolveReport; K] {
         debug_assert!(states.len() == K && directs.len() == K && scattered.len() == K);
+        let albedo = band.map_or(&self.settings.albedo[..], |b| b.albedo);
+        let planet_albedos: Vec<f64> = self
+            .planets
+            .iter()
+            .map(|p| albedo[self.offsets[p.planet]])
+            .collect();
+        let share = band.map_or(1.0, |b| b.flux_share);
+        let shine: Vec<Vec<f64>> = states
+            .iter()
+            .map(|state| self.planet_shine(state, &planet_albedos, share))
+            .collect();
         let active = self.refresh_inter_blocks(&states[0]);
         let exchange = self.blocks(&active);
         let (albedo, first, method) = match band {
-            Some((albedo, first)) => {
-                let max_albedo = albedo.iter().copied().fold(0.0, f64::max);
+            Some(b) => {
+                let max_albedo = b.albedo.iter().copied().fold(0.0, f64::max);
                 let method = solve::resolve(self.settings.solver, max_albedo);
-                (albedo, first, method)
+                (b.albedo, b.first, method)
             }
             None => (&self.settings.albedo[..], self.first.as_ref(), self.method),
         };
         let n = self.areas.len();
         let mut s1 = vec![[0.0; K]; n];
-        let mut one = vec![0.0; n];
-        for (k, (state, direct)) in states.iter().zip(directs).enumerate() {
-            first.first_order(
-                &FirstOrderInput {
+        if first.is_lambertian() {
+            lambertian_first_orders(&exchange, albedo, directs, &mut s1);
+        } else {
+            let mut one = vec![0.0; n];
+            for (k, (state, direct)) in states.iter().zip(directs).enumerate() {
+                let input = FirstOrderInput {
                     world: self.world,
                     state,
                     direct,
                     albedo,
                     exchange: &exchange,
-                },
-                &mut one,
-            );
-            s1.iter_mut().zip(&one).for_each(|(lanes, v)| lanes[k] = *v);
+                };
+                first.first_order(&input, &mut one);
+                s1.iter_mut().zip(&one).for_each(|(lanes, v)| lanes[k] = *v);
+            }
+        }
+        // Planet-shine arrives like a first order and scatters on like one.
+        for (k, shine) in shine.iter().enumerate() {
+            s1.iter_mut()
+                .zip(shine)
+                .for_each(|(lanes, p)| lanes[k] += p);
         }
         let stop = Stopping {
             tolerance: self.settings.tolerance,
@@ -602,13 +729,52 @@ impl<'w> Scatter<'w> {
         reports
     }
 
+    /// The irradiance (W/m², global ids; empty without planets) every planet sends to
+    /// the other bodies at `state`, the planets of albedos `albedos` (in the order of
+    /// `self.planets`) lit by a share `flux_share` of the solar flux.
+    fn planet_shine(&mut self, state: &EpochState, albedos: &[f64], flux_share: f64) -> Vec<f64> {
+        if self.planets.is_empty() {
+            return Vec::new();
+        }
+        let mut out = vec![0.0; self.areas.len()];
+        let world = self.world;
+        for (shine, &planet_albedo) in self.planets.iter_mut().zip(albedos) {
+            for (r, body) in world.bodies.iter().enumerate() {
+                if self.settings.planets.contains(&r) {
+                    continue;
+                }
+                let receiver = Receiver {
+                    mesh: &body.mesh,
+                    bvh: &self.bvhs[r],
+                    bound: self.bounds[r].as_ref(),
+                };
+                let range = self.offsets[r]..self.offsets[r] + body.mesh.len();
+                shine.add(
+                    state,
+                    r,
+                    &receiver,
+                    planet_albedo,
+                    flux_share,
+                    &mut out[range],
+                );
+            }
+        }
+        self.record.planet_weights_built = self.planets.iter().map(|p| p.built).sum();
+        self.record.planet_weights_reused = self.planets.iter().map(|p| p.reused).sum();
+        out
+    }
+
     /// Brings the inter-body blocks up to date for this step: recomputed if their bodies
-    /// moved relative to each other. Returns the pairs that take part.
+    /// moved relative to each other. Returns the pairs that take part (never a planet's:
+    /// its light comes from [`Scatter::planet_shine`]).
     fn refresh_inter_blocks(&mut self, state: &EpochState) -> Vec<(usize, usize)> {
         let n = self.world.bodies.len();
         let mut active = Vec::new();
         for a in 0..n {
             for b in a + 1..n {
+                if self.settings.is_planet(a) || self.settings.is_planet(b) {
+                    continue;
+                }
                 if self.negligible(state, a, b) {
                     self.record.inter_body_skipped += 1;
                     continue;
@@ -721,6 +887,28 @@ impl<'w> Scatter<'w> {
             backward,
         }
     }
+}
+
+/// `S1 = F ρ D` for K steps side by side (lane k from `directs[k]`), in one pass over the
+/// exchange areas.
+fn lambertian_first_orders<const K: usize>(
+    exchange: &Blocks,
+    albedo: &[f64],
+    directs: &[&[f64]],
+    s1: &mut [[f64; K]],
+) {
+    let emitted: Vec<[f64; K]> = (0..albedo.len())
+        .into_par_iter()
+        .map(|i| std::array::from_fn(|k| directs[k][i] * albedo[i]))
+        .collect();
+    exchange.apply(&emitted, s1);
+    s1.par_iter_mut()
+        .zip(exchange.areas())
+        .for_each(|(lanes, a)| {
+            lanes
+                .iter_mut()
+                .for_each(|s| *s = if *a > 0.0 { *s / a } else { 0.0 });
+        });
 }
 
 fn all_areas(world: &World) -> Vec<f64> {

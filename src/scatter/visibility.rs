@@ -220,7 +220,7 @@ fn hides(o: &Occluder, a: DVec3, b: DVec3, ends: [usize; 2], margin: f64) -> boo
 /// Hits closer than this to a segment's ends are the end facets' own neighbours meeting
 /// them at a shared edge, not occluders: `1e-9 ×` the largest facet plus the rounding of
 /// coordinates of the facets' magnitude.
-fn rounding_margin(facets: &[Facet]) -> f64 {
+pub(super) fn rounding_margin(facets: &[Facet]) -> f64 {
     let size = facets.iter().map(|f| f.size).fold(0.0, f64::max);
     let extent = facets
         .iter()

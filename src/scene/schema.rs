@@ -157,6 +157,27 @@ pub struct ScatterSection {
     /// `[body.material]` reflectance model; higher orders stay Lambertian).
     #[serde(default)]
     pub first_bounce: FirstBounceKind,
+    /// Light from a generated ellipsoid without outputs (a planet beside a moon):
+    /// "quadrature" (default: its visible cap, closed-form weights kept while it barely
+    /// moves) or "facets" (its facets like any body's).
+    #[serde(default)]
+    pub planet_shine: PlanetShineKind,
+    /// Gauss–Legendre nodes across a planet's visible cap (2n² points; default 8).
+    #[serde(default = "default_planet_order")]
+    pub planet_order: usize,
+    /// Largest move of a planet (radians of direction, fraction of distance) before its
+    /// weights are rebuilt (default 0.03).
+    #[serde(default = "default_planet_reuse")]
+    pub planet_reuse: f64,
+}
+
+/// `[scatter] planet_shine`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, Default)]
+#[serde(rename_all = "lowercase")]
+pub enum PlanetShineKind {
+    #[default]
+    Quadrature,
+    Facets,
 }
 
 /// `[scatter] solver`: which method solves the multiple-scattering equation.
@@ -497,6 +518,12 @@ fn default_scatter_tolerance() -> f64 {
 }
 fn default_inter_body_tolerance() -> f64 {
     1e-4
+}
+fn default_planet_order() -> usize {
+    crate::scatter::planet::DEFAULT_ORDER
+}
+fn default_planet_reuse() -> f64 {
+    crate::scatter::planet::DEFAULT_REUSE
 }
 /// `[scatter] near_field_ratio` when the scene gives none: facet pairs closer than 16
 /// facet sizes get the exact near-field integral (why 16: `NearField::default` in

@@ -336,6 +336,12 @@ impl Scene {
         if s.max_orders == 0 {
             return Err(self.err("scatter.max_orders", "must be at least 1"));
         }
+        if !(2..=64).contains(&s.planet_order) {
+            return Err(self.err("scatter.planet_order", "must be 2 to 64"));
+        }
+        if !(0.0..=0.1).contains(&s.planet_reuse) {
+            return Err(self.err("scatter.planet_reuse", "must be 0 to 0.1"));
+        }
         if let Some(i) = self
             .bodies
             .iter()
