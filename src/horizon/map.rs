@@ -639,7 +639,6 @@ mod tests {
     use crate::trace::TracerKind;
     use crate::TestRng;
 
-
     fn build(mesh: &Mesh, azimuths: u32) -> HorizonMap {
         HorizonMap::build(mesh, mesh.len(), &Bvh::build(mesh), azimuths, &|| false)
             .expect("not cancelled")
