@@ -31,16 +31,11 @@ use crate::ephemeris::EpochState;
 use crate::horizon::bound::HorizonBound;
 use crate::mesh::Mesh;
 use crate::quadrature::gauss_legendre;
+use crate::scene::{DEFAULT_PLANET_ORDER, DEFAULT_PLANET_REUSE};
 use crate::trace::bvh::Bvh;
 use glam::DVec3;
 use rayon::prelude::*;
 use std::f64::consts::PI;
-
-/// Gauss–Legendre nodes across the cap unless the scene says otherwise (128 points).
-pub const DEFAULT_ORDER: usize = 8;
-/// How far a planet may move before its weights are rebuilt, unless the scene says
-/// otherwise (radians of direction and fraction of distance).
-pub const DEFAULT_REUSE: f64 = 0.03;
 
 /// How planet-shine is computed.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -55,8 +50,8 @@ pub struct PlanetSettings {
 impl Default for PlanetSettings {
     fn default() -> Self {
         PlanetSettings {
-            order: DEFAULT_ORDER,
-            reuse: DEFAULT_REUSE,
+            order: DEFAULT_PLANET_ORDER,
+            reuse: DEFAULT_PLANET_REUSE,
         }
     }
 }

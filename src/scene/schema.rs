@@ -519,11 +519,18 @@ fn default_scatter_tolerance() -> f64 {
 fn default_inter_body_tolerance() -> f64 {
     1e-4
 }
+/// `[scatter] planet_order` unless the scene says otherwise: 8 nodes, 128 points (the
+/// error against run time is in docs/scattered-light.md).
+pub const DEFAULT_PLANET_ORDER: usize = 8;
+/// `[scatter] planet_reuse` unless the scene says otherwise (radians of direction and
+/// fraction of distance).
+pub const DEFAULT_PLANET_REUSE: f64 = 0.03;
+
 fn default_planet_order() -> usize {
-    crate::scatter::planet::DEFAULT_ORDER
+    DEFAULT_PLANET_ORDER
 }
 fn default_planet_reuse() -> f64 {
-    crate::scatter::planet::DEFAULT_REUSE
+    DEFAULT_PLANET_REUSE
 }
 /// `[scatter] near_field_ratio` when the scene gives none: facet pairs closer than 16
 /// facet sizes get the exact near-field integral (why 16: `NearField::default` in
