@@ -66,6 +66,9 @@ pub struct Direct<'w> {
     disk_samples: Vec<(f64, f64)>,
     min_height_m: Vec<Vec<f64>>,
     offsets: Vec<usize>,
+    /// Per body, whether its own irradiance is needed (false: it only casts shadows and
+    /// nothing reads its facets' light; they stay at 0).
+    lit: Vec<bool>,
 }
 
 /// What a body knows of its horizon.
@@ -151,15 +154,27 @@ impl<'w> Direct<'w> {
             },
             min_height_m: world.bodies.iter().map(min_blocker_heights).collect(),
             offsets: world.offsets(),
+            lit: vec![true; world.bodies.len()],
         }
+    }
+
+    /// Leaves out the irradiance of the bodies not `needed` (scene order): their facets
+    /// get 0, and they still cast shadows on the others.
+    pub fn only_for(mut self, needed: Vec<bool>) -> Self {
+        self.lit = needed;
+        self
     }
 
     /// Irradiance (W/m²) of every facet at `state`, written to `out` (global facet ids).
     pub fn compute(&self, state: &EpochState, out: &mut [f64]) -> Result<StepCounts> {
         let mut counts = StepCounts::default();
         for (b, body) in self.world.bodies.iter().enumerate() {
-            let queries = self.sunlight(b, state)?;
             let range = self.offsets[b]..self.offsets[b] + body.mesh.len();
+            if !self.lit[b] {
+                out[range].fill(0.0);
+                continue;
+            }
+            let queries = self.sunlight(b, state)?;
             counts += self.illuminate_body(b, &queries, &mut out[range]);
         }
         Ok(counts)

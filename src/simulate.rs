@@ -105,8 +105,15 @@ pub fn simulate(
     if tracer == TracerKind::Bvh && maps.iter().any(Option::is_none) {
         announce_bvh_build(world, progress);
     }
+    // A body without outputs needs its own light only when its facets scatter it.
+    let needed = world
+        .bodies
+        .iter()
+        .enumerate()
+        .map(|(b, body)| body.outputs || scatter.as_ref().is_some_and(|s| !s.planets.contains(&b)))
+        .collect();
     let direct = timings.time("trace build", || {
-        Direct::with_maps(world, tracer, maps, &shadows)
+        Direct::with_maps(world, tracer, maps, &shadows).only_for(needed)
     });
     let mut scatter = scatter.map(|settings| {
         timings.time("form factors", || {
