@@ -136,6 +136,8 @@ fn named_parts<'a>(
             ("direct".to_string(), &p.direct),
             ("scattered".to_string(), &p.scattered),
         ]
+        .into_iter()
+        .chain(p.planet.iter().map(|s| ("planet".to_string(), s)))
     });
     scatter
         .chain(bands.iter().map(|(name, stats)| (name.clone(), stats)))

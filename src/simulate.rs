@@ -67,6 +67,8 @@ pub struct Simulation {
 pub struct ScatterParts {
     pub direct: FacetStats,
     pub scattered: FacetStats,
+    /// With planets: the light they send, as it arrives (a part of `scattered`).
+    pub planet: Option<FacetStats>,
     pub record: ScatterRecord,
 }
 
@@ -124,6 +126,12 @@ pub fn simulate(
     let n = world.facet_count();
     let kept = Selection::new(world.output_ranges(), n);
     let mut acc = Accumulators::new(kept, bins, scatter.is_some());
+    let mut planet_stats = scatter
+        .as_ref()
+        .filter(|s| s.has_planets())
+        .map(|_| FacetStats::new(acc.kept.count(), bins));
+    let mut shines: Vec<Vec<f64>> = Vec::new();
+    let mut kept_shine = Vec::new();
     let batch = steps_per_batch(scatter.as_ref(), scatter.is_some());
     let mut directs = vec![vec![0.0; n]; batch];
     let mut scattered = vec![vec![0.0; n]; batch];
@@ -141,10 +149,18 @@ pub fn simulate(
                 let d: Vec<&[f64]> = directs.iter().map(Vec::as_slice).collect();
                 let mut s: Vec<&mut [f64]> = scattered.iter_mut().map(Vec::as_mut_slice).collect();
                 let lanes = chunk.len();
-                stage.step_many(chunk, &d[..lanes], &mut s[..lanes])
+                stage.step_many(chunk, &d[..lanes], &mut s[..lanes]);
+                shines = stage.take_planet_shine();
             });
         }
-        for ((state, irradiance), scattered) in chunk.iter().zip(&directs).zip(&scattered) {
+        for (k, ((state, irradiance), scattered)) in
+            chunk.iter().zip(&directs).zip(&scattered).enumerate()
+        {
+            if let (Some(stats), Some(shine)) = (planet_stats.as_mut(), shines.get(k)) {
+                timings.time("statistics", || {
+                    stats.add_step(acc.kept.pick(shine, &mut kept_shine))
+                });
+            }
             let step = timings.time("statistics", || acc.add_step(irradiance, scattered));
             if let Some(bands) = bands.as_deref_mut() {
                 timings.time("spectral bands", || {
@@ -164,6 +180,7 @@ pub fn simulate(
             .map(|(stage, (direct, scattered))| ScatterParts {
                 direct,
                 scattered,
+                planet: planet_stats,
                 record: stage.record,
             }),
         horizon_maps: records,

@@ -1251,3 +1251,43 @@ fn a_body_without_outputs_shades_others_but_writes_no_rows_of_its_own() {
     assert!(geometry.contains(",B,"), "B's geometry rows are kept");
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+#[test]
+fn planet_shine_gets_its_own_columns_and_is_all_a_convex_moons_scattered_light() {
+    // A convex moon scatters nothing onto itself, so all its scattered light is the
+    // planet's: `planet_*` must equal `scattered_*` facet by facet, and be positive on
+    // the side facing the planet.
+    let dir = std::env::temp_dir().join(format!("slim-outputs-test-{}-planet", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    std::fs::write(
+        dir.join("moon.obj"),
+        obj_text(&icosphere(2, 11.0, DVec3::ZERO)),
+    )
+    .unwrap();
+    let scene = "[ephemeris]\nmode = \"fixed\"\nstep_s = 60.0\n\n\
+         [[ephemeris.sun]]\ndirection = [-0.8, 0.6, 0.0]\nflux_w_m2 = 600.0\n\n\
+         [[ephemeris.sun]]\ndirection = [-0.2, 0.0, 0.98]\nflux_w_m2 = 600.0\n\n\
+         [scatter]\nalbedo = 0.07\n\n\
+         [[body]]\nname = \"moon\"\nmesh = \"moon.obj\"\nunits = \"km\"\n\n\
+         [[body]]\nname = \"planet\"\nellipsoid = { radii_km = [3390.0, 3390.0, 3390.0], levels = 2 }\n\
+         position_km = [9380.0, 0.0, 0.0]\noutputs = false\nalbedo = 0.25\n";
+    std::fs::write(dir.join("pair.toml"), scene).unwrap();
+    let out = dir.join("out");
+    run_into(&dir.join("pair.toml"), &out).unwrap();
+    let (header, rows) = read_csv(&out.join("summary.csv"));
+    let col = |name: &str| header.iter().position(|h| h == name).unwrap();
+    let (planet, scattered) = (col("planet_mean_w_m2"), col("scattered_mean_w_m2"));
+    let values: Vec<(f64, f64)> = rows
+        .iter()
+        .map(|r| (r[planet].parse().unwrap(), r[scattered].parse().unwrap()))
+        .collect();
+    let top = values.iter().map(|v| v.1).fold(0.0, f64::max);
+    assert!(top > 1.0, "the planet lights the moon with {top} W/m²");
+    for (p, s) in values {
+        assert!((p - s).abs() <= 1e-9 * top, "planet {p} scattered {s}");
+    }
+    let (cdf_header, _) = read_csv(&out.join("cdf.csv"));
+    assert!(cdf_header.contains(&"cdf_planet".to_string()));
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -469,3 +469,44 @@ fn a_run_with_a_generated_ellipsoid_and_two_bodies_reports_on_the_first() {
         "default facets on the first body"
     );
 }
+
+#[test]
+fn runs_with_scattered_light_map_each_part_of_the_light() {
+    // A convex ball scatters nothing onto itself: its direct light read back must equal
+    // the total and its scattered light be zero, facet by facet; the direct map spans the
+    // total's range; with no planet there is no planet map.
+    let dir = fresh_dir("parts");
+    let scene_path = write_scene(&dir);
+    let text = std::fs::read_to_string(&scene_path).unwrap();
+    std::fs::write(&scene_path, format!("{text}\n[scatter]\nalbedo = 0.1\n")).unwrap();
+    let out = dir.join("out");
+    run_scene(
+        &Scene::load(&scene_path).unwrap(),
+        &out,
+        &Default::default(),
+        &Silent,
+    )
+    .unwrap();
+    let report = write_report(&out, None, &ReportOptions::default())
+        .unwrap()
+        .dir;
+    let range = |name: &str| {
+        let json = read_json(&report.join(format!("{name}.json")));
+        (
+            json["scale_min"].as_f64().unwrap(),
+            json["scale_max"].as_f64().unwrap(),
+        )
+    };
+    assert_eq!(range("map_direct_mean"), range("map_mean"));
+    assert!(report.join("map_scattered_mean.png").is_file());
+    assert!(!report.join("map_planet_mean.png").exists());
+    let run = slim::output::read::RunData::read(&out).unwrap();
+    let facets = &run.bodies[0].facets;
+    let parts: Vec<&str> = facets.part_means_w_m2.iter().map(|p| p.0).collect();
+    assert_eq!(parts, ["direct", "scattered"]);
+    for k in 0..facets.len() {
+        assert_eq!(facets.part_means_w_m2[0].1[k], facets.mean_w_m2[k]);
+        assert_eq!(facets.part_means_w_m2[1].1[k], 0.0);
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -30,6 +30,9 @@ pub struct Facets {
     pub max_w_m2: Vec<f64>,
     pub mean_w_m2: Vec<f64>,
     pub lit_fraction: Vec<f64>,
+    /// The mean of each part of the light the table holds (`direct`, `scattered`,
+    /// `planet`), in that order, when it holds them (runs with scattered light).
+    pub part_means_w_m2: Vec<(&'static str, Vec<f64>)>,
 }
 
 impl Facets {
@@ -52,6 +55,7 @@ impl Facets {
             max_w_m2: vec![f64::NAN; n],
             mean_w_m2: vec![f64::NAN; n],
             lit_fraction: vec![f64::NAN; n],
+            part_means_w_m2: Vec::new(),
         }
     }
 
@@ -189,12 +193,33 @@ pub(crate) fn column<'a, T: Array + 'static>(
         .ok_or_else(|| Error::file(path, format!("missing or mistyped column '{name}'")))
 }
 
+/// Parts of the light a summary may hold beside the total, in the order maps show them.
+const PARTS: [&str; 3] = ["direct", "scattered", "planet"];
+
 /// Reads `summary.parquet` into one [`BodyData`] per body (run.json's order first).
 fn read_summary(dir: &Path, record: &RunRecord) -> Result<Vec<BodyData>> {
     let path = dir.join("summary.parquet");
     let batches = read_batches(&path)?;
     let mut rows: Vec<(String, usize, [f64; 11])> = Vec::new();
+    // Parts present in every batch, with each row's means.
+    let parts: Vec<&'static str> = PARTS
+        .into_iter()
+        .filter(|p| {
+            let name = format!("{p}_mean_w_m2");
+            batches
+                .iter()
+                .all(|b| column::<Float64Array>(b, &name, &path).is_ok())
+        })
+        .collect();
+    let mut part_rows: Vec<Vec<f64>> = Vec::new();
     for batch in &batches {
+        let part_cols = parts
+            .iter()
+            .map(|p| column::<Float64Array>(batch, &format!("{p}_mean_w_m2"), &path))
+            .collect::<Result<Vec<_>>>()?;
+        for r in 0..batch.num_rows() {
+            part_rows.push(part_cols.iter().map(|c| c.value(r)).collect());
+        }
         let body = column::<StringArray>(batch, "body", &path)?;
         let facet = column::<UInt32Array>(batch, "facet", &path)?;
         let names = [
@@ -232,9 +257,11 @@ fn read_summary(dir: &Path, record: &RunRecord) -> Result<Vec<BodyData>> {
                 .map(|(_, f, _)| f + 1)
                 .max()
                 .unwrap_or(0);
+            let mut facets = Facets::with_len(n);
+            facets.part_means_w_m2 = parts.iter().map(|p| (*p, vec![f64::NAN; n])).collect();
             BodyData {
                 name: name.clone(),
-                facets: Facets::with_len(n),
+                facets,
                 cdf: Cdf::default(),
                 mesh: Err(String::new()),
             }
@@ -245,8 +272,11 @@ fn read_summary(dir: &Path, record: &RunRecord) -> Result<Vec<BodyData>> {
         .enumerate()
         .map(|(i, n)| (n.as_str(), i))
         .collect();
-    for (body, facet, v) in &rows {
+    for ((body, facet, v), means) in rows.iter().zip(&part_rows) {
         let f = &mut bodies[index[body.as_str()]].facets;
+        for ((_, column), m) in f.part_means_w_m2.iter_mut().zip(means) {
+            column[*facet] = *m;
+        }
         f.area_m2[*facet] = v[0];
         f.centroid_m[*facet] = DVec3::new(v[1], v[2], v[3]);
         f.normal[*facet] = DVec3::new(v[4], v[5], v[6]);

@@ -111,7 +111,9 @@ pub fn threshold_used(thresholds: &[f64], x: f64) -> Option<(usize, f64)> {
         .map(|b| (b, thresholds[b]))
 }
 
-/// The four mapped quantities: mean, max, lit fraction and time above `threshold_w_m2`.
+/// The mapped quantities: mean, max, lit fraction and time above `threshold_w_m2`; with
+/// scattered light, the mean of each part (direct, scattered, and light from planets as
+/// it arrives).
 pub fn quantities(run: &RunData, threshold_w_m2: f64) -> Vec<Quantity> {
     let mut list = vec![
         Quantity::from_facets(run, "mean", "Mean irradiance", "W/m²", |f, k| {
@@ -150,6 +152,24 @@ pub fn quantities(run: &RunData, threshold_w_m2: f64) -> Vec<Quantity> {
             short_number(used)
         );
         list.push(Quantity::new("time_above", title, "%", values));
+    }
+    let parts: Vec<&str> = run
+        .bodies
+        .first()
+        .map(|b| b.facets.part_means_w_m2.iter().map(|(p, _)| *p).collect())
+        .unwrap_or_default();
+    for (n, part) in parts.into_iter().enumerate() {
+        let (key, title) = match part {
+            "direct" => ("direct_mean", "Mean direct sunlight"),
+            "scattered" => (
+                "scattered_mean",
+                "Mean scattered light (all orders, planets' light included)",
+            ),
+            _ => ("planet_mean", "Mean light from planets, as it arrives"),
+        };
+        list.push(Quantity::from_facets(run, key, title, "W/m²", |f, k| {
+            f.part_means_w_m2.get(n).map_or(f64::NAN, |(_, v)| v[k])
+        }));
     }
     list
 }

@@ -7,7 +7,8 @@
 //! - `minmaxmean.png`/`.svg` and `minmaxmean.csv`: min, max and mean (W/m²) per facet;
 //! - `histograms.png`/`.svg` and `histograms.csv`: the same over facet area (%);
 //! - `map_<quantity>.png` and `.json` for mean, max (W/m²), lit fraction and time above a
-//!   threshold (%): latitude–longitude maps and views from ±x, ±y, ±z, bodies side by side;
+//!   threshold (%), and with scattered light the mean direct, scattered and planet light
+//!   (W/m²): latitude–longitude maps and views from ±x, ±y, ±z, bodies side by side;
 //! - `index.html`: the run, plan, geometry, accuracy, counts, meshes, warnings and every
 //!   figure, self-contained.
 

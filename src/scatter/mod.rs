@@ -500,6 +500,8 @@ pub struct Scatter<'w> {
     planets: Vec<PlanetShine>,
     /// Per body, its horizon bound when planet-shine reaches it and it can shadow itself.
     bounds: Vec<Option<HorizonBound>>,
+    /// The planet-shine of each step of the last `step_many`.
+    last_shine: Vec<Vec<f64>>,
     pub record: ScatterRecord,
 }
 
@@ -562,6 +564,7 @@ impl<'w> Scatter<'w> {
             world,
             planets,
             bounds,
+            last_shine: Vec::new(),
             method: solve::resolve(settings.solver, max_albedo),
             settings,
             bvhs,
@@ -610,6 +613,7 @@ impl<'w> Scatter<'w> {
         directs: &[&[f64]],
         scattered: &mut [&mut [f64]],
     ) -> Vec<SolveReport> {
+        self.last_shine.clear();
         let mut reports = Vec::with_capacity(states.len());
         let mut done = 0;
         while done < states.len() {
@@ -622,15 +626,41 @@ impl<'w> Scatter<'w> {
             let range = done..done + lanes;
             let (states, directs) = (&states[range.clone()], &directs[range.clone()]);
             let out = &mut scattered[range];
-            match lanes {
-                LANES => reports.extend(self.solve_steps::<LANES>(states, directs, None, out)),
-                4 => reports.extend(self.solve_steps::<4>(states, directs, None, out)),
-                2 => reports.extend(self.solve_steps::<2>(states, directs, None, out)),
-                _ => reports.extend(self.solve_steps::<1>(states, directs, None, out)),
-            }
+            let shine = match lanes {
+                LANES => self.solve_lanes_of::<LANES>(states, directs, out, &mut reports),
+                4 => self.solve_lanes_of::<4>(states, directs, out, &mut reports),
+                2 => self.solve_lanes_of::<2>(states, directs, out, &mut reports),
+                _ => self.solve_lanes_of::<1>(states, directs, out, &mut reports),
+            };
+            self.last_shine.extend(shine);
             done += lanes;
         }
         reports
+    }
+
+    /// K steps of [`Scatter::step_many`] side by side: their reports go to `reports`; the
+    /// planet-shine of each is returned.
+    fn solve_lanes_of<const K: usize>(
+        &mut self,
+        states: &[EpochState],
+        directs: &[&[f64]],
+        scattered: &mut [&mut [f64]],
+        reports: &mut Vec<SolveReport>,
+    ) -> Vec<Vec<f64>> {
+        let (done, shine) = self.solve_steps::<K>(states, directs, None, scattered);
+        reports.extend(done);
+        shine
+    }
+
+    /// Whether some body's light comes through [`PlanetShine`].
+    pub fn has_planets(&self) -> bool {
+        !self.planets.is_empty()
+    }
+
+    /// Takes the planet-shine (W/m², global ids) of each step of the last
+    /// [`Scatter::step_many`], as it arrived before scattering on; empty without planets.
+    pub fn take_planet_shine(&mut self) -> Vec<Vec<f64>> {
+        std::mem::take(&mut self.last_shine)
     }
 
     /// Whether two bodies that are not planets may exchange light through a block.
@@ -649,7 +679,7 @@ impl<'w> Scatter<'w> {
         band: Option<BandInput>,
         scattered: &mut [f64],
     ) -> SolveReport {
-        let [report] = self.solve_steps::<1>(
+        let ([report], _) = self.solve_steps::<1>(
             std::slice::from_ref(state),
             &[direct],
             band,
@@ -665,7 +695,7 @@ impl<'w> Scatter<'w> {
         directs: &[&[f64]],
         band: Option<BandInput>,
         scattered: &mut [&mut [f64]],
-    ) -> [SolveReport; K] {
+    ) -> ([SolveReport; K], Vec<Vec<f64>>) {
         debug_assert!(states.len() == K && directs.len() == K && scattered.len() == K);
         let albedo = band.map_or(&self.settings.albedo[..], |b| b.albedo);
         let planet_albedos: Vec<f64> = self
@@ -726,7 +756,7 @@ impl<'w> Scatter<'w> {
                 .for_each(|(s, lanes)| *s = lanes[k]);
         }
         reports.iter().for_each(|report| self.record.add(report));
-        reports
+        (reports, shine)
     }
 
     /// The irradiance (W/m², global ids; empty without planets) every planet sends to
