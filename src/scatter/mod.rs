@@ -652,6 +652,20 @@ impl<'w> Scatter<'w> {
         shine
     }
 
+    /// The area-weighted mean of body `b`'s facet albedos: a planet reflects as a
+    /// uniform Lambertian ellipsoid.
+    fn mean_albedo(&self, b: usize, albedo: &[f64]) -> f64 {
+        let areas = &self.world.bodies[b].mesh.areas;
+        let mine = &albedo[self.offsets[b]..self.offsets[b] + areas.len()];
+        let area: f64 = areas.iter().sum();
+        let weighted: f64 = mine.iter().zip(areas).map(|(r, a)| r * a).sum();
+        if area > 0.0 {
+            weighted / area
+        } else {
+            0.0
+        }
+    }
+
     /// Whether some body's light comes through [`PlanetShine`].
     pub fn has_planets(&self) -> bool {
         !self.planets.is_empty()
@@ -701,7 +715,7 @@ impl<'w> Scatter<'w> {
         let planet_albedos: Vec<f64> = self
             .planets
             .iter()
-            .map(|p| albedo[self.offsets[p.planet]])
+            .map(|p| self.mean_albedo(p.planet, albedo))
             .collect();
         let share = band.map_or(1.0, |b| b.flux_share);
         let shine: Vec<Vec<f64>> = states
