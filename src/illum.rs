@@ -1,9 +1,13 @@
 //! Illum: direct solar irradiance on every facet at one epoch (SLIM paper, section 6.1).
 //!
 //! In: the [`World`], one [`EpochState`] (Sun direction and flux per body, poses) and a
-//! tracer per body. Out: `E_i = S · max(0, n_i · s)` in W/m² for every facet (global ids),
-//! or 0 when the ray from the facet centroid toward the Sun is blocked by any facet of any
-//! body.
+//! tracer per body (with horizon maps where the run uses them). Out: `E_i = S · max(0,
+//! n_i · s)` in W/m² for every facet (global ids), or 0 when the ray from the facet
+//! centroid toward the Sun is blocked by any facet of any body. With the Sun as a disk,
+//! `E_i = S · f · sin ē` ([`crate::horizon::disk`]) times the share of the disk no other
+//! body hides: a generated ellipsoid's in closed form ([`crate::horizon::eclipse`]), a
+//! mesh's by `sun_samples` rays through the disk. Bodies whose light nothing reads
+//! ([`Direct::only_for`]) get 0 and still cast shadows.
 //!
 //! Self-shadowing guard: the facet itself is excluded by id, and a blocking hit must lie
 //! higher above the facet's plane than `h_min = 1e-9·L + 256·ε·R` (L the facet's longest
