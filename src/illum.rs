@@ -38,7 +38,7 @@ pub struct StepCounts {
     /// Facets facing the Sun but shadowed.
     pub shadowed: u64,
     /// Facets facing the Sun whose own body's shadow ray was not traced: the Sun stood
-    /// above their horizon bound ([`crate::trace::horizon`]).
+    /// above their horizon bound ([`crate::horizon::bound`]).
     #[serde(default)]
     pub above_horizon: u64,
     /// Facet–steps decided by a horizon map alone (approximate mode, or the Sun as a

@@ -12,7 +12,7 @@
 //! shape model most Sun-facing facets see the Sun above their highest horizon at most
 //! steps.
 //!
-//! The bound is computed exactly ([`super::geometry`]) for every triangle the tree cannot
+//! The bound is computed exactly (`super::geometry`) for every triangle the tree cannot
 //! rule out,
 //! each triangle widened by the rounding of the exact predicate (a few units in the last
 //! place of the mesh's coordinates, `ROUNDING_ULPS · ε · |v|max`), so that a ray the

@@ -8,7 +8,7 @@
 //!   step loop instead of rays when it pays;
 //! - [`disk::SolarDisk`]: the share of a limb-darkened solar disk above a horizon.
 //!
-//! [`geometry`] holds the elevation bounds of boxes and triangles they are built from.
+//! `geometry` holds the elevation bounds of boxes and triangles they are built from.
 
 pub mod bound;
 pub mod cache;
