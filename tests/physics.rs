@@ -18,7 +18,7 @@ use slim::ephemeris::Ephemeris;
 use slim::horizon::map::HorizonMap;
 use slim::horizon::{HorizonMode, Shadows, SunShape};
 use slim::illum::{Direct, StepCounts};
-use slim::mesh::generate::icosphere;
+use slim::mesh::generate::{self, icosphere};
 use slim::mesh::inspect::inspect;
 use slim::mesh::{read_mesh, LengthUnit, Mesh, RawMesh};
 use slim::prepare::epoch_states;
@@ -185,28 +185,12 @@ fn octahedron(r: f64) -> Mesh {
 /// A height field z(x, y) over a regular nx × ny grid of cells on [x0, x1] × [y0, y1],
 /// each cell split along its (x0,y0)–(x1,y1) diagonal; facets face up (+z side).
 fn height_field(
-    (nx, ny): (usize, usize),
-    (x0, x1): (f64, f64),
-    (y0, y1): (f64, f64),
+    cells: (usize, usize),
+    x: (f64, f64),
+    y: (f64, f64),
     z: impl Fn(f64, f64) -> f64,
 ) -> Mesh {
-    let mut vertices = Vec::new();
-    for j in 0..=ny {
-        for i in 0..=nx {
-            let x = x0 + (x1 - x0) * i as f64 / nx as f64;
-            let y = y0 + (y1 - y0) * j as f64 / ny as f64;
-            vertices.push(DVec3::new(x, y, z(x, y)));
-        }
-    }
-    let v = |i: usize, j: usize| (j * (nx + 1) + i) as u32;
-    let mut triangles = Vec::new();
-    for j in 0..ny {
-        for i in 0..nx {
-            triangles.push([v(i, j), v(i + 1, j), v(i + 1, j + 1)]);
-            triangles.push([v(i, j), v(i + 1, j + 1), v(i, j + 1)]);
-        }
-    }
-    mesh_m(vertices, triangles)
+    Mesh::from_raw(generate::height_field(cells, x, y, z), LengthUnit::M)
 }
 
 /// The 26 directions of the grid axes, face diagonals and space diagonals.

@@ -635,7 +635,8 @@ impl Polygon {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::mesh::in_metres as mesh;
+    use crate::mesh::generate::height_field;
+    use crate::mesh::LengthUnit;
     use crate::trace::TracerKind;
     use crate::TestRng;
 
@@ -698,23 +699,11 @@ mod tests {
     #[test]
     fn upper_bounds_hold_and_centres_match_ray_casts_on_a_rough_terrain() {
         let mut rng = TestRng::new(11);
-        let n = 14;
-        let mut vertices = Vec::new();
-        for j in 0..=n {
-            for i in 0..=n {
-                let z = 2.0 * rng.unit() + 0.05 * ((i * i + j) as f64);
-                vertices.push(DVec3::new(i as f64 * 5.0, j as f64 * 5.0, z));
-            }
-        }
-        let v = |i: usize, j: usize| (j * (n + 1) + i) as u32;
-        let mut triangles = Vec::new();
-        for j in 0..n {
-            for i in 0..n {
-                triangles.push([v(i, j), v(i + 1, j), v(i + 1, j + 1)]);
-                triangles.push([v(i, j), v(i + 1, j + 1), v(i, j + 1)]);
-            }
-        }
-        let m = mesh(vertices, triangles);
+        let raw = height_field((14, 14), (0.0, 70.0), (0.0, 70.0), |x, y| {
+            let (i, j) = ((x / 5.0).round(), (y / 5.0).round());
+            2.0 * rng.unit() + 0.05 * (i * i + j)
+        });
+        let m = Mesh::from_raw(raw, LengthUnit::M);
         let a = 32u32;
         let map = build(&m, a);
         let tracer = crate::trace::build(TracerKind::Grid, &m);

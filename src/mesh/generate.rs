@@ -1,4 +1,4 @@
-//! Generated meshes: geodesic spheres and midpoint subdivision.
+//! Generated meshes: geodesic spheres, height fields and midpoint subdivision.
 //!
 //! Out: [`RawMesh`]es in whatever unit the caller uses, with outward (counter-clockwise)
 //! facets. Used for validation against closed forms (a sphere has them), for tests that
@@ -70,6 +70,37 @@ pub fn ellipsoid(levels: u32, radii: DVec3) -> RawMesh {
     let mut mesh = icosphere(levels, 1.0, DVec3::ZERO);
     mesh.vertices.iter_mut().for_each(|v| *v *= radii);
     mesh
+}
+
+/// A height field over the rectangle `x0..x1 × y0..y1`: `nx × ny` cells, each split along
+/// its (x0,y0)–(x1,y1) diagonal, facets facing up (+z side). `z(x, y)` is called once per
+/// vertex, row by row (y outer, x inner).
+pub fn height_field(
+    (nx, ny): (usize, usize),
+    (x0, x1): (f64, f64),
+    (y0, y1): (f64, f64),
+    mut z: impl FnMut(f64, f64) -> f64,
+) -> RawMesh {
+    let mut vertices = Vec::with_capacity((nx + 1) * (ny + 1));
+    for j in 0..=ny {
+        for i in 0..=nx {
+            let x = x0 + (x1 - x0) * i as f64 / nx as f64;
+            let y = y0 + (y1 - y0) * j as f64 / ny as f64;
+            vertices.push(DVec3::new(x, y, z(x, y)));
+        }
+    }
+    let v = |i: usize, j: usize| (j * (nx + 1) + i) as u32;
+    let mut triangles = Vec::with_capacity(2 * nx * ny);
+    for j in 0..ny {
+        for i in 0..nx {
+            triangles.push([v(i, j), v(i + 1, j), v(i + 1, j + 1)]);
+            triangles.push([v(i, j), v(i + 1, j + 1), v(i, j + 1)]);
+        }
+    }
+    RawMesh {
+        vertices,
+        triangles,
+    }
 }
 
 /// Splits every facet into four at its edge midpoints (shared midpoints are shared
