@@ -367,17 +367,9 @@ impl FirstScatter for Lambertian {
     }
 
     fn first_order(&self, input: &FirstOrderInput, out: &mut [f64]) {
-        let emitted: Vec<f64> = input
-            .direct
-            .iter()
-            .zip(input.albedo)
-            .map(|(d, r)| d * r)
-            .collect();
-        input.exchange.apply(&emitted, out);
-        let areas = input.exchange.areas();
-        out.iter_mut()
-            .zip(areas)
-            .for_each(|(s, a)| *s = if *a > 0.0 { *s / a } else { 0.0 });
+        let mut lane = vec![[0.0; 1]; out.len()];
+        lambertian_first_orders(input.exchange, input.albedo, &[input.direct], &mut lane);
+        out.iter_mut().zip(&lane).for_each(|(s, l)| *s = l[0]);
     }
 }
 
