@@ -112,7 +112,7 @@ pub fn simulate(
         .bodies
         .iter()
         .enumerate()
-        .map(|(b, body)| body.outputs || scatter.as_ref().is_some_and(|s| !s.planets.contains(&b)))
+        .map(|(b, body)| body.outputs || scatter.as_ref().is_some_and(|s| !s.is_planet(b)))
         .collect();
     let direct = timings.time("trace build", || {
         Direct::with_maps(world, tracer, maps, &shadows).only_for(needed)
@@ -125,13 +125,9 @@ pub fn simulate(
     });
     let n = world.facet_count();
     let kept = Selection::new(world.output_ranges(), n);
-    let mut acc = Accumulators::new(kept, bins, scatter.is_some());
-    let mut planet_stats = scatter
-        .as_ref()
-        .filter(|s| s.has_planets())
-        .map(|_| FacetStats::new(acc.kept.count(), bins));
+    let with_planets = scatter.as_ref().is_some_and(Scatter::has_planets);
+    let mut acc = Accumulators::new(kept, bins, scatter.is_some(), with_planets);
     let mut shines: Vec<Vec<f64>> = Vec::new();
-    let mut kept_shine = Vec::new();
     let batch = steps_per_batch(scatter.as_ref(), scatter.is_some());
     let mut directs = vec![vec![0.0; n]; batch];
     let mut scattered = vec![vec![0.0; n]; batch];
@@ -156,10 +152,8 @@ pub fn simulate(
         for (k, ((state, irradiance), scattered)) in
             chunk.iter().zip(&directs).zip(&scattered).enumerate()
         {
-            if let (Some(stats), Some(shine)) = (planet_stats.as_mut(), shines.get(k)) {
-                timings.time("statistics", || {
-                    stats.add_step(acc.kept.pick(shine, &mut kept_shine))
-                });
+            if let Some(shine) = shines.get(k) {
+                timings.time("statistics", || acc.add_planet_step(shine));
             }
             let step = timings.time("statistics", || acc.add_step(irradiance, scattered));
             if let Some(bands) = bands.as_deref_mut() {
@@ -180,7 +174,7 @@ pub fn simulate(
             .map(|(stage, (direct, scattered))| ScatterParts {
                 direct,
                 scattered,
-                planet: planet_stats,
+                planet: acc.planet_stats,
                 record: stage.record,
             }),
         horizon_maps: records,
@@ -258,15 +252,21 @@ struct Accumulators {
     part_stats: Option<(FacetStats, FacetStats)>,
     /// The step's total irradiance when it is a sum of parts.
     total: Vec<f64>,
-    /// The kept facets' direct and scattered irradiance, when not every facet is kept.
+    /// With planets: statistics of their light as it arrives.
+    planet_stats: Option<FacetStats>,
+    /// The kept facets' direct, scattered and planet irradiance, when not every facet is
+    /// kept.
     kept_direct: Vec<f64>,
     kept_scattered: Vec<f64>,
+    kept_planet: Vec<f64>,
 }
 
 impl Accumulators {
-    fn new(kept: Selection, bins: Bins, with_parts: bool) -> Accumulators {
+    fn new(kept: Selection, bins: Bins, with_parts: bool, with_planets: bool) -> Accumulators {
         let facets = kept.count();
         Accumulators {
+            planet_stats: with_planets.then(|| FacetStats::new(facets, bins)),
+            kept_planet: Vec::new(),
             kept,
             total_stats: FacetStats::new(facets, bins),
             part_stats: with_parts
@@ -278,6 +278,13 @@ impl Accumulators {
             },
             kept_direct: Vec::new(),
             kept_scattered: Vec::new(),
+        }
+    }
+
+    /// Adds one step's planet light (global order), when planets are counted apart.
+    fn add_planet_step(&mut self, shine: &[f64]) {
+        if let Some(stats) = self.planet_stats.as_mut() {
+            stats.add_step(self.kept.pick(shine, &mut self.kept_planet));
         }
     }
 

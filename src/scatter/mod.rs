@@ -155,7 +155,7 @@ impl Settings {
     }
 
     /// Whether body `b` sends its light through the planet-shine model.
-    fn is_planet(&self, b: usize) -> bool {
+    pub fn is_planet(&self, b: usize) -> bool {
         self.planets.contains(&b)
     }
 
@@ -548,7 +548,7 @@ impl<'w> Scatter<'w> {
             .iter()
             .enumerate()
             .map(|(b, body)| {
-                (!planets.is_empty() && !body.convex && !settings.planets.contains(&b))
+                (!planets.is_empty() && !body.convex && !settings.is_planet(b))
                     .then(|| HorizonBound::new(&body.mesh, body.mesh.len(), &bvhs[b]))
             })
             .collect();
@@ -776,7 +776,7 @@ impl<'w> Scatter<'w> {
         let world = self.world;
         for (shine, &planet_albedo) in self.planets.iter_mut().zip(albedos) {
             for (r, body) in world.bodies.iter().enumerate() {
-                if self.settings.planets.contains(&r) {
+                if self.settings.is_planet(r) {
                     continue;
                 }
                 let receiver = Receiver {
