@@ -18,9 +18,8 @@ mod common;
 use common::peak_rss_mb;
 use glam::DVec3;
 use slim::illum::Direct;
-use slim::scatter::form_factor::NearField;
 use slim::scatter::solve::SolverKind;
-use slim::scatter::{FirstBounce, Lambertian, Scatter, Settings, LANES};
+use slim::scatter::{Lambertian, Scatter, Settings, LANES};
 use slim::trace::TracerKind;
 use std::time::Instant;
 
@@ -45,15 +44,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     );
     let direct = Direct::new(&world, TracerKind::Sunview);
     let settings = Settings {
-        albedo: vec![albedos[0]; n],
-        solver: SolverKind::Auto,
         max_orders: 1000,
-        tolerance: 1e-6,
         inter_body_tolerance: 1e-4,
-        near_field: NearField::default(),
-        first_bounce: FirstBounce::Lambertian,
-        planets: Vec::new(),
-        planet: Default::default(),
+        ..Settings::lambertian(vec![albedos[0]; n], SolverKind::Auto, 1e-6)
     };
     let t0 = Instant::now();
     let mut stage = Scatter::new(&world, settings, Box::new(Lambertian));

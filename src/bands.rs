@@ -35,10 +35,12 @@ pub struct Bands {
     /// The facets statistics are kept for (those of the bodies that get outputs).
     kept: Selection,
     kept_values: Vec<f64>,
-    direct: Vec<f64>,
-    scattered: Vec<f64>,
+    /// Per step of a batch: the band's direct and scattered irradiance, and the sum over
+    /// bands so far.
+    direct: Vec<Vec<f64>>,
+    scattered: Vec<Vec<f64>>,
+    summed: Vec<Vec<f64>>,
     total: Vec<f64>,
-    summed: Vec<f64>,
 }
 
 impl Bands {
@@ -79,26 +81,34 @@ impl Bands {
             sum: FacetStats::new(kept.count(), bins),
             kept,
             kept_values: Vec::new(),
-            direct: vec![0.0; n],
-            scattered: vec![0.0; n],
+            direct: Vec::new(),
+            scattered: Vec::new(),
+            summed: Vec::new(),
             total: vec![0.0; n],
-            summed: vec![0.0; n],
         }))
     }
 
-    /// Adds one step: `direct` is the broadband direct irradiance at `state`.
-    pub fn add_step(
+    /// Adds consecutive steps: `directs[k]` is the broadband direct irradiance at
+    /// `states[k]`. Each band's steps are scattered side by side
+    /// ([`Scatter::step_many_band`]).
+    pub fn add_steps(
         &mut self,
-        state: &EpochState,
-        direct: &[f64],
+        states: &[EpochState],
+        directs: &[&[f64]],
         mut scatter: Option<&mut Scatter>,
     ) {
-        self.summed.fill(0.0);
+        let lanes = states.len();
+        let n = self.total.len();
+        for buffers in [&mut self.direct, &mut self.scattered, &mut self.summed] {
+            buffers.resize_with(lanes, || vec![0.0; n]);
+        }
+        self.summed.iter_mut().for_each(|s| s.fill(0.0));
         for band in &mut self.bands {
-            self.direct
-                .iter_mut()
-                .zip(direct)
-                .for_each(|(d, broadband)| *d = band.share * broadband);
+            for (mine, broadband) in self.direct.iter_mut().zip(directs) {
+                mine.iter_mut()
+                    .zip(*broadband)
+                    .for_each(|(d, b)| *d = band.share * b);
+            }
             match (&band.scatter, scatter.as_deref_mut()) {
                 (Some((albedo, first)), Some(stage)) => {
                     let input = BandInput {
@@ -106,22 +116,32 @@ impl Bands {
                         first: first.as_ref(),
                         flux_share: band.share,
                     };
-                    stage.step_band(state, &self.direct, Some(input), &mut self.scattered);
+                    let d: Vec<&[f64]> = self.direct[..lanes].iter().map(Vec::as_slice).collect();
+                    let mut out: Vec<&mut [f64]> = self.scattered[..lanes]
+                        .iter_mut()
+                        .map(Vec::as_mut_slice)
+                        .collect();
+                    stage.step_many_band(states, &d, Some(input), &mut out);
                 }
-                _ => self.scattered.fill(0.0),
+                _ => self.scattered.iter_mut().for_each(|s| s.fill(0.0)),
             }
-            for ((t, d), s) in self.total.iter_mut().zip(&self.direct).zip(&self.scattered) {
-                *t = d + s;
+            for k in 0..lanes {
+                let parts = self.direct[k].iter().zip(&self.scattered[k]);
+                for (t, (d, s)) in self.total.iter_mut().zip(parts) {
+                    *t = d + s;
+                }
+                band.stats
+                    .add_step(self.kept.pick(&self.total, &mut self.kept_values));
+                self.summed[k]
+                    .iter_mut()
+                    .zip(&self.total)
+                    .for_each(|(sum, t)| *sum += t);
             }
-            band.stats
-                .add_step(self.kept.pick(&self.total, &mut self.kept_values));
-            self.summed
-                .iter_mut()
-                .zip(&self.total)
-                .for_each(|(sum, t)| *sum += t);
         }
-        self.sum
-            .add_step(self.kept.pick(&self.summed, &mut self.kept_values));
+        for summed in &self.summed[..lanes] {
+            self.sum
+                .add_step(self.kept.pick(summed, &mut self.kept_values));
+        }
     }
 
     /// Named statistics: `band_NAME` for each band, then `bands` for their sum.

@@ -149,6 +149,12 @@ pub fn simulate(
                 shines = stage.take_planet_shine();
             });
         }
+        if let Some(bands) = bands.as_deref_mut() {
+            timings.time("spectral bands", || {
+                let d: Vec<&[f64]> = directs[..chunk.len()].iter().map(Vec::as_slice).collect();
+                bands.add_steps(chunk, &d, scatter.as_mut())
+            });
+        }
         for (k, ((state, irradiance), scattered)) in
             chunk.iter().zip(&directs).zip(&scattered).enumerate()
         {
@@ -156,11 +162,6 @@ pub fn simulate(
                 timings.time("statistics", || acc.add_planet_step(shine));
             }
             let step = timings.time("statistics", || acc.add_step(irradiance, scattered));
-            if let Some(bands) = bands.as_deref_mut() {
-                timings.time("spectral bands", || {
-                    bands.add_step(state, irradiance, scatter.as_mut())
-                });
-            }
             timings.time("history", || on_step(state, step))?;
             progress.step_done();
         }

@@ -10,12 +10,14 @@ use hifitime::Epoch;
 use slim::ephemeris::{BodyState, EpochState};
 use slim::mesh::generate::icosphere;
 use slim::mesh::{LengthUnit, Mesh, RawMesh};
-use slim::scatter::bowl::{bowl_mesh, scattered_irradiance, BowlCase};
+use slim::scatter::bowl::{
+    bowl_mesh, scattered_irradiance, topo3d_beta, topo3d_dem, topo3d_height, topo3d_run, BowlCase,
+};
 use slim::scatter::csr::Csr;
 use slim::scatter::form_factor::NearField;
 use slim::scatter::solve::SolverKind;
 use slim::scatter::visibility::own_block;
-use slim::scatter::{FirstBounce, Lambertian, Scatter, Settings};
+use slim::scatter::{Lambertian, Scatter, Settings};
 use slim::trace::bvh::Bvh;
 use slim::world::{Body, Pose, World};
 use std::f64::consts::PI;
@@ -113,20 +115,6 @@ fn at(position_m: DVec3) -> Pose {
     Pose {
         body_to_scene: DMat3::IDENTITY,
         position_m,
-    }
-}
-
-fn settings(albedo: Vec<f64>, solver: SolverKind, tolerance: f64) -> Settings {
-    Settings {
-        albedo,
-        solver,
-        max_orders: 10_000,
-        tolerance,
-        inter_body_tolerance: 0.0,
-        near_field: NearField::default(),
-        first_bounce: FirstBounce::Lambertian,
-        planets: Vec::new(),
-        planet: Default::default(),
     }
 }
 
@@ -258,7 +246,7 @@ fn furnace_sphere_interior_radiosity_is_emission_over_one_minus_albedo() {
         for &solver in solvers {
             let mut stage = Scatter::new(
                 &world,
-                settings(vec![rho; n], solver, 1e-9),
+                Settings::lambertian(vec![rho; n], solver, 1e-9),
                 Box::new(Lambertian),
             );
             let direct = vec![e / rho; n];
@@ -279,7 +267,7 @@ fn furnace_sphere_interior_radiosity_is_emission_over_one_minus_albedo() {
     }
     // Jacobi capped at 50 orders at ρ = 0.999 stops, says so, and does not blow up:
     // 50 orders hold 1 − 0.999^50 ≈ 4.9 % of the light.
-    let mut s = settings(vec![0.999; n], SolverKind::Jacobi, 1e-9);
+    let mut s = Settings::lambertian(vec![0.999; n], SolverKind::Jacobi, 1e-9);
     s.max_orders = 50;
     let mut stage = Scatter::new(&world, s, Box::new(Lambertian));
     let mut h = vec![0.0; n];
@@ -310,7 +298,7 @@ fn jacobi_iterate_k_holds_orders_up_to_k() {
     let mut direct = vec![0.0; n];
     direct[..n / 2].iter_mut().for_each(|d| *d = 1000.0);
     let run = |orders: u32| {
-        let mut s = settings(vec![0.3; n], SolverKind::Jacobi, 0.0);
+        let mut s = Settings::lambertian(vec![0.3; n], SolverKind::Jacobi, 0.0);
         s.max_orders = orders;
         let mut stage = Scatter::new(&world, s, Box::new(Lambertian));
         let mut out = vec![0.0; n];
@@ -360,7 +348,7 @@ fn steps_solved_side_by_side_match_one_at_a_time() {
     for (albedo, solver) in [(0.1, SolverKind::Jacobi), (0.9, SolverKind::Cg)] {
         let mut stage = Scatter::new(
             &world,
-            settings(vec![albedo; n], solver, 1e-9),
+            Settings::lambertian(vec![albedo; n], solver, 1e-9),
             Box::new(Lambertian),
         );
         let mut alone = vec![vec![0.0; n]; states.len()];
@@ -418,6 +406,79 @@ fn ingersoll_bowl_below_one_percent_at_ten_thousand_facets() {
 }
 
 // ---------------------------------------------------------------------------------------
+// Topo3D's bowl crater: Ingersoll's closed form on a DEM
+
+/// The heights (m) of Topo3D's test crater, `data/reference/topo81.xyz`: 81 rows of 81.
+fn topo81() -> Vec<Vec<f64>> {
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("data/reference/topo81.xyz");
+    let text = std::fs::read_to_string(&path).unwrap();
+    let rows: Vec<Vec<f64>> = text
+        .lines()
+        .map(|l| l.split_whitespace().map(|v| v.parse().unwrap()).collect())
+        .collect();
+    assert!(rows.len() == 81 && rows.iter().all(|r| r.len() == 81));
+    rows
+}
+
+#[test]
+fn topo81_is_a_sphere_cut_at_one_fifth_of_its_width_and_ingersoll_gives_3_44() {
+    // The file's heights have three decimals: 0.5 mm of rounding.
+    let rows = topo81();
+    for (j, row) in rows.iter().enumerate() {
+        for (i, z) in row.iter().enumerate() {
+            let (x, y) = (5.0 * i as f64 - 200.0, 5.0 * j as f64 - 200.0);
+            assert!((z - topo3d_height(x, y)).abs() < 5.1e-4, "({i}, {j}): {z}");
+        }
+    }
+    // Topo3D's test case quotes Ingersoll's 3.44 W/m² for its run 1.
+    let s = scattered_irradiance(1365.0, 10f64.to_radians(), 0.12, topo3d_beta());
+    assert!((s - 3.44).abs() < 0.005, "{s}");
+}
+
+#[test]
+fn topo3d_crater_is_short_of_ingersoll_by_its_rim_and_converges_with_refinement() {
+    // Topo3D's own 5 m DEM, and the same crater sampled every 10 m.
+    let rows = topo81();
+    let mut nodes = rows.iter().flatten();
+    let fine = topo3d_run(topo3d_dem(80, |_, _| *nodes.next().unwrap())).unwrap();
+    let coarse = topo3d_run(topo3d_dem(40, topo3d_height)).unwrap();
+    eprintln!("Topo3D bowl, 5 m: {fine:?}\n10 m: {coarse:?}");
+
+    // Why the sunlit floor is low. The DEM's rim cells are ramps between the 43.6° wall
+    // and the plain: facing the sky more than the sphere would, they see a fraction of
+    // the bowl (measured 43 % of f) and make up a good part of the sunlit facets (15 %),
+    // which lie on the upper far wall. The ramp also widens the opening, so every
+    // interior facet sees a little more sky (1.1 % less bowl at 5 m, 2.1 % at 10 m).
+    assert!(fine.view_rim < -0.3, "{fine:?}");
+    assert!(
+        fine.view_interior < 0.0 && fine.view_interior > -0.015,
+        "{fine:?}"
+    );
+    assert!(fine.rim_share_of_sunlit > 0.1, "{fine:?}");
+    assert!(fine.sunlit_all < fine.sunlit_interior - 0.05, "{fine:?}");
+
+    // With the rim cells, the shadowed floor is low by about the 2 % Topo3D's users see;
+    // the sunlit floor by much more.
+    assert!(fine.shadowed_all < fine.shadowed_interior && fine.shadowed_all > -0.03);
+    // Away from the rim both are a little low (measured −1.5 % in shadow, −2.2 % in
+    // sunlight), by the view factor the widened opening takes.
+    for e in [fine.shadowed_interior, fine.sunlit_interior] {
+        assert!(e < 0.0 && e > -0.025, "{fine:?}");
+    }
+    // Halving the pixel halves both errors (first order in the pixel: the ramp is one
+    // pixel wide), measured 1.9× for each; extrapolated to zero pixel size, both land on
+    // Ingersoll's value (measured within 0.2 %).
+    let pairs = [
+        (coarse.shadowed_interior, fine.shadowed_interior),
+        (coarse.sunlit_interior, fine.sunlit_interior),
+    ];
+    for (c, f) in pairs {
+        assert!(c < 1.6 * f, "{coarse:?} → {fine:?}");
+        assert!((2.0 * f - c).abs() < 0.005, "{coarse:?} → {fine:?}");
+    }
+}
+
+// ---------------------------------------------------------------------------------------
 // Two bodies
 
 #[test]
@@ -450,7 +511,7 @@ fn facet_facing_a_sphere_sees_r_over_d_squared() {
     albedo[np..].iter_mut().for_each(|a| *a = 0.5);
     let mut direct = vec![0.0; np + nb];
     direct[np..].iter_mut().for_each(|e| *e = 2.0);
-    let mut s = settings(albedo, SolverKind::Jacobi, 0.0);
+    let mut s = Settings::lambertian(albedo, SolverKind::Jacobi, 0.0);
     s.max_orders = 1;
     let mut stage = Scatter::new(&world, s, Box::new(Lambertian));
     let mut out = vec![0.0; np + nb];
@@ -479,7 +540,7 @@ fn distant_bodies_are_left_out_below_the_tolerance() {
         ],
         1.0,
     );
-    let mut s = settings(vec![0.5; n], SolverKind::Auto, 1e-6);
+    let mut s = Settings::lambertian(vec![0.5; n], SolverKind::Auto, 1e-6);
     // Bound: 0.5/0.5 · (1/999)² ≈ 1e-6 < 1e-5.
     s.inter_body_tolerance = 1e-5;
     let mut stage = Scatter::new(&world, s, Box::new(Lambertian));
@@ -966,7 +1027,7 @@ fn moon_beside_planet(phase_deg: f64) -> (Vec<f64>, Vec<f64>) {
                 order: 16,
                 reuse: 0.0,
             },
-            ..settings(albedo.clone(), SolverKind::Jacobi, 1e-9)
+            ..Settings::lambertian(albedo.clone(), SolverKind::Jacobi, 1e-9)
         };
         let mut stage = Scatter::new(&world, settings, Box::new(Lambertian));
         let mut scattered = vec![0.0; world.facet_count()];

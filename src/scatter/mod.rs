@@ -113,6 +113,23 @@ impl FirstBounce {
 }
 
 impl Settings {
+    /// Lambertian scattering to all orders with these albedos (global ids), solver and
+    /// tolerance; every body's light through facet blocks, the default near field, no
+    /// inter-body cut-off. What validation cases and benchmarks start from.
+    pub fn lambertian(albedo: Vec<f64>, solver: SolverKind, tolerance: f64) -> Settings {
+        Settings {
+            albedo,
+            solver,
+            max_orders: 10_000,
+            tolerance,
+            inter_body_tolerance: 0.0,
+            near_field: NearField::default(),
+            first_bounce: FirstBounce::Lambertian,
+            planets: Vec::new(),
+            planet: PlanetSettings::default(),
+        }
+    }
+
     /// The scene's settings, or `None` when it asks for no scattering.
     pub fn from_scene(scene: &Scene, world: &World) -> Result<Option<Settings>> {
         let (Some(section), Some(albedo)) = (&scene.scatter, albedo::facet_albedo(scene, world)?)
@@ -591,7 +608,13 @@ impl<'w> Scatter<'w> {
         direct: &[f64],
         scattered: &mut [f64],
     ) -> SolveReport {
-        self.step_band(state, direct, None, scattered)
+        let ([report], _) = self.solve_steps::<1>(
+            std::slice::from_ref(state),
+            &[direct],
+            None,
+            &mut [scattered],
+        );
+        report
     }
 
     /// [`Scatter::step`] for consecutive steps: `directs[k]` and `scattered[k]` belong to
@@ -603,6 +626,20 @@ impl<'w> Scatter<'w> {
         &mut self,
         states: &[EpochState],
         directs: &[&[f64]],
+        scattered: &mut [&mut [f64]],
+    ) -> Vec<SolveReport> {
+        self.step_many_band(states, directs, None, scattered)
+    }
+
+    /// [`Scatter::step_many`] for one spectral band: `band` gives the band's albedo
+    /// (global ids), first bounce and share of the flux instead of the broadband ones;
+    /// `directs` are the band's direct irradiance. The form factors are shared by every
+    /// band, and the band's steps are solved side by side like the broadband ones.
+    pub fn step_many_band(
+        &mut self,
+        states: &[EpochState],
+        directs: &[&[f64]],
+        band: Option<BandInput>,
         scattered: &mut [&mut [f64]],
     ) -> Vec<SolveReport> {
         self.last_shine.clear();
@@ -619,10 +656,10 @@ impl<'w> Scatter<'w> {
             let (states, directs) = (&states[range.clone()], &directs[range.clone()]);
             let out = &mut scattered[range];
             let shine = match lanes {
-                LANES => self.solve_lanes_of::<LANES>(states, directs, out, &mut reports),
-                4 => self.solve_lanes_of::<4>(states, directs, out, &mut reports),
-                2 => self.solve_lanes_of::<2>(states, directs, out, &mut reports),
-                _ => self.solve_lanes_of::<1>(states, directs, out, &mut reports),
+                LANES => self.solve_lanes_of::<LANES>(states, directs, band, out, &mut reports),
+                4 => self.solve_lanes_of::<4>(states, directs, band, out, &mut reports),
+                2 => self.solve_lanes_of::<2>(states, directs, band, out, &mut reports),
+                _ => self.solve_lanes_of::<1>(states, directs, band, out, &mut reports),
             };
             self.last_shine.extend(shine);
             done += lanes;
@@ -636,10 +673,11 @@ impl<'w> Scatter<'w> {
         &mut self,
         states: &[EpochState],
         directs: &[&[f64]],
+        band: Option<BandInput>,
         scattered: &mut [&mut [f64]],
         reports: &mut Vec<SolveReport>,
     ) -> Vec<Vec<f64>> {
-        let (done, shine) = self.solve_steps::<K>(states, directs, None, scattered);
+        let (done, shine) = self.solve_steps::<K>(states, directs, band, scattered);
         reports.extend(done);
         shine
     }
@@ -673,25 +711,6 @@ impl<'w> Scatter<'w> {
     pub fn has_inter_body_pairs(&self) -> bool {
         let others = (0..self.world.bodies.len()).filter(|&b| !self.settings.is_planet(b));
         others.count() > 1
-    }
-
-    /// [`Scatter::step`] for one spectral band: `band` gives the band's albedo (global
-    /// ids), first bounce and share of the flux instead of the broadband ones; `direct` is
-    /// the band's direct irradiance. The form factors are shared by every band.
-    pub fn step_band(
-        &mut self,
-        state: &EpochState,
-        direct: &[f64],
-        band: Option<BandInput>,
-        scattered: &mut [f64],
-    ) -> SolveReport {
-        let ([report], _) = self.solve_steps::<1>(
-            std::slice::from_ref(state),
-            &[direct],
-            band,
-            &mut [scattered],
-        );
-        report
     }
 
     /// K steps with the same exchange areas (those at `states[0]`), solved side by side.
