@@ -553,6 +553,98 @@ fn distant_bodies_are_left_out_below_the_tolerance() {
     );
 }
 
+#[test]
+fn a_moving_block_kept_within_inter_body_reuse_misses_no_more_than_its_bound() {
+    // A moon of radius 0.3 locked to a primary of radius 1, 3 apart, moving 0.05° of
+    // its orbit per step: the Sun over both, Lambert direct light as the input.
+    let primary = Mesh::from_raw(icosphere(2, 1.0, DVec3::ZERO), LengthUnit::M);
+    let moon = Mesh::from_raw(icosphere(1, 0.3, DVec3::ZERO), LengthUnit::M);
+    let world = World {
+        bodies: vec![
+            Body::new("primary", primary, true),
+            Body::new("moon", moon, true),
+        ],
+    };
+    let n = world.facet_count();
+    let sun = DVec3::new(0.2, 0.3, 1.0).normalize();
+    let states: Vec<EpochState> = (0..12)
+        .map(|k| {
+            let turn = DMat3::from_rotation_z((0.05 * k as f64).to_radians());
+            let moon_pose = Pose {
+                body_to_scene: turn,
+                position_m: turn * DVec3::new(3.0, 0.0, 0.0),
+            };
+            state(
+                vec![(sun, Pose::IDENTITY), (turn.transpose() * sun, moon_pose)],
+                1.0,
+            )
+        })
+        .collect();
+    let direct = |st: &EpochState| -> Vec<f64> {
+        world
+            .bodies
+            .iter()
+            .zip(&st.bodies)
+            .flat_map(|(b, s)| {
+                b.mesh
+                    .normals
+                    .iter()
+                    .map(move |nv| nv.dot(s.sun_dir).max(0.0))
+            })
+            .collect()
+    };
+    let run = |reuse: f64| {
+        let s = Settings {
+            inter_body_reuse: reuse,
+            ..Settings::lambertian(vec![0.3; n], SolverKind::Jacobi, 1e-12)
+        };
+        let mut stage = Scatter::new(&world, s, Box::new(Lambertian));
+        let mut bounds = Vec::new();
+        let out: Vec<Vec<f64>> = states
+            .iter()
+            .map(|st| {
+                let mut out = vec![0.0; n];
+                stage.step(st, &direct(st), &mut out);
+                bounds.push(stage.record.inter_body_kept_bound);
+                out
+            })
+            .collect();
+        (out, bounds, stage.record)
+    };
+    let (exact, _, exact_record) = run(0.0);
+    assert_eq!(exact_record.inter_body_computed, 12);
+    let (kept, bounds, record) = run(0.02);
+    eprintln!("{record:?}");
+    // The plan's count and the stage's agree.
+    let planned = Settings {
+        inter_body_reuse: 0.02,
+        ..Settings::lambertian(vec![0.3; n], SolverKind::Jacobi, 1e-12)
+    }
+    .decisions(&world, &states);
+    let pair = planned.last().unwrap();
+    let computed = format!("computed {} time(s)", record.inter_body_computed);
+    assert!(pair.reason.contains(&computed), "{}", pair.reason);
+    assert!(
+        record.inter_body_kept >= 6 && record.inter_body_computed <= 6,
+        "{record:?}"
+    );
+    assert!(record.inter_body_kept_bound <= 0.02);
+    // At every step, what a kept block missed is within the bound (share of the flux 1).
+    let mut largest_ratio: f64 = 0.0;
+    for (k, (e, r)) in exact.iter().zip(&kept).enumerate() {
+        let missed = e
+            .iter()
+            .zip(r)
+            .map(|(a, b)| (a - b).abs())
+            .fold(0.0, f64::max);
+        assert!(missed <= bounds[k], "step {k}: {missed} > {}", bounds[k]);
+        if bounds[k] > 0.0 {
+            largest_ratio = largest_ratio.max(missed / bounds[k]);
+        }
+    }
+    eprintln!("largest missed light / bound: {largest_ratio:.3}");
+}
+
 // ---------------------------------------------------------------------------------------
 // Scene, pipeline and outputs
 

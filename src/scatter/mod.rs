@@ -57,6 +57,7 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use solve::{Exchange, SolveReport, SolverKind, Stopping};
 use std::borrow::Cow;
+use std::f64::consts::{PI, SQRT_2};
 use std::time::Instant;
 use visibility::{cross_block, facets, facing_pairs, own_block, Occluder, SAME_FRAME};
 
@@ -73,6 +74,9 @@ pub struct Settings {
     /// Inter-body blocks whose bound on scattered light is below this share of the solar
     /// flux are left out.
     pub inter_body_tolerance: f64,
+    /// An inter-body block is kept while [`reuse_bound`] since it was computed stays at or
+    /// below this share of the solar flux; 0 recomputes it whenever the bodies move.
+    pub inter_body_reuse: f64,
     pub near_field: NearField,
     /// The first bounce: Lambertian, or each body's reflectance model.
     pub first_bounce: FirstBounce,
@@ -123,6 +127,7 @@ impl Settings {
             max_orders: 10_000,
             tolerance,
             inter_body_tolerance: 0.0,
+            inter_body_reuse: 0.0,
             near_field: NearField::default(),
             first_bounce: FirstBounce::Lambertian,
             planets: Vec::new(),
@@ -142,6 +147,7 @@ impl Settings {
             max_orders: section.max_orders,
             tolerance: section.tolerance,
             inter_body_tolerance: section.inter_body_tolerance,
+            inter_body_reuse: section.inter_body_reuse,
             near_field: NearField {
                 far_ratio: section.near_field_ratio,
                 ..NearField::default()
@@ -228,10 +234,7 @@ impl Settings {
                     continue;
                 }
                 let needed = self.needed_steps(world, states, a, b);
-                let moves = needed
-                    .windows(2)
-                    .filter(|w| relative_pose(w[0], a, b) != relative_pose(w[1], a, b))
-                    .count();
+                let computed = self.block_computations(world, &needed, a, b);
                 let stage = format!(
                     "scattered light between '{}' and '{}'",
                     world.bodies[a].name, world.bodies[b].name
@@ -249,11 +252,19 @@ impl Settings {
                         format!(
                             "needed at {} of {} steps (bound ≥ {:e} of the flux); the block is \
                              computed {} time(s): again only when the bodies move relative to \
-                             each other",
+                             each other{}",
                             needed.len(),
                             states.len(),
                             self.inter_body_tolerance,
-                            1 + moves
+                            computed,
+                            if self.inter_body_reuse > 0.0 {
+                                format!(
+                                    " by more than changes its light by {:e} of the flux",
+                                    self.inter_body_reuse
+                                )
+                            } else {
+                                String::new()
+                            }
                         )
                     },
                 });
@@ -281,6 +292,34 @@ impl Settings {
                     >= self.inter_body_tolerance
             })
             .collect()
+    }
+
+    /// How many times the block between bodies a and b is computed over the steps it is
+    /// `needed` at: first, then whenever the pose moved beyond what `inter_body_reuse`
+    /// lets a kept block miss (as [`Scatter`] decides it).
+    fn block_computations(
+        &self,
+        world: &World,
+        needed: &[&EpochState],
+        a: usize,
+        b: usize,
+    ) -> usize {
+        let sizes = PairSizes::new(world, &self.albedo, &world.offsets(), a, b);
+        let mut cached: Option<FrameTransform> = None;
+        let mut computed = 0;
+        for state in needed {
+            let pose = relative_pose(state, a, b);
+            let keep = cached.is_some_and(|c| {
+                c == pose
+                    || (self.inter_body_reuse > 0.0
+                        && sizes.reuse_bound(&c, &pose) <= self.inter_body_reuse)
+            });
+            if !keep {
+                cached = Some(pose);
+                computed += 1;
+            }
+        }
+        computed
     }
 
     /// The form-factor entries the run will store, estimated before they are computed: for
@@ -346,6 +385,66 @@ fn inter_body_bound(
         rho / (1.0 - rho) * (r_from / gap).powi(2)
     };
     bound(a, b).max(bound(b, a))
+}
+
+/// What the reuse bound needs of two bodies a and b: bounding radii (m), total facet
+/// areas (m²) and largest albedos.
+#[derive(Debug, Clone, Copy)]
+struct PairSizes {
+    radius_m: [f64; 2],
+    area_m2: [f64; 2],
+    albedo: [f64; 2],
+}
+
+impl PairSizes {
+    fn new(world: &World, albedo: &[f64], offsets: &[usize], a: usize, b: usize) -> PairSizes {
+        let body = |x: usize| &world.bodies[x];
+        let largest = |x: usize| {
+            let range = offsets[x]..offsets[x] + body(x).mesh.len();
+            albedo[range].iter().copied().fold(0.0, f64::max)
+        };
+        PairSizes {
+            radius_m: [a, b].map(|x| body(x).bounding_radius_m),
+            area_m2: [a, b].map(|x| body(x).mesh.areas.iter().sum()),
+            albedo: [a, b].map(largest),
+        }
+    }
+
+    /// A bound (share of the solar flux, at any facet of either body) on how much the
+    /// light exchanged between the two changes when b's pose in a's frame goes from
+    /// `then` to `now`. Every point of b moves by at most ε = |Δc| + α R_b (Δc the move
+    /// of b's centre, α the turn), and every pair of points stays at least the gap
+    /// g = d − R_a − R_b apart, so each pair's `cos θ_i cos θ_j / r²` changes by at most
+    /// (6ε/g + α)/r²: the directions turn by at most (π/2)ε/g, b's normals also by α,
+    /// and 1/r² changes by at most 2ε/g of itself. Summed over the sender's facets (area
+    /// A, radiance at most ρ/(1−ρ)/π of the flux, each at least g away) that is
+    /// `ρ/(1−ρ) · A/(π g²) · (6ε/g + α)`, the larger of the two directions. Pairs whose
+    /// visibility changes (b crossing a facet's local horizon or another body's shadow)
+    /// are outside this bound.
+    fn reuse_bound(&self, then: &FrameTransform, now: &FrameTransform) -> f64 {
+        let [ra, rb] = self.radius_m;
+        let gap = now.offset_m.length().min(then.offset_m.length()) - ra - rb;
+        if gap <= 0.0 {
+            return f64::INFINITY;
+        }
+        let alpha = rotation_angle(now.rotation * then.rotation.transpose());
+        let moved = (now.offset_m - then.offset_m).length() + alpha * rb;
+        let change = 6.0 * moved / gap + alpha;
+        let light = |k: usize| {
+            let rho = self.albedo[k];
+            rho / (1.0 - rho) * self.area_m2[k] / (PI * gap * gap)
+        };
+        change * light(0).max(light(1))
+    }
+}
+
+/// The angle (radians) of a rotation matrix, accurate for small angles:
+/// ‖M − I‖_F = 2√2 sin(α/2).
+fn rotation_angle(m: glam::DMat3) -> f64 {
+    let d = m - glam::DMat3::IDENTITY;
+    let frobenius =
+        (d.x_axis.length_squared() + d.y_axis.length_squared() + d.z_axis.length_squared()).sqrt();
+    2.0 * (frobenius / (2.0 * SQRT_2)).min(1.0).asin()
 }
 
 /// The first bounce: irradiance scattered once, from the direct irradiance.
@@ -452,6 +551,12 @@ pub struct ScatterRecord {
     pub inter_body_computed: u64,
     pub inter_body_reused: u64,
     pub inter_body_skipped: u64,
+    /// Inter-body blocks kept although the bodies moved, within `inter_body_reuse`, and
+    /// the largest bound on the light they missed (share of the solar flux).
+    #[serde(default)]
+    pub inter_body_kept: u64,
+    #[serde(default)]
+    pub inter_body_kept_bound: f64,
     /// Planet-shine weights built and reused (summed over planets and receivers).
     #[serde(default)]
     pub planet_weights_built: u64,
@@ -486,6 +591,7 @@ impl ScatterRecord {
 /// An inter-body block as last computed.
 struct Cached {
     pose: FrameTransform,
+    sizes: PairSizes,
     forward: Csr,
     backward: Csr,
 }
@@ -835,11 +941,15 @@ impl<'w> Scatter<'w> {
                     continue;
                 }
                 let pose = state.bodies[b].pose.relative_to(&state.bodies[a].pose);
-                if self.cache[a * n + b]
-                    .as_ref()
-                    .is_some_and(|c| c.pose == pose)
-                {
+                let cached = self.cache[a * n + b].as_ref();
+                let reuse = self.settings.inter_body_reuse;
+                let bound = cached.map(|c| c.sizes.reuse_bound(&c.pose, &pose));
+                if cached.is_some_and(|c| c.pose == pose) {
                     self.record.inter_body_reused += 1;
+                } else if let Some(bound) = bound.filter(|&e| reuse > 0.0 && e <= reuse) {
+                    self.record.inter_body_kept += 1;
+                    self.record.inter_body_kept_bound =
+                        self.record.inter_body_kept_bound.max(bound);
                 } else {
                     self.cache[a * n + b] = Some(self.inter_block(state, a, b, pose));
                     self.record.inter_body_computed += 1;
@@ -938,6 +1048,7 @@ impl<'w> Scatter<'w> {
         let backward = forward.transpose();
         Cached {
             pose: b_to_a,
+            sizes: PairSizes::new(world, &self.settings.albedo, &self.offsets, a, b),
             forward,
             backward,
         }

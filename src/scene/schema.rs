@@ -150,6 +150,10 @@ pub struct ScatterSection {
     /// Leave out light between two bodies when its bound is below this share of the flux.
     #[serde(default = "default_inter_body_tolerance")]
     pub inter_body_tolerance: f64,
+    /// Keep an inter-body block while the bodies' motion since it was computed changes
+    /// the light it carries by at most this share of the flux (0: recompute at any motion).
+    #[serde(default)]
+    pub inter_body_reuse: f64,
     /// Facet pairs closer than this many facet sizes get the exact near-field integral.
     #[serde(default = "default_near_field_ratio")]
     pub near_field_ratio: f64,

@@ -333,6 +333,12 @@ impl Scene {
                 "must be a finite number ≥ 0",
             ));
         }
+        if !(0.0..=0.1).contains(&s.inter_body_reuse) {
+            return Err(self.err(
+                "scatter.inter_body_reuse",
+                "must be 0 to 0.1 (a share of the solar flux)",
+            ));
+        }
         if s.max_orders == 0 {
             return Err(self.err("scatter.max_orders", "must be at least 1"));
         }
