@@ -63,6 +63,7 @@ pub mod analytic;
 pub mod atomic;
 pub mod bands;
 pub mod budget;
+pub mod cache;
 #[cfg(feature = "imaging")]
 pub mod compare;
 pub mod ephemeris;

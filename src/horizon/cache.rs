@@ -1,134 +1,72 @@
-//! The horizon-map cache: maps built once per (mesh content, settings) and kept on disk.
+//! The horizon-map cache: maps built once per (mesh content, settings) and kept on disk
+//! ([`crate::cache`]: the file's envelope, checksum and folder).
 //!
-//! In: a mesh (its vertices in metres and its triangles), the number of azimuth wedges
-//! and a cache folder. Out: a [`HorizonMap`] read back when a file for exactly that
-//! content is there and intact, and a file written (to a temporary name, then renamed)
-//! after a build.
+//! In: a mesh (its vertices in metres and its triangles), how many of its facets receive,
+//! the number of azimuth wedges and a file. Out: a [`HorizonMap`] read back when the file
+//! holds exactly that content intact, and a file written after a build.
 //!
-//! File layout (little-endian), named `horizon-<first 32 hex digits of the key>.bin`:
+//! Payload (little-endian), in files named `horizon-<key>.bin`:
 //!
 //! | bytes | what |
 //! |---|---|
-//! | 8 | magic `SLIMHZN\0` |
-//! | 4 | format version ([`FORMAT_VERSION`]) |
 //! | 4 | azimuth wedges A |
 //! | 8 | facets F |
-//! | 32 | content key: SHA-256 of the format version, A, F, every vertex (f64 m) and every triangle |
 //! | 4·A·F | per facet, per wedge: upper and centre elevation, u16 quanta of 90°/65535 |
-//! | 32 | SHA-256 of everything above |
 //!
-//! A file whose size, header, key or checksum does not match is never trusted: it is
-//! reported and the map is rebuilt (and the file replaced).
+//! The content key is the SHA-256 of the format version, A, the receiving facets, every
+//! vertex (f64 m) and every triangle.
 
 use super::map::HorizonMap;
-use crate::atomic::write_atomic;
-use crate::error::{Error, Result};
+use crate::cache::{self, Kind, Lookup, Reader};
+use crate::error::Result;
 use crate::mesh::Mesh;
 use sha2::{Digest, Sha256};
 use std::path::{Path, PathBuf};
 
-const MAGIC: &[u8; 8] = b"SLIMHZN\0";
-
-/// Bumped whenever the file layout or what a map holds changes.
-pub const FORMAT_VERSION: u32 = 1;
-
-const HEADER: usize = 8 + 4 + 4 + 8 + 32;
+/// Horizon-map files; version 2 moved to the shared envelope.
+pub const KIND: Kind = Kind {
+    magic: b"SLIMHZN\0",
+    version: 2,
+    prefix: "horizon",
+};
 
 /// The content key of `mesh`'s map with `azimuths` wedges.
 pub fn content_key(mesh: &Mesh, receivers: usize, azimuths: u32) -> [u8; 32] {
     let mut h = Sha256::new();
     h.update(b"slim horizon map");
-    h.update(FORMAT_VERSION.to_le_bytes());
+    h.update(KIND.version.to_le_bytes());
     h.update(azimuths.to_le_bytes());
-    h.update((mesh.len() as u64).to_le_bytes());
     if receivers < mesh.len() {
         // Facets after the first `receivers` only cast shadows (surrounding terrain).
         h.update(b"receivers");
         h.update((receivers as u64).to_le_bytes());
     }
-    for v in &mesh.vertices {
-        for x in v.to_array() {
-            h.update(x.to_le_bytes());
-        }
-    }
-    for t in &mesh.triangles {
-        for i in t {
-            h.update(i.to_le_bytes());
-        }
-    }
+    cache::mesh_content(&mut h, mesh);
     h.finalize().into()
 }
 
 /// The cache file for `key` in `dir`.
 pub fn file_for(dir: &Path, key: &[u8; 32]) -> PathBuf {
-    let hex: String = key[..16].iter().map(|b| format!("{b:02x}")).collect();
-    dir.join(format!("horizon-{hex}.bin"))
-}
-
-/// What reading the cache gave.
-#[derive(Debug)]
-pub enum Lookup {
-    /// An intact map for this content.
-    Hit(HorizonMap),
-    /// No file.
-    Missing,
-    /// A file that cannot be trusted, and why.
-    Rejected(String),
+    cache::file_for(dir, &KIND, key)
 }
 
 /// Reads the map for `key` (a mesh of `facets` facets, `azimuths` wedges) from `path`.
-pub fn load(path: &Path, key: &[u8; 32], facets: usize, azimuths: u32) -> Lookup {
-    let bytes = match std::fs::read(path) {
-        Ok(b) => b,
-        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Lookup::Missing,
-        Err(e) => return Lookup::Rejected(format!("cannot be read: {e}")),
-    };
-    match decode(&bytes, key, facets, azimuths) {
-        Ok(map) => Lookup::Hit(map),
-        Err(why) => Lookup::Rejected(why),
-    }
+pub fn load(path: &Path, key: &[u8; 32], facets: usize, azimuths: u32) -> Lookup<HorizonMap> {
+    cache::load(path, &KIND, key).decode(|payload| decode(&payload, facets, azimuths))
 }
 
-fn decode(
-    bytes: &[u8],
-    key: &[u8; 32],
-    facets: usize,
-    azimuths: u32,
-) -> std::result::Result<HorizonMap, String> {
-    let cells = facets.checked_mul(azimuths as usize).ok_or("absurd size")?;
-    let expected = HEADER + 4 * cells + 32;
-    if bytes.len() != expected {
-        return Err(format!(
-            "{} bytes, expected {expected} (truncated or another mesh)",
-            bytes.len()
-        ));
-    }
-    if &bytes[..8] != MAGIC {
-        return Err("not a slim horizon map (bad magic)".into());
-    }
-    let u32_at = |at: usize| u32::from_le_bytes(bytes[at..at + 4].try_into().expect("4 bytes"));
-    let version = u32_at(8);
-    if version != FORMAT_VERSION {
-        return Err(format!(
-            "format version {version}, this slim writes {FORMAT_VERSION}"
-        ));
-    }
-    let stored_azimuths = u32_at(12);
-    let stored_facets = u64::from_le_bytes(bytes[16..24].try_into().expect("8 bytes"));
+fn decode(payload: &[u8], facets: usize, azimuths: u32) -> std::result::Result<HorizonMap, String> {
+    let mut r = Reader::new(payload);
+    let stored_azimuths = r.u32("the wedge count")?;
+    let stored_facets = r.u64("the facet count")?;
     if stored_azimuths != azimuths || stored_facets != facets as u64 {
         return Err(format!(
             "holds {stored_facets} facets × {stored_azimuths} wedges, expected {facets} × {azimuths}"
         ));
     }
-    if &bytes[24..56] != key {
-        return Err("built from other mesh content or settings (content key differs)".into());
-    }
-    let body = expected - 32;
-    let sum: [u8; 32] = Sha256::digest(&bytes[..body]).into();
-    if sum[..] != bytes[body..] {
-        return Err("checksum mismatch (corrupt)".into());
-    }
-    let cells: Vec<[u16; 2]> = bytes[HEADER..body]
+    let cells = facets.checked_mul(azimuths as usize).ok_or("absurd size")?;
+    let cells: Vec<[u16; 2]> = r
+        .take(4 * cells, "the elevations")?
         .chunks_exact(4)
         .map(|c| {
             [
@@ -137,40 +75,20 @@ fn decode(
             ]
         })
         .collect();
+    r.finish()?;
     HorizonMap::from_cells(azimuths, facets, cells).ok_or_else(|| "inconsistent sizes".into())
 }
 
 /// Writes `map` for `key` to `path` (temporary file, then rename).
 pub fn store(path: &Path, key: &[u8; 32], map: &HorizonMap) -> Result<()> {
-    let mut bytes = Vec::with_capacity(HEADER + map.bytes() + 32);
-    bytes.extend_from_slice(MAGIC);
-    bytes.extend_from_slice(&FORMAT_VERSION.to_le_bytes());
-    bytes.extend_from_slice(&map.azimuths().to_le_bytes());
-    bytes.extend_from_slice(&(map.facets() as u64).to_le_bytes());
-    bytes.extend_from_slice(key);
+    let mut payload = Vec::with_capacity(12 + map.bytes());
+    payload.extend_from_slice(&map.azimuths().to_le_bytes());
+    payload.extend_from_slice(&(map.facets() as u64).to_le_bytes());
     for [up, mid] in map.cells() {
-        bytes.extend_from_slice(&up.to_le_bytes());
-        bytes.extend_from_slice(&mid.to_le_bytes());
+        payload.extend_from_slice(&up.to_le_bytes());
+        payload.extend_from_slice(&mid.to_le_bytes());
     }
-    let sum: [u8; 32] = Sha256::digest(&bytes).into();
-    bytes.extend_from_slice(&sum);
-    if let Some(dir) = path.parent() {
-        std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
-    }
-    write_atomic(path, &bytes)
-}
-
-/// The cache folder when the scene names none: `$SLIM_CACHE_DIR`, else
-/// `$XDG_CACHE_HOME/slim`, else `$HOME/.cache/slim`; `None` when none is set.
-pub fn default_dir() -> Option<PathBuf> {
-    let var = |k: &str| {
-        std::env::var_os(k)
-            .filter(|v| !v.is_empty())
-            .map(PathBuf::from)
-    };
-    var("SLIM_CACHE_DIR")
-        .or_else(|| var("XDG_CACHE_HOME").map(|d| d.join("slim")))
-        .or_else(|| var("HOME").map(|d| d.join(".cache").join("slim")))
+    cache::store(path, &KIND, key, &payload)
 }
 
 #[cfg(test)]
@@ -203,7 +121,7 @@ mod tests {
         ));
         let bytes = std::fs::read(&file).expect("read");
         let mut flipped = bytes.clone();
-        flipped[HEADER + 5] ^= 1;
+        flipped[cache::PAYLOAD_OFFSET + 15] ^= 1;
         std::fs::write(&file, &flipped).expect("write");
         match load(&file, &key, mesh.len(), 16) {
             Lookup::Rejected(why) => assert!(why.contains("checksum"), "{why}"),

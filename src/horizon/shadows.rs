@@ -11,15 +11,16 @@
 //! traced, so the choice never changes a result; the approximate mode and the Sun as a
 //! disk read the horizon from the map alone.
 
-use super::cache::{self, Lookup};
+use super::cache;
 use super::disk::SolarDisk;
 use super::map::{HorizonMap, AZIMUTHS_MAX, AZIMUTHS_MIN};
+use crate::cache::Lookup;
 use crate::error::{Error, Result};
 use crate::progress::Progress;
 use crate::trace::bvh::Bvh;
 use crate::world::{Body, World};
 use serde::{Deserialize, Serialize};
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::time::Instant;
 
 /// `[run] shadows`: how a body's own shadows are found.
@@ -295,13 +296,4 @@ pub struct MapRecord {
     pub file: Option<PathBuf>,
     /// Seconds spent building it (0 when read).
     pub build_s: f64,
-}
-
-/// The folder maps are cached in: the scene's `run.cache_dir` (relative to the scene
-/// file), else [`cache::default_dir`].
-pub fn cache_dir_for(scene_dir: &Path, key: Option<&Path>) -> Option<PathBuf> {
-    match key {
-        Some(p) => Some(scene_dir.join(p)),
-        None => cache::default_dir().map(|d| d.join("horizon")),
-    }
 }

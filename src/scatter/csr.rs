@@ -134,6 +134,92 @@ impl Csr {
             + self.value.len() * 4
     }
 
+    /// Appends the matrix to `out` (little-endian): columns u64, symmetric u8, rows u64,
+    /// entries u64, whether high column bits follow u8, row starts ((rows + 1) × u64),
+    /// low column bits (u16 each), high ones if any, values (f32 each).
+    pub fn encode(&self, out: &mut Vec<u8>) {
+        out.extend_from_slice(&(self.cols as u64).to_le_bytes());
+        out.push(self.symmetric as u8);
+        out.extend_from_slice(&(self.rows() as u64).to_le_bytes());
+        out.extend_from_slice(&(self.nnz() as u64).to_le_bytes());
+        out.push(!self.index_hi.is_empty() as u8);
+        self.start
+            .iter()
+            .for_each(|x| out.extend_from_slice(&x.to_le_bytes()));
+        self.index_lo
+            .iter()
+            .for_each(|x| out.extend_from_slice(&x.to_le_bytes()));
+        self.index_hi
+            .iter()
+            .for_each(|x| out.extend_from_slice(&x.to_le_bytes()));
+        self.value
+            .iter()
+            .for_each(|x| out.extend_from_slice(&x.to_le_bytes()));
+    }
+
+    /// Reads what [`Csr::encode`] wrote, checking that it is a well-formed matrix of
+    /// `rows` × `cols` (row starts increasing, columns in range and, for a symmetric one,
+    /// right of the diagonal; values finite).
+    pub fn decode(r: &mut crate::cache::Reader, rows: usize, cols: usize) -> Result<Csr, String> {
+        let stored_cols = r.u64("the column count")?;
+        let symmetric = r.take(1, "the symmetry flag")?[0] == 1;
+        let stored_rows = r.u64("the row count")?;
+        if (stored_rows, stored_cols) != (rows as u64, cols as u64) {
+            return Err(format!(
+                "a {stored_rows} × {stored_cols} matrix, expected {rows} × {cols}"
+            ));
+        }
+        let nnz = usize::try_from(r.u64("the entry count")?).map_err(|_| "absurd size")?;
+        let wide = r.take(1, "the column width")?[0] == 1;
+        if wide != (cols > 1 << 16) {
+            return Err("column width does not fit the column count".into());
+        }
+        let start: Vec<u64> = r
+            .items(rows + 1, 8, "the row starts")?
+            .map(|c| u64::from_le_bytes(c.try_into().expect("8 bytes")))
+            .collect();
+        let mut halves = |n: usize, what: &str| -> Result<Vec<u16>, String> {
+            Ok(r.items(n, 2, what)?
+                .map(|c| u16::from_le_bytes([c[0], c[1]]))
+                .collect())
+        };
+        let index_lo = halves(nnz, "the columns")?;
+        let index_hi = halves(if wide { nnz } else { 0 }, "the high column bits")?;
+        let value: Vec<f32> = r
+            .items(nnz, 4, "the values")?
+            .map(|c| f32::from_le_bytes(c.try_into().expect("4 bytes")))
+            .collect();
+        let csr = Csr {
+            cols,
+            symmetric,
+            start,
+            index_lo,
+            index_hi,
+            value,
+        };
+        csr.check()?;
+        Ok(csr)
+    }
+
+    /// Whether the parts fit together (see [`Csr::decode`]).
+    fn check(&self) -> Result<(), String> {
+        let ends_right = self.start.first() == Some(&0)
+            && self.start.last() == Some(&(self.nnz() as u64))
+            && self.start.windows(2).all(|w| w[0] <= w[1]);
+        if !ends_right {
+            return Err("row starts out of order".into());
+        }
+        for r in 0..self.rows() {
+            for (j, v) in self.row(r) {
+                let j = j as usize;
+                if j >= self.cols || (self.symmetric && j <= r) || !v.is_finite() {
+                    return Err(format!("row {r}: entry ({j}, {v}) out of place"));
+                }
+            }
+        }
+        Ok(())
+    }
+
     /// The column of stored entry `k`.
     #[inline]
     fn column(&self, k: usize) -> usize {

@@ -32,6 +32,7 @@ pub mod form_factor;
 pub mod photometric;
 pub mod planet;
 pub mod solve;
+pub mod stored;
 pub mod visibility;
 
 use crate::ephemeris::EpochState;
@@ -49,7 +50,9 @@ pub struct BandInput<'a> {
     pub first: &'a dyn FirstScatter,
     pub flux_share: f64,
 }
+use crate::cache::Lookup;
 use crate::trace::bvh::Bvh;
+use crate::world::Body;
 use crate::world::{FrameTransform, World};
 use csr::{Csr, Lanes};
 use form_factor::NearField;
@@ -58,6 +61,7 @@ use serde::{Deserialize, Serialize};
 use solve::{Exchange, SolveReport, SolverKind, Stopping};
 use std::borrow::Cow;
 use std::f64::consts::{PI, SQRT_2};
+use std::path::PathBuf;
 use std::time::Instant;
 use visibility::{cross_block, facets, facing_pairs, own_block, Occluder, SAME_FRAME};
 
@@ -84,6 +88,9 @@ pub struct Settings {
     /// facet-to-facet blocks, with how.
     pub planets: Vec<usize>,
     pub planet: PlanetSettings,
+    /// Where bodies' own form factors are kept between runs ([`stored`]); `None` builds
+    /// them every time.
+    pub cache_dir: Option<PathBuf>,
 }
 
 /// How the first bounce reflects sunlight.
@@ -132,6 +139,7 @@ impl Settings {
             first_bounce: FirstBounce::Lambertian,
             planets: Vec::new(),
             planet: PlanetSettings::default(),
+            cache_dir: None,
         }
     }
 
@@ -174,6 +182,7 @@ impl Settings {
                 order: section.planet_order,
                 reuse: section.planet_reuse,
             },
+            cache_dir: scene.cache_dir(),
         }))
     }
 
@@ -200,7 +209,7 @@ impl Settings {
             reason: format!(
                 "{}: S = F ρ (D + S) solved each step by {} to {:e} \
                  relative (at most {} iterations); form factors with visibility computed once \
-                 per body, exact near field within {} facet sizes",
+                 per body, exact near field within {} facet sizes{}",
                 self.first_bounce.describe(),
                 match method {
                     SolverKind::Cg => "conjugate gradients (albedo above 0.5)",
@@ -208,7 +217,14 @@ impl Settings {
                 },
                 self.tolerance,
                 self.max_orders,
-                self.near_field.far_ratio
+                self.near_field.far_ratio,
+                match &self.cache_dir {
+                    Some(dir) => format!(
+                        ", kept in {} and read back while mesh and settings are the same",
+                        dir.display()
+                    ),
+                    None => String::new(),
+                }
             ),
         }];
         let n = world.bodies.len();
@@ -532,6 +548,12 @@ pub struct FormFactorReport {
     pub max_row_sum: f64,
     /// Rows whose sum exceeded 1 and were scaled down.
     pub rows_capped: usize,
+    /// "built", "cache", or "built" with why a cache file was not used or written.
+    #[serde(default)]
+    pub source: String,
+    /// The cache file read or written.
+    #[serde(default)]
+    pub file: Option<PathBuf>,
 }
 
 /// What the stage did over a run (stored in `run.json`).
@@ -632,18 +654,8 @@ impl<'w> Scatter<'w> {
         let mut record = ScatterRecord::default();
         let mut own = Vec::new();
         for (b, body) in world.bodies.iter().enumerate() {
-            let t0 = Instant::now();
-            let mut block = own_block(&body.mesh, &bvhs[b], &settings.near_field);
-            let (max_row_sum, rows_capped) = cap_rows(&mut block, &body.mesh.areas);
-            record.form_factors.push(FormFactorReport {
-                body: body.name.clone(),
-                facets: body.mesh.len(),
-                entries: block.nnz(),
-                bytes: block.bytes(),
-                build_s: t0.elapsed().as_secs_f64(),
-                max_row_sum,
-                rows_capped,
-            });
+            let (block, report) = own_form_factors(body, &bvhs[b], &settings);
+            record.form_factors.push(report);
             own.push(block);
         }
         let offsets = world.offsets();
@@ -1053,6 +1065,57 @@ impl<'w> Scatter<'w> {
             backward,
         }
     }
+}
+
+/// A body's own block, capped, read from the cache when an intact file for its content
+/// is there, built (and stored when there is a cache) otherwise; and its report.
+fn own_form_factors(body: &Body, bvh: &Bvh, settings: &Settings) -> (Csr, FormFactorReport) {
+    let t0 = Instant::now();
+    let key = stored::content_key(&body.mesh, &settings.near_field);
+    let file = settings
+        .cache_dir
+        .as_deref()
+        .map(|d| crate::cache::file_for(d, &stored::KIND, &key));
+    let mut source = "built".to_string();
+    let mut read = None;
+    if let Some(file) = &file {
+        match stored::load(file, &key, body.mesh.len()) {
+            Lookup::Hit(own) => read = Some(own),
+            Lookup::Missing => {}
+            Lookup::Rejected(why) => source = format!("built (cache file not used: {why})"),
+        }
+    }
+    let from_cache = read.is_some();
+    let own = read.unwrap_or_else(|| {
+        let mut block = own_block(&body.mesh, bvh, &settings.near_field);
+        let (max_row_sum, rows_capped) = cap_rows(&mut block, &body.mesh.areas);
+        stored::OwnBlock {
+            block,
+            max_row_sum,
+            rows_capped,
+        }
+    });
+    let mut kept = file;
+    if from_cache {
+        source = "cache".into();
+    } else if let Some(file) = &kept {
+        if let Err(e) = stored::store(file, &key, &own) {
+            source = format!("built (not cached: {e})");
+            kept = None;
+        }
+    }
+    let report = FormFactorReport {
+        body: body.name.clone(),
+        facets: body.mesh.len(),
+        entries: own.block.nnz(),
+        bytes: own.block.bytes(),
+        build_s: t0.elapsed().as_secs_f64(),
+        max_row_sum: own.max_row_sum,
+        rows_capped: own.rows_capped,
+        source,
+        file: kept,
+    };
+    (own.block, report)
 }
 
 /// `S1 = F ρ D` for K steps side by side (lane k from `directs[k]`), in one pass over the

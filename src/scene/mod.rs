@@ -22,7 +22,6 @@ pub use validate::{camera_size_problem, MAX_BODIES, MAX_SPAN_S, MAX_STEPS};
 
 use crate::error::{printable, Error, Result};
 use crate::horizon::disk::SolarDisk;
-use crate::horizon::shadows::cache_dir_for;
 use crate::horizon::Shadows;
 use hifitime::Epoch;
 use serde::Deserialize;
@@ -102,7 +101,6 @@ impl Scene {
 
     /// The scene's shadow settings, the cache folder resolved.
     pub fn shadows(&self) -> Shadows {
-        let folder = self.path.parent().unwrap_or(Path::new("."));
         Shadows {
             method: self.run.shadows,
             mode: self.run.horizon_mode,
@@ -112,8 +110,14 @@ impl Scene {
                 limb_darkening: self.run.limb_darkening,
             },
             sun_samples: self.run.sun_samples,
-            cache_dir: cache_dir_for(folder, self.run.cache_dir.as_deref()),
+            cache_dir: self.cache_dir(),
         }
+    }
+
+    /// The folder cached horizon maps and form factors go to ([`crate::cache::dir_for`]).
+    pub fn cache_dir(&self) -> Option<PathBuf> {
+        let folder = self.path.parent().unwrap_or(Path::new("."));
+        crate::cache::dir_for(folder, self.run.cache_dir.as_deref())
     }
 
     /// An error at `key` of this scene ([`Error::scene`]: shown printable and bounded).

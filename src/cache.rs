@@ -1,0 +1,269 @@
+//! Files kept between runs: results that take seconds to minutes to build and depend only
+//! on a mesh's content and a few settings (horizon maps, form factors).
+//!
+//! In: a folder, the [`Kind`] of file, a content key (SHA-256 of everything the result
+//! depends on, [`mesh_content`] included) and the payload's bytes. Out: the payload read
+//! back when the file for exactly that key is there and intact; files written to a
+//! temporary name, then renamed.
+//!
+//! File layout (little-endian), named `<prefix>-<first 32 hex digits of the key>.bin`:
+//!
+//! | bytes | what |
+//! |---|---|
+//! | 8 | the kind's magic |
+//! | 4 | the kind's format version |
+//! | 32 | content key |
+//! | n | payload (its layout is in the kind's module) |
+//! | 32 | SHA-256 of everything above |
+//!
+//! A file whose magic, version, key or checksum does not match is never trusted: the
+//! caller is told why, rebuilds the result and replaces the file.
+
+use crate::atomic::write_atomic;
+use crate::error::{Error, Result};
+use crate::mesh::Mesh;
+use sha2::{Digest, Sha256};
+use std::path::{Path, PathBuf};
+
+/// One kind of cached file.
+#[derive(Debug, Clone, Copy)]
+pub struct Kind {
+    pub magic: &'static [u8; 8],
+    /// Bumped whenever the payload's layout or what it holds changes.
+    pub version: u32,
+    /// File names start with this.
+    pub prefix: &'static str,
+}
+
+const HEADER: usize = 8 + 4 + 32;
+
+/// Where the payload starts in a file (for tests that damage it).
+pub const PAYLOAD_OFFSET: usize = HEADER;
+
+/// What reading the cache gave.
+#[derive(Debug)]
+pub enum Lookup<T> {
+    /// An intact file for this content.
+    Hit(T),
+    /// No file.
+    Missing,
+    /// A file that cannot be trusted, and why.
+    Rejected(String),
+}
+
+impl<T> Lookup<T> {
+    /// Decodes a hit; a payload that does not decode is rejected with the reason.
+    pub fn decode<U>(self, f: impl FnOnce(T) -> std::result::Result<U, String>) -> Lookup<U> {
+        match self {
+            Lookup::Hit(t) => match f(t) {
+                Ok(u) => Lookup::Hit(u),
+                Err(why) => Lookup::Rejected(why),
+            },
+            Lookup::Missing => Lookup::Missing,
+            Lookup::Rejected(why) => Lookup::Rejected(why),
+        }
+    }
+}
+
+/// Adds a mesh's content to a key: facet count, every vertex (f64 m) and every triangle.
+pub fn mesh_content(h: &mut Sha256, mesh: &Mesh) {
+    h.update((mesh.len() as u64).to_le_bytes());
+    for v in &mesh.vertices {
+        for x in v.to_array() {
+            h.update(x.to_le_bytes());
+        }
+    }
+    for t in &mesh.triangles {
+        for i in t {
+            h.update(i.to_le_bytes());
+        }
+    }
+}
+
+/// The file for `key` of this kind in `dir`.
+pub fn file_for(dir: &Path, kind: &Kind, key: &[u8; 32]) -> PathBuf {
+    let hex: String = key[..16].iter().map(|b| format!("{b:02x}")).collect();
+    dir.join(format!("{}-{hex}.bin", kind.prefix))
+}
+
+/// Reads the payload for `key` from `path`.
+pub fn load(path: &Path, kind: &Kind, key: &[u8; 32]) -> Lookup<Vec<u8>> {
+    let bytes = match std::fs::read(path) {
+        Ok(b) => b,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Lookup::Missing,
+        Err(e) => return Lookup::Rejected(format!("cannot be read: {e}")),
+    };
+    match open(bytes, kind, key) {
+        Ok(payload) => Lookup::Hit(payload),
+        Err(why) => Lookup::Rejected(why),
+    }
+}
+
+fn open(mut bytes: Vec<u8>, kind: &Kind, key: &[u8; 32]) -> std::result::Result<Vec<u8>, String> {
+    if bytes.len() < HEADER + 32 {
+        return Err(format!("{} bytes: truncated", bytes.len()));
+    }
+    if &bytes[..8] != kind.magic {
+        return Err(format!("not a slim {} file (bad magic)", kind.prefix));
+    }
+    let version = u32::from_le_bytes(bytes[8..12].try_into().expect("4 bytes"));
+    if version != kind.version {
+        return Err(format!(
+            "format version {version}, this slim writes {}",
+            kind.version
+        ));
+    }
+    if &bytes[12..HEADER] != key {
+        return Err("built from other mesh content or settings (content key differs)".into());
+    }
+    let body = bytes.len() - 32;
+    let sum: [u8; 32] = Sha256::digest(&bytes[..body]).into();
+    if sum[..] != bytes[body..] {
+        return Err("checksum mismatch (corrupt or truncated)".into());
+    }
+    bytes.truncate(body);
+    bytes.drain(..HEADER);
+    Ok(bytes)
+}
+
+/// Writes `payload` for `key` to `path` (temporary file, then rename), creating the
+/// folder.
+pub fn store(path: &Path, kind: &Kind, key: &[u8; 32], payload: &[u8]) -> Result<()> {
+    let mut bytes = Vec::with_capacity(HEADER + payload.len() + 32);
+    bytes.extend_from_slice(kind.magic);
+    bytes.extend_from_slice(&kind.version.to_le_bytes());
+    bytes.extend_from_slice(key);
+    bytes.extend_from_slice(payload);
+    let sum: [u8; 32] = Sha256::digest(&bytes).into();
+    bytes.extend_from_slice(&sum);
+    if let Some(dir) = path.parent() {
+        std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
+    }
+    write_atomic(path, &bytes)
+}
+
+/// The cache folder when the scene names none: `$SLIM_CACHE_DIR`, else
+/// `$XDG_CACHE_HOME/slim`, else `$HOME/.cache/slim`; `None` when none is set.
+pub fn default_dir() -> Option<PathBuf> {
+    let var = |k: &str| {
+        std::env::var_os(k)
+            .filter(|v| !v.is_empty())
+            .map(PathBuf::from)
+    };
+    var("SLIM_CACHE_DIR")
+        .or_else(|| var("XDG_CACHE_HOME").map(|d| d.join("slim")))
+        .or_else(|| var("HOME").map(|d| d.join(".cache").join("slim")))
+}
+
+/// The folder a scene's cached files go to: its `run.cache_dir` (relative to the scene
+/// file), else [`default_dir`].
+pub fn dir_for(scene_dir: &Path, key: Option<&Path>) -> Option<PathBuf> {
+    match key {
+        Some(p) => Some(scene_dir.join(p)),
+        None => default_dir(),
+    }
+}
+
+/// Little-endian readers over a payload, each failing with what was short.
+pub struct Reader<'a> {
+    bytes: &'a [u8],
+}
+
+impl<'a> Reader<'a> {
+    pub fn new(bytes: &'a [u8]) -> Reader<'a> {
+        Reader { bytes }
+    }
+
+    /// The next `n` bytes.
+    pub fn take(&mut self, n: usize, what: &str) -> std::result::Result<&'a [u8], String> {
+        if self.bytes.len() < n {
+            return Err(format!("payload ends inside {what}"));
+        }
+        let (head, rest) = self.bytes.split_at(n);
+        self.bytes = rest;
+        Ok(head)
+    }
+
+    /// The next `n` items of `width` bytes each.
+    pub fn items(
+        &mut self,
+        n: usize,
+        width: usize,
+        what: &str,
+    ) -> std::result::Result<std::slice::ChunksExact<'a, u8>, String> {
+        let bytes = n.checked_mul(width).ok_or("absurd size")?;
+        Ok(self.take(bytes, what)?.chunks_exact(width))
+    }
+
+    pub fn u64(&mut self, what: &str) -> std::result::Result<u64, String> {
+        Ok(u64::from_le_bytes(
+            self.take(8, what)?.try_into().expect("8 bytes"),
+        ))
+    }
+
+    pub fn u32(&mut self, what: &str) -> std::result::Result<u32, String> {
+        Ok(u32::from_le_bytes(
+            self.take(4, what)?.try_into().expect("4 bytes"),
+        ))
+    }
+
+    pub fn f64(&mut self, what: &str) -> std::result::Result<f64, String> {
+        Ok(f64::from_bits(self.u64(what)?))
+    }
+
+    /// Fails unless every byte was read.
+    pub fn finish(&self) -> std::result::Result<(), String> {
+        if self.bytes.is_empty() {
+            Ok(())
+        } else {
+            Err(format!("{} bytes left over", self.bytes.len()))
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const KIND: Kind = Kind {
+        magic: b"SLIMTST\0",
+        version: 3,
+        prefix: "test",
+    };
+
+    #[test]
+    fn a_stored_payload_reads_back_and_any_damage_or_other_key_is_refused() {
+        let dir = std::env::temp_dir().join(format!("slim-cache-{}", std::process::id()));
+        let key = [7u8; 32];
+        let file = file_for(&dir, &KIND, &key);
+        assert!(matches!(load(&file, &KIND, &key), Lookup::Missing));
+        store(&file, &KIND, &key, b"payload").expect("store");
+        match load(&file, &KIND, &key) {
+            Lookup::Hit(p) => assert_eq!(p, b"payload"),
+            other => panic!("{other:?}"),
+        }
+        let refused = |why: &str| match load(&file, &KIND, &key) {
+            Lookup::Rejected(r) => assert!(r.contains(why), "{r}"),
+            other => panic!("{other:?}"),
+        };
+        assert!(matches!(
+            load(&file, &KIND, &[8u8; 32]),
+            Lookup::Rejected(_)
+        ));
+        let other_version = Kind { version: 4, ..KIND };
+        assert!(matches!(
+            load(&file, &other_version, &key),
+            Lookup::Rejected(_)
+        ));
+        let bytes = std::fs::read(&file).expect("read");
+        let mut flipped = bytes.clone();
+        flipped[PAYLOAD_OFFSET + 2] ^= 1;
+        std::fs::write(&file, &flipped).expect("write");
+        refused("checksum");
+        std::fs::write(&file, &bytes[..bytes.len() - 3]).expect("write");
+        refused("checksum");
+        std::fs::write(&file, b"").expect("write");
+        refused("truncated");
+        std::fs::remove_dir_all(&dir).ok();
+    }
+}
