@@ -15,7 +15,7 @@ use slim::analytic::SphereLatitude;
 use slim::ephemeris::fixed::{FixedGeometry, FixedSun};
 use slim::ephemeris::spin::{Spin, SpinModel};
 use slim::ephemeris::Ephemeris;
-use slim::horizon::map::HorizonMap;
+use slim::horizon::map::{tangent_frame, HorizonMap, PointHorizon};
 use slim::horizon::{HorizonMode, Shadows, SunShape};
 use slim::illum::{Direct, StepCounts};
 use slim::mesh::generate::{self, icosphere};
@@ -27,7 +27,7 @@ use slim::simulate::{simulate, Options, Simulation};
 use slim::stats::{Bins, FacetStats};
 use slim::trace::{self, TracerKind};
 use slim::world::{Body, Pose, World};
-use std::f64::consts::PI;
+use std::f64::consts::{FRAC_PI_2, PI};
 use std::path::PathBuf;
 
 // ---------------------------------------------------------------------------------------
@@ -660,6 +660,83 @@ fn compare_tracers(name: &str, mesh: &Mesh, suns: &[DVec3]) {
             "{name}: the horizon bound cleared no ray, so it went untested"
         );
     }
+}
+
+/// The highest elevation (radians) at azimuth `phi` around `up` at which a ray from `p`
+/// meets `mesh`, by bisection between straight down and straight up (the blocked set of
+/// a height field seen from above it is one interval from straight down).
+fn horizon_by_rays(bvh: &slim::trace::bvh::Bvh, p: DVec3, up: DVec3, phi: f64) -> f64 {
+    let (t1, t2) = tangent_frame(up);
+    let level = t1 * phi.cos() + t2 * phi.sin();
+    let blocked = |e: f64| {
+        let dir = level * e.cos() + up * e.sin();
+        bvh.segment_blocked(p, p + dir * 1e8, [u32::MAX; 2], 0.0)
+    };
+    let (mut lo, mut hi) = (-FRAC_PI_2 + 1e-6, FRAC_PI_2 - 1e-6);
+    assert!(blocked(lo) && !blocked(hi));
+    for _ in 0..60 {
+        let mid = 0.5 * (lo + hi);
+        if blocked(mid) {
+            lo = mid;
+        } else {
+            hi = mid;
+        }
+    }
+    0.5 * (lo + hi)
+}
+
+#[test]
+fn horizons_from_points_above_haworth_match_ray_casts() {
+    // Points 2 m and 300 m above facets of the shipped Haworth patch (heights along +z),
+    // among them its highest facet, whose horizon dips below the horizontal.
+    let mesh = load_km("data/shapes/moon/haworth5412.obj");
+    let bvh = slim::trace::bvh::Bvh::build(&mesh);
+    let highest = (0..mesh.len())
+        .max_by(|&a, &b| mesh.centroids[a].z.total_cmp(&mesh.centroids[b].z))
+        .unwrap();
+    let (mut below_horizontal, mut checked) = (0, 0);
+    for i in [highest, 17, 1500, 2900, 4400, 5300] {
+        for height in [2.0, 300.0] {
+            let p = mesh.centroids[i] + DVec3::Z * height;
+            let h = PointHorizon::build(&mesh, &bvh, p, DVec3::Z, 32);
+            let width = 2.0 * PI / 32.0;
+            for k in 0..32 {
+                let [upper, centre] = h.wedge(k);
+                // At the wedge's centre the horizon is exact; the predicate's rounding
+                // and the bisection's 1e-16 leave far less than 1e-9 rad.
+                let by_rays = horizon_by_rays(&bvh, p, DVec3::Z, width * (k as f64 + 0.5));
+                assert!(
+                    (centre - by_rays).abs() < 1e-9,
+                    "facet {i} +{height} m wedge {k}: {centre} vs {by_rays}"
+                );
+                // Anywhere in the wedge the horizon stays under the upper bound.
+                for t in [0.01, 0.3, 0.7, 0.99] {
+                    let e = horizon_by_rays(&bvh, p, DVec3::Z, width * (k as f64 + t));
+                    assert!(
+                        e <= upper + 1e-12,
+                        "facet {i} +{height} m wedge {k} at {t}: {e} > {upper}"
+                    );
+                }
+                below_horizontal += (centre < 0.0) as usize;
+                checked += 1;
+            }
+            // The lookup agrees with its wedge: a direction just above the centre horizon
+            // at a wedge centre is above the approximate horizon there.
+            let dir = |e: f64| {
+                let (t1, t2) = tangent_frame(DVec3::Z);
+                let phi = width * 0.5;
+                (t1 * phi.cos() + t2 * phi.sin()) * e.cos() + DVec3::Z * e.sin()
+            };
+            let at = h.position(dir(h.wedge(0)[1] + 1e-3));
+            assert_eq!(at.wedge, 0);
+            assert!(at.elevation > h.horizon(&at).elevation);
+        }
+    }
+    assert!(
+        below_horizontal > 0,
+        "no horizon below the horizontal was tested"
+    );
+    eprintln!("{checked} wedges checked, {below_horizontal} with the horizon below the horizontal");
 }
 
 /// The engine's direct stage with a horizon map of `mesh` (`azimuths` wedges) in

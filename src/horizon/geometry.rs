@@ -29,10 +29,21 @@ pub(crate) fn rounding_widening(mesh: &Mesh) -> f64 {
 /// An upper bound of the elevation sine from `c` (plane normal `n`) of every point of the
 /// box `lo..hi` widened by `widening`; 0 when the box lies on or below the plane.
 pub(crate) fn box_bound(c: DVec3, n: DVec3, lo: DVec3, hi: DVec3, widening: f64) -> f64 {
+    signed_box_bound(c, n, lo, hi, widening).max(0.0)
+}
+
+/// [`box_bound`] below the plane too (down to −1): a box wholly below it is bounded by
+/// its highest rise over its farthest corner's distance.
+pub(crate) fn signed_box_bound(c: DVec3, n: DVec3, lo: DVec3, hi: DVec3, widening: f64) -> f64 {
     let (lo, hi) = (lo - widening, hi + widening);
     let mid = (lo + hi) * 0.5;
-    let rise = n.dot(mid - c) + n.abs().dot((hi - lo) * 0.5);
-    if rise <= 0.0 {
+    let half = (hi - lo) * 0.5;
+    let rise = n.dot(mid - c) + n.abs().dot(half);
+    if rise < 0.0 {
+        let far = ((mid - c).abs() + half).length();
+        return (rise / far).max(-1.0);
+    }
+    if rise == 0.0 {
         return 0.0;
     }
     let gap = (c.clamp(lo, hi) - c).length();

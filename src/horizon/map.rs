@@ -22,9 +22,13 @@
 //!
 //! Cost: one tree search per facet, parallel over facets, that prunes every box lower
 //! than the upper bounds of the wedges it spans. Memory: `4·A` bytes per facet.
+//!
+//! The same search gives the horizon from any point off the surface ([`PointHorizon`]:
+//! a panel or a mast at a height, around the local vertical), with elevations below the
+//! horizontal kept (a point on a ridge sees down its flanks) and no facet left out.
 
 use super::geometry::{
-    arc_max_sin, box_bound, directions_max_sin, distance_to_triangle, rounding_widening,
+    arc_max_sin, directions_max_sin, distance_to_triangle, rounding_widening, signed_box_bound,
 };
 use crate::mesh::Mesh;
 use crate::trace::bvh::Bvh;
@@ -152,18 +156,7 @@ impl HorizonMap {
     /// unit normal `normal`, given `sin_elevation = normal·sun`.
     #[inline]
     pub fn position(&self, normal: DVec3, sun: DVec3, sin_elevation: f64) -> SkyPosition {
-        let (t1, t2) = tangent_frame(normal);
-        let a = self.azimuths as f64;
-        let mut phi = sun.dot(t2).atan2(sun.dot(t1));
-        if phi < 0.0 {
-            phi += TAU;
-        }
-        let w = phi * (a / TAU);
-        SkyPosition {
-            wedge: (w as usize).min(self.azimuths as usize - 1),
-            between: w - 0.5,
-            elevation: sin_elevation.clamp(-1.0, 1.0).asin(),
-        }
+        sky_position(self.azimuths, normal, sun, sin_elevation)
     }
 
     /// True when facet `i` sees a Sun at `at` for certain: above the upper bound of its
@@ -178,19 +171,9 @@ impl HorizonMap {
     /// horizons at the two nearest wedge centres.
     #[inline]
     pub fn horizon(&self, i: usize, at: &SkyPosition) -> LocalHorizon {
-        let a = self.azimuths as usize;
-        let below = at.between.floor();
-        let t = at.between - below;
-        let k0 = (below as isize).rem_euclid(a as isize) as usize;
-        let k1 = (k0 + 1) % a;
-        let (h0, h1) = (
-            self.cell(i, k0)[1] as f64 / QUANTA_PER_RAD,
-            self.cell(i, k1)[1] as f64 / QUANTA_PER_RAD,
-        );
-        LocalHorizon {
-            elevation: h0 + (h1 - h0) * t,
-            slope: (h1 - h0) * (a as f64 / TAU),
-        }
+        between_centres(self.azimuths, at, |k| {
+            self.cell(i, k)[1] as f64 / QUANTA_PER_RAD
+        })
     }
 
     /// The [upper, centre] elevations (radians) of facet `i` in wedge `k` (tests, reports).
@@ -201,6 +184,38 @@ impl HorizonMap {
     #[inline]
     fn cell(&self, i: usize, k: usize) -> [u16; 2] {
         self.cells[i * self.azimuths as usize + k]
+    }
+}
+
+/// Where the unit direction `dir` stands in the sky of a plane with unit normal `up`
+/// cut into `azimuths` wedges, given `sin_elevation = up·dir`.
+#[inline]
+fn sky_position(azimuths: u32, up: DVec3, dir: DVec3, sin_elevation: f64) -> SkyPosition {
+    let (t1, t2) = tangent_frame(up);
+    let mut phi = dir.dot(t2).atan2(dir.dot(t1));
+    if phi < 0.0 {
+        phi += TAU;
+    }
+    let w = phi * (azimuths as f64 / TAU);
+    SkyPosition {
+        wedge: (w as usize).min(azimuths as usize - 1),
+        between: w - 0.5,
+        elevation: sin_elevation.clamp(-1.0, 1.0).asin(),
+    }
+}
+
+/// The horizon at `at`'s azimuth, linear between the wedge-centre elevations `centre(k)`
+/// (radians) of the two nearest wedges.
+#[inline]
+fn between_centres(azimuths: u32, at: &SkyPosition, centre: impl Fn(usize) -> f64) -> LocalHorizon {
+    let a = azimuths as usize;
+    let below = at.between.floor();
+    let t = at.between - below;
+    let k0 = (below as isize).rem_euclid(a as isize) as usize;
+    let (h0, h1) = (centre(k0), centre((k0 + 1) % a));
+    LocalHorizon {
+        elevation: h0 + (h1 - h0) * t,
+        slope: (h1 - h0) * (a as f64 / TAU),
     }
 }
 
@@ -328,20 +343,13 @@ fn facet_horizon(
         // Never lit (n·s = 0): any horizon will do; the highest is the safe one.
         return (vec![[u16::MAX; 2]; wedges.count], Vec::new());
     }
-    let sky = RefCell::new(FacetSky::new(c, n, wedges, widening));
-    for &id in seeds.iter().filter(|&&id| id as usize != i) {
-        sky.borrow_mut()
-            .add_triangle(id, &mesh.corners(id as usize));
-    }
-    bvh.search(
-        |lo, hi| sky.borrow().box_priority(lo, hi),
-        |id, tri| {
-            if id as usize != i {
-                sky.borrow_mut().add_triangle(id, tri);
-            }
-        },
+    let sky = search_sky(
+        mesh,
+        bvh,
+        FacetSky::new(c, n, wedges, widening, 0.0),
+        Some(i as u32),
+        seeds,
     );
-    let sky = sky.into_inner();
     let mut setters: Vec<u32> = sky
         .setter
         .iter()
@@ -351,6 +359,93 @@ fn facet_horizon(
     setters.sort_unstable();
     setters.dedup();
     (sky.quantised(), setters)
+}
+
+/// Raises `sky` by every triangle of `mesh` but `skip` that can change it: the `seeds`
+/// first, then a best-first search of `bvh` that prunes boxes no higher than the
+/// horizons of the wedges they span.
+fn search_sky<'a>(
+    mesh: &Mesh,
+    bvh: &Bvh,
+    sky: FacetSky<'a>,
+    skip: Option<u32>,
+    seeds: &[u32],
+) -> FacetSky<'a> {
+    let sky = RefCell::new(sky);
+    for &id in seeds.iter().filter(|&&id| Some(id) != skip) {
+        sky.borrow_mut()
+            .add_triangle(id, &mesh.corners(id as usize));
+    }
+    bvh.search(
+        |lo, hi| sky.borrow().box_priority(lo, hi),
+        |id, tri| {
+            if Some(id) != skip {
+                sky.borrow_mut().add_triangle(id, tri);
+            }
+        },
+    );
+    sky.into_inner()
+}
+
+/// The horizon seen from a point off the surface (a panel or a mast at some height), in
+/// the frame of an `up` direction: per azimuth wedge (azimuth in the plane normal to
+/// `up`, from [`tangent_frame`]'s first axis toward its second), an upper bound of the
+/// elevation of every point of the mesh in the wedge and the horizon at the wedge's
+/// centre, both in radians from −90° to 90° (a point on a ridge sees below the
+/// horizontal). Built by the same search as a facet's row of a [`HorizonMap`], kept in
+/// `f64`, not quantised; no facet is left out.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PointHorizon {
+    up: DVec3,
+    /// Per wedge: [upper, centre] elevation, radians.
+    cells: Vec<[f64; 2]>,
+}
+
+impl PointHorizon {
+    /// The horizon from `point` (metres, the mesh's frame) around the unit vector `up`,
+    /// with `azimuths` wedges (clamped to [`AZIMUTHS_MIN`]..=[`AZIMUTHS_MAX`]). `bvh` is
+    /// built over `mesh`. A point on the mesh itself sees every wedge blocked.
+    pub fn build(mesh: &Mesh, bvh: &Bvh, point: DVec3, up: DVec3, azimuths: u32) -> PointHorizon {
+        let wedges = Wedges::new(azimuths.clamp(AZIMUTHS_MIN, AZIMUTHS_MAX) as usize);
+        let widening = rounding_widening(mesh);
+        let sky = FacetSky::new(point, up, &wedges, widening, -1.0);
+        let sky = search_sky(mesh, bvh, sky, None, &[]);
+        let elevation = |sin: f64| sin.clamp(-1.0, 1.0).asin();
+        PointHorizon {
+            up,
+            cells: sky
+                .upper
+                .iter()
+                .zip(&sky.centre)
+                .map(|(&up, &mid)| [elevation(up), elevation(mid.min(up))])
+                .collect(),
+        }
+    }
+
+    /// Number of azimuth wedges.
+    pub fn azimuths(&self) -> u32 {
+        self.cells.len() as u32
+    }
+
+    /// The [upper, centre] elevations (radians) of wedge `k`.
+    pub fn wedge(&self, k: usize) -> [f64; 2] {
+        self.cells[k]
+    }
+
+    /// Where the unit direction `dir` stands in this sky.
+    pub fn position(&self, dir: DVec3) -> SkyPosition {
+        sky_position(self.azimuths(), self.up, dir, self.up.dot(dir))
+    }
+
+    /// True when a direction at `at` is above every point of the mesh in its wedge.
+    pub fn clears(&self, at: &SkyPosition) -> bool {
+        at.elevation > self.cells[at.wedge][0]
+    }
+
+    /// The approximate horizon at `at`'s azimuth: linear between wedge centres.
+    pub fn horizon(&self, at: &SkyPosition) -> LocalHorizon {
+        between_centres(self.azimuths(), at, |k| self.cells[k][1])
+    }
 }
 
 /// A facet's horizon while it is being built: sines of elevation per wedge.
@@ -367,10 +462,13 @@ struct FacetSky<'a> {
     setter: Vec<u32>,
     /// The lowest centre horizon of all wedges.
     lowest_anywhere: f64,
+    /// The lowest elevation sine kept: 0 for a facet (its own plane hides what is below),
+    /// −1 for a point above the surface.
+    floor: f64,
 }
 
 impl<'a> FacetSky<'a> {
-    fn new(c: DVec3, n: DVec3, wedges: &'a Wedges, widening: f64) -> FacetSky<'a> {
+    fn new(c: DVec3, n: DVec3, wedges: &'a Wedges, widening: f64, floor: f64) -> FacetSky<'a> {
         let (t1, t2) = tangent_frame(n);
         FacetSky {
             c,
@@ -379,17 +477,23 @@ impl<'a> FacetSky<'a> {
             t2,
             wedges,
             widening,
-            upper: vec![0.0; wedges.count],
-            centre: vec![0.0; wedges.count],
+            upper: vec![floor; wedges.count],
+            centre: vec![floor; wedges.count],
             setter: vec![u32::MAX; wedges.count],
-            lowest_anywhere: 0.0,
+            lowest_anywhere: floor,
+            floor,
         }
+    }
+
+    /// The highest elevation sine of a box's points, never below the floor.
+    fn box_bound(&self, lo: DVec3, hi: DVec3) -> f64 {
+        signed_box_bound(self.c, self.n, lo, hi, self.widening).max(self.floor)
     }
 
     /// Whether to open the box `lo..hi` and with which priority: not when nothing in it
     /// can rise above the upper bounds of the wedges it spans.
     fn box_priority(&self, lo: DVec3, hi: DVec3) -> Option<f64> {
-        let bound = box_bound(self.c, self.n, lo, hi, self.widening);
+        let bound = self.box_bound(lo, hi);
         if bound <= self.lowest(Span::All) {
             return None;
         }
@@ -424,7 +528,7 @@ impl<'a> FacetSky<'a> {
     /// Raises the wedges' upper bounds and centre horizons by triangle `tri`.
     fn add_triangle(&mut self, id: u32, tri: &[DVec3; 3]) {
         let rel = tri.map(|p| p - self.c);
-        if rel.iter().all(|p| p.dot(self.n) < -self.widening) {
+        if self.floor >= 0.0 && rel.iter().all(|p| p.dot(self.n) < -self.widening) {
             return;
         }
         let gap = distance_to_triangle(self.c, tri);
@@ -440,7 +544,7 @@ impl<'a> FacetSky<'a> {
             tri[0].min(tri[1]).min(tri[2]),
             tri[0].max(tri[1]).max(tri[2]),
         );
-        let boxed = box_bound(self.c, self.n, lo, hi, self.widening);
+        let boxed = self.box_bound(lo, hi);
         // The corners' span, once: the box test and the exact test differ only in how
         // they learn that the zenith may lie inside.
         let corners = Span::of(&rel, self.t1, self.t2);
@@ -477,7 +581,7 @@ impl<'a> FacetSky<'a> {
             if span.holds(sin_c.atan2(cos_c)) {
                 let u = self.t1 * cos_c + self.t2 * sin_c;
                 let m = self.t2 * cos_c - self.t1 * sin_c;
-                let sin = half_plane_max_sin(&rel, self.n, u, m);
+                let sin = half_plane_max_sin(&rel, self.n, u, m, self.floor);
                 if sin > self.centre[k] {
                     let was_lowest = self.centre[k] == self.lowest_anywhere;
                     self.centre[k] = sin;
@@ -560,7 +664,7 @@ fn line_meets_box(c: DVec3, n: DVec3, lo: DVec3, hi: DVec3) -> bool {
 /// triangle itself), and the elevation along a line seen from a point off it changes
 /// monotonically, so the highest point of the cut within the half-plane is one of its
 /// ends, or straight up where it crosses the zenith.
-fn half_plane_max_sin(rel: &[DVec3; 3], n: DVec3, u: DVec3, m: DVec3) -> f64 {
+fn half_plane_max_sin(rel: &[DVec3; 3], n: DVec3, u: DVec3, m: DVec3, floor: f64) -> f64 {
     let mut poly = Polygon::default();
     let g = rel.map(|p| p.dot(m));
     for j in 0..3 {
@@ -585,7 +689,7 @@ fn half_plane_max_sin(rel: &[DVec3; 3], n: DVec3, u: DVec3, m: DVec3) -> f64 {
                 y / r
             }
         })
-        .fold(0.0, f64::max)
+        .fold(floor, f64::max)
 }
 
 /// A small convex polygon (at most a triangle clipped twice) for Sutherland–Hodgman
