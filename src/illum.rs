@@ -453,13 +453,8 @@ impl<'w> Direct<'w> {
     /// (approximated by a straight line across the disk; [`crate::horizon::disk`]).
     fn disk_share(&self, sin_elevation: f64, horizon: LocalHorizon, radius: f64) -> f64 {
         let e = sin_elevation.clamp(-1.0, 1.0).asin();
-        let tilt = horizon.slope / e.cos().max(1e-6);
-        let across = (1.0 + tilt * tilt).sqrt();
-        let seen = self
-            .disk
-            .visible((e - horizon.elevation) / (radius * across));
-        let centroid = e + radius * seen.centroid / across;
-        seen.fraction * centroid.sin().max(0.0)
+        let (fraction, centroid) = self.disk.above(e, horizon, radius);
+        fraction * centroid.sin().max(0.0)
     }
 
     /// The least distance along the Sun ray at which a hit on facet `i` of body `b` counts

@@ -41,6 +41,8 @@
 //! | reflectance | [`photometry`] | Lambert, Lommel–Seeliger, Hapke: r (sr⁻¹), I/F |
 //! | scattered light | [`scatter`] | direct W/m² → scattered W/m² (form factors, Jacobi/CG) |
 //! | spectral bands | [`bands`] | per-band irradiance and statistics |
+//! | panels | [`panel`] | a place, height and panel → its horizon; per step W/m² and W on the panel |
+//! | caches | [`cache`] | horizon maps and form factors kept on disk between runs |
 //! | step loop | [`simulate`] | world and states → statistics, each step's irradiance |
 //! | statistics | [`stats`] | per-step W/m² → min, max, mean, std, lit fraction, CDF |
 //! | files | [`output`] | statistics → Parquet/CSV tables, PLY, `run.json`; and read back |
@@ -76,6 +78,7 @@ pub mod illum;
 pub mod image;
 pub mod mesh;
 pub mod output;
+pub mod panel;
 pub mod photometry;
 pub mod plan;
 pub mod prepare;

@@ -1510,3 +1510,154 @@ fn surrounding_walls_shadow_a_patch_where_their_height_says() {
         "{checked} {dark}"
     );
 }
+
+// ---------------------------------------------------------------------------------------
+// Panels
+
+/// A flat square 20 km wide touching a sphere of 1,000 km at latitude `lat` (longitude 0),
+/// in metres, facing out.
+fn plain_at(lat: f64) -> (Mesh, DVec3) {
+    let up = DVec3::new(lat.cos(), 0.0, lat.sin());
+    let north = DVec3::new(-lat.sin(), 0.0, lat.cos());
+    let east = DVec3::Y;
+    let centre = up * 1.0e6;
+    let raw = generate::height_field((8, 8), (-1e4, 1e4), (-1e4, 1e4), |_, _| 0.0);
+    let raw = RawMesh {
+        vertices: raw
+            .vertices
+            .iter()
+            .map(|v| centre + east * v.x + north * v.y)
+            .collect(),
+        triangles: raw.triangles,
+    };
+    (Mesh::from_raw(raw, LengthUnit::M), centre)
+}
+
+#[test]
+fn panels_on_a_plain_follow_the_closed_form_over_a_day() {
+    use slim::horizon::disk::SolarDisk;
+    use slim::panel::{Orientation, Panel, Site};
+    // 60° S, the Sun at declination 10° (it rises and sets), hour angles every 5°.
+    let (lat, dec) = ((-60f64).to_radians(), 10f64.to_radians());
+    let (mesh, surface) = plain_at(lat);
+    let bvh = slim::trace::bvh::Bvh::build(&mesh);
+    let site = Site::new(&mesh, &bvh, surface, 2.0).expect("site");
+    let flux = 1361.0;
+    let radius = SolarDisk::angular_radius(slim::AU_M);
+    let disk = SolarDisk {
+        limb_darkening: 0.6,
+    };
+    let panel = |orientation| Panel {
+        orientation,
+        area_m2: 2.0,
+        efficiency: 0.3,
+    };
+    let (vertical_north, tilted) = (
+        panel(Orientation::Fixed {
+            tilt_deg: 90.0,
+            azimuth_deg: 0.0,
+        }),
+        panel(Orientation::Fixed {
+            tilt_deg: 30.0,
+            azimuth_deg: 45.0,
+        }),
+    );
+    let (mut lit, mut dark) = (0, 0);
+    for k in 0..72 {
+        let h = (5.0 * k as f64).to_radians();
+        // The Sun in the body frame, hour angle h west of the meridian of longitude 0.
+        let sun = DVec3::new(dec.cos() * h.cos(), -dec.cos() * h.sin(), dec.sin());
+        // The textbook elevation and azimuth (from north toward east).
+        let e = (lat.sin() * dec.sin() + lat.cos() * dec.cos() * h.cos()).asin();
+        let az =
+            (-dec.cos() * h.sin()).atan2(lat.cos() * dec.sin() - lat.sin() * dec.cos() * h.cos());
+        let cos_on = |tilt: f64, facing: f64| {
+            let (t, f) = (tilt.to_radians(), facing.to_radians());
+            e.sin() * t.cos() + e.cos() * t.sin() * (az - f).cos()
+        };
+        if e.abs() < 0.01 {
+            continue; // the plain's own horizon (−0.01°) decides
+        }
+        for (p, tilt, facing) in [(&vertical_north, 90.0, 0.0), (&tilted, 30.0, 45.0)] {
+            let expected = if e > 0.0 {
+                flux * cos_on(tilt, facing).max(0.0)
+            } else {
+                0.0
+            };
+            let got = site.sunlight(p, sun, flux, None);
+            assert!(
+                (got.irradiance_w_m2 - expected).abs() < 1e-9 * flux,
+                "h {k}: {got:?} vs {expected}"
+            );
+            assert!((got.power_w - expected * 2.0 * 0.3).abs() < 1e-9 * flux);
+            if e > 2.0 * radius {
+                // The whole disk is up: its flux centroid is its centre.
+                let with_disk = site.sunlight(p, sun, flux, Some((&disk, radius)));
+                assert!((with_disk.irradiance_w_m2 - expected).abs() < 1e-9 * flux);
+            }
+        }
+        let tracking = site.sunlight(
+            &panel(Orientation::SunTracking),
+            sun,
+            flux,
+            Some((&disk, radius)),
+        );
+        let turning = site.sunlight(
+            &panel(Orientation::AzimuthTracking { tilt_deg: 90.0 }),
+            sun,
+            flux,
+            None,
+        );
+        if e > 2.0 * radius {
+            assert!(
+                (tracking.irradiance_w_m2 - flux).abs() < 1e-9 * flux,
+                "{tracking:?}"
+            );
+            assert!((turning.irradiance_w_m2 - flux * e.cos()).abs() < 1e-9 * flux);
+            lit += 1;
+        } else if e < -2.0 * radius {
+            assert_eq!(tracking.irradiance_w_m2, 0.0);
+            dark += 1;
+        }
+    }
+    assert!(lit > 10 && dark > 10, "{lit} lit, {dark} dark steps");
+}
+
+#[test]
+fn a_panel_at_a_height_sees_the_sun_that_the_ground_below_it_does_not() {
+    use slim::panel::{Orientation, Panel, Site};
+    // A wall 10 m high, 100 m from the place: the Sun 4° up beyond it is behind it
+    // from the ground (atan(10/100) = 5.7°) and above it from a 4 m mast (atan(6/100) = 3.4°).
+    let mut raw = generate::height_field((40, 40), (-200.0, 200.0), (-200.0, 200.0), |_, y| {
+        if (100.0..=110.0).contains(&y) {
+            10.0
+        } else {
+            0.0
+        }
+    });
+    // Put the plain on a sphere's top (up = +z there): shift it up by the radius.
+    raw.vertices.iter_mut().for_each(|v| v.z += 1.0e6);
+    let mesh = Mesh::from_raw(raw, LengthUnit::M);
+    let bvh = slim::trace::bvh::Bvh::build(&mesh);
+    let e = 4f64.to_radians();
+    // The Sun over the wall (toward +y), the panel turned to it.
+    let sun = DVec3::new(0.0, e.cos(), e.sin());
+    let panel = Panel {
+        orientation: Orientation::SunTracking,
+        area_m2: 1.0,
+        efficiency: 1.0,
+    };
+    let surface = DVec3::new(0.0, 0.0, 1.0e6);
+    let low = Site::new(&mesh, &bvh, surface, 0.5).expect("site");
+    let high = Site::new(&mesh, &bvh, surface, 4.0).expect("site");
+    // The horizon toward the Sun from 0.5 m: the wall's top edge, atan(9.5/100).
+    let toward = low.horizon_toward(sun).to_degrees();
+    assert!(
+        (toward - 9.5f64.atan2(100.0).to_degrees()).abs() < 0.01,
+        "{toward}"
+    );
+    assert_eq!(low.sunlight(&panel, sun, 1000.0, None).irradiance_w_m2, 0.0);
+    let seen = high.sunlight(&panel, sun, 1000.0, None).irradiance_w_m2;
+    assert!((seen - 1000.0).abs() < 1e-9, "{seen}");
+    assert!(Site::new(&mesh, &bvh, surface, 0.0).is_err());
+}

@@ -22,6 +22,7 @@
 //! `sin ē · f` is the disk integral of `n·s` to second order in ρ (ρ ≈ 0.0047 rad at
 //! 1 AU).
 
+use super::map::LocalHorizon;
 use std::f64::consts::PI;
 
 /// The Sun's radius, metres (IAU 2015 nominal solar radius).
@@ -73,6 +74,17 @@ impl SolarDisk {
             fraction: (flux / whole).clamp(0.0, 1.0),
             centroid: if flux > 0.0 { moment / flux } else { 1.0 },
         }
+    }
+
+    /// The part of a disk of angular radius `radius` whose centre stands at elevation
+    /// `elevation` (radians) seen above `horizon`, taken as a straight line across the
+    /// disk tilted by its slope: the share of the flux, and the elevation (radians) of
+    /// that part's flux centroid.
+    pub fn above(&self, elevation: f64, horizon: LocalHorizon, radius: f64) -> (f64, f64) {
+        let tilt = horizon.slope / elevation.cos().max(1e-6);
+        let across = (1.0 + tilt * tilt).sqrt();
+        let seen = self.visible((elevation - horizon.elevation) / (radius * across));
+        (seen.fraction, elevation + radius * seen.centroid / across)
     }
 
     /// The share of the disk's flux inside a circle of `radius` whose centre lies
