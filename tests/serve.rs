@@ -500,6 +500,40 @@ fn facet_window_and_point_queries_agree_with_the_files() {
         assert_eq!(series["series"][k]["facet"], facet);
         assert_eq!(got, history_of(&result, facet as u32), "target {k}");
     }
+    // A Sun-tracking panel 2 m above a facet: its power is irradiance × area × efficiency
+    // and its energy the power held over each step.
+    let request = serde_json::json!({
+        "targets": [{"facet": partly, "height_m": 2.0,
+                     "panel": {"mount": "sun_tracking", "area_m2": 2.0, "efficiency": 0.25}}]
+    });
+    let (status, answer) = post_json(&server, &format!("/v1/jobs/{id}/irradiance"), &request);
+    assert_eq!(status, 200, "{answer}");
+    let panel = &answer["series"][0]["panel"];
+    let column = |name: &str| -> Vec<f64> { serde_json::from_value(panel[name].clone()).unwrap() };
+    let (on_panel, power, seen) = (
+        column("irradiance_w_m2"),
+        column("power_w"),
+        column("sun_visible"),
+    );
+    let epochs: Vec<f64> = serde_json::from_value(answer["et_tdb_s"].clone()).unwrap();
+    assert_eq!(on_panel.len(), steps);
+    assert!(seen.iter().all(|v| (0.0..=1.0).contains(v)));
+    assert!(seen.iter().any(|&v| v == 1.0) && seen.iter().any(|&v| v == 0.0));
+    let mut joules = 0.0;
+    for k in 0..steps {
+        assert!((power[k] - on_panel[k] * 0.5).abs() <= 1e-12 * on_panel[k].max(1.0));
+        let dt = if k + 1 < steps {
+            epochs[k + 1] - epochs[k]
+        } else {
+            epochs[k] - epochs[k - 1]
+        };
+        joules += power[k] * dt;
+    }
+    let energy = panel["energy_wh"].as_f64().unwrap();
+    assert!(
+        (energy - joules / 3600.0).abs() <= 1e-9 * energy,
+        "{energy}"
+    );
     // A window of steps, asked twice (the second time from the cached engine), and the
     // same window by epochs.
     let epochs: Vec<f64> = serde_json::from_value(series["et_tdb_s"].clone()).unwrap();
@@ -968,6 +1002,33 @@ fn every_bad_request_gets_a_json_4xx() {
         post_json(s, &irradiance, &serde_json::json!({"targets": []})),
         422,
         "limit_exceeded",
+    );
+    assert_error(
+        post_json(
+            s,
+            &irradiance,
+            &target(serde_json::json!({"point_m": [1e7, 0, 0]})),
+        ),
+        422,
+        "off_mesh",
+    );
+    assert_error(
+        post_json(
+            s,
+            &irradiance,
+            &target(serde_json::json!({"facet": 1, "panel": {"efficiency": 2}})),
+        ),
+        400,
+        "bad_panel",
+    );
+    assert_error(
+        post_json(
+            s,
+            &irradiance,
+            &target(serde_json::json!({"facet": 1, "height_m": 0})),
+        ),
+        400,
+        "bad_target",
     );
     assert_error(
         get(s, "/v1/jobs/0123456789abcdef/facets?ids=1"),

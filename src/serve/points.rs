@@ -4,7 +4,10 @@
 //! In: a job's scene and a request naming targets (a facet id, a body-fixed point in
 //! metres or a latitude/east longitude in degrees, each on a named body) and a step range.
 //! Out: per target its facet and the irradiance (W/m²) at every step of the range, with
-//! the steps' epochs (TDB seconds past J2000). The values are those `slim run` computes
+//! the steps' epochs (TDB seconds past J2000). A target with a height or a panel also
+//! gets the panel's series ([`crate::panel`]): irradiance on the panel under the horizon
+//! seen from that height, with the scene's point or disk Sun, its power and the share of
+//! the Sun seen. The values are those `slim run` computes
 //! for the same facets (same shadow predicate, same guards); the shadow structures are the
 //! grid tracer's, which needs no per-step set-up.
 //!
@@ -14,17 +17,23 @@
 
 use super::limits::Limits;
 use super::lru::Lru;
-use super::query::{check_facet, nearest_facet, unknown_body, Place};
+use super::query::{check_facet, nearest_facet, on_mesh, unknown_body, Place};
 use super::reply::{ApiError, ApiResult};
 use super::scene_input::{bad_scene, check_files, SceneText};
 use crate::budget::{Budget, GEOMETRY_BYTES_PER_FACET};
 use crate::ephemeris::Ephemeris;
+use crate::horizon::disk::SolarDisk;
+use crate::horizon::SunShape;
 use crate::illum::Direct;
+use crate::panel::{Orientation, Panel, Site};
 use crate::prepare::assemble;
 use crate::progress::Timings;
+use crate::trace::bvh::Bvh;
 use crate::trace::TracerKind;
 use crate::world::World;
+use glam::DVec3;
 use serde::{Deserialize, Serialize};
+use std::cell::OnceCell;
 use std::ops::Range;
 use std::path::{Path, PathBuf};
 use std::sync::mpsc;
@@ -41,6 +50,83 @@ pub struct Target {
     pub lon_deg: Option<f64>,
     /// Body-fixed point, metres.
     pub point_m: Option<[f64; 3]>,
+    /// Height of a panel above the place, metres (default 1 m when a panel is given).
+    pub height_m: Option<f64>,
+    /// A panel at the place (default with a height: one facing the Sun, 1 m², 100 %).
+    pub panel: Option<PanelSpec>,
+}
+
+/// A panel as a request gives it.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PanelSpec {
+    /// "fixed" (default), "azimuth_tracking" (turns about the vertical) or "sun_tracking".
+    #[serde(default)]
+    pub mount: Mount,
+    /// Tilt from horizontal, degrees (default 90: vertical); fixed and azimuth tracking.
+    #[serde(default = "vertical")]
+    pub tilt_deg: f64,
+    /// Facing azimuth from north toward east, degrees (default 0); fixed only.
+    #[serde(default)]
+    pub azimuth_deg: f64,
+    /// Area, m² (default 1).
+    #[serde(default = "one")]
+    pub area_m2: f64,
+    /// Efficiency, 0 to 1 (default 1).
+    #[serde(default = "one")]
+    pub efficiency: f64,
+}
+
+/// How a panel is mounted.
+#[derive(Debug, Clone, Copy, Default, Deserialize, PartialEq)]
+#[serde(rename_all = "snake_case")]
+pub enum Mount {
+    #[default]
+    Fixed,
+    AzimuthTracking,
+    SunTracking,
+}
+
+fn vertical() -> f64 {
+    90.0
+}
+fn one() -> f64 {
+    1.0
+}
+
+impl PanelSpec {
+    /// The panel, or a 400 naming the bad field.
+    fn panel(&self) -> ApiResult<Panel> {
+        let bad = |field: &str, msg: &str| {
+            ApiError::bad_request("bad_panel", format!("panel.{field}: {msg}"))
+        };
+        if !(0.0..=180.0).contains(&self.tilt_deg) {
+            return Err(bad("tilt_deg", "must be 0 to 180"));
+        }
+        if !self.azimuth_deg.is_finite() {
+            return Err(bad("azimuth_deg", "must be finite"));
+        }
+        if !(self.area_m2.is_finite() && self.area_m2 > 0.0) {
+            return Err(bad("area_m2", "must be above 0"));
+        }
+        if !(0.0..=1.0).contains(&self.efficiency) {
+            return Err(bad("efficiency", "must be 0 to 1"));
+        }
+        Ok(Panel {
+            orientation: match self.mount {
+                Mount::Fixed => Orientation::Fixed {
+                    tilt_deg: self.tilt_deg,
+                    azimuth_deg: self.azimuth_deg,
+                },
+                Mount::AzimuthTracking => Orientation::AzimuthTracking {
+                    tilt_deg: self.tilt_deg,
+                },
+                Mount::SunTracking => Orientation::SunTracking,
+            },
+            area_m2: self.area_m2,
+            efficiency: self.efficiency,
+        })
+    }
 }
 
 /// The request body.
@@ -75,6 +161,24 @@ pub struct Series {
     pub lat_deg: f64,
     pub lon_deg: f64,
     pub irradiance_w_m2: Vec<f64>,
+    /// With a height or a panel: what the panel receives.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub panel: Option<PanelSeries>,
+}
+
+/// A panel's series at one target.
+#[derive(Debug, Clone, Serialize)]
+pub struct PanelSeries {
+    pub height_m: f64,
+    /// Where the panel stands, body frame, metres.
+    pub point_m: [f64; 3],
+    pub irradiance_w_m2: Vec<f64>,
+    pub power_w: Vec<f64>,
+    /// Share of the Sun's flux above the horizon from the panel, 0 to 1.
+    pub sun_visible: Vec<f64>,
+    /// Energy over the steps, Wh: each step's power held until the next step (the last
+    /// for as long as the one before it).
+    pub energy_wh: f64,
 }
 
 /// The answer.
@@ -162,13 +266,30 @@ fn start_engine(dir: PathBuf, scene: SceneText, budget: Budget) -> ApiResult<mps
     Ok(tx)
 }
 
+/// What an engine keeps of its scene.
+struct Engine<'w> {
+    world: &'w World,
+    ephemeris: &'w dyn Ephemeris,
+    direct: Direct<'w>,
+    /// Each body's tree for panels' horizons, built when first asked for.
+    bvhs: Vec<OnceCell<Bvh>>,
+    /// The scene's Sun: a disk (with its limb darkening) or a point.
+    disk: Option<SolarDisk>,
+}
+
 /// The engine thread: builds the scene once, then answers until its sender is dropped.
 fn engine(dir: &Path, scene: &SceneText, budget: &Budget, asks: mpsc::Receiver<Ask>) {
     match build(dir, scene, budget) {
-        Ok((world, ephemeris)) => {
-            let direct = Direct::new(&world, TracerKind::Grid);
+        Ok((world, ephemeris, disk)) => {
+            let engine = Engine {
+                world: &world,
+                ephemeris: ephemeris.as_ref(),
+                direct: Direct::new(&world, TracerKind::Grid),
+                bvhs: world.bodies.iter().map(|_| OnceCell::new()).collect(),
+                disk,
+            };
             for ask in asks {
-                let answer = answer(&world, ephemeris.as_ref(), &direct, &ask);
+                let answer = engine.answer(&ask);
                 let _ = ask.reply.send(answer);
             }
         }
@@ -180,74 +301,156 @@ fn engine(dir: &Path, scene: &SceneText, budget: &Budget, asks: mpsc::Receiver<A
     }
 }
 
-fn build(dir: &Path, text: &SceneText, budget: &Budget) -> ApiResult<(World, Box<dyn Ephemeris>)> {
+/// The scene's world, ephemeris and, for a disk Sun, the disk.
+type Built = (World, Box<dyn Ephemeris>, Option<SolarDisk>);
+
+fn build(dir: &Path, text: &SceneText, budget: &Budget) -> ApiResult<Built> {
     let scene = text.parse(dir)?;
     check_files(dir, &scene)?;
+    let shadows = scene.shadows();
+    let disk = (shadows.sun == SunShape::Disk).then_some(shadows.disk);
     let assembly =
         assemble(&scene, budget, &mut Timings::default()).map_err(|e| bad_scene(dir, &e))?;
-    Ok((assembly.world, assembly.ephemeris))
+    Ok((assembly.world, assembly.ephemeris, disk))
 }
 
-fn answer(
-    world: &World,
-    ephemeris: &dyn Ephemeris,
-    direct: &Direct<'_>,
-    ask: &Ask,
-) -> ApiResult<PointsAnswer> {
-    let request = &ask.request;
-    let targets = request
-        .targets
-        .iter()
-        .map(|t| resolve(world, t))
-        .collect::<ApiResult<Vec<_>>>()?;
-    let steps = step_range(request, ephemeris)?;
-    let values = targets.len() * steps.len();
-    if targets.is_empty() || values > ask.max_values {
-        return Err(ApiError::unprocessable(
-            "limit_exceeded",
-            format!(
-                "{} targets × {} steps asked: give 1 or more targets and at most {} values",
-                targets.len(),
-                steps.len(),
-                ask.max_values
-            ),
-        ));
-    }
-    let mut out = PointsAnswer {
-        steps: steps.clone().collect(),
-        et_tdb_s: Vec::with_capacity(steps.len()),
-        series: targets
+impl Engine<'_> {
+    fn answer(&self, ask: &Ask) -> ApiResult<PointsAnswer> {
+        let (world, ephemeris) = (self.world, self.ephemeris);
+        let request = &ask.request;
+        let targets = request
+            .targets
             .iter()
-            .map(|&(b, i)| {
-                let body = &world.bodies[b];
-                let (lat_deg, lon_deg) = crate::output::read::lat_lon_deg(body.mesh.centroids[i]);
-                Series {
-                    body: body.name.clone(),
-                    facet: i,
-                    lat_deg,
-                    lon_deg,
-                    irradiance_w_m2: Vec::with_capacity(steps.len()),
-                }
-            })
-            .collect(),
-    };
-    for k in steps {
-        let state = ephemeris
-            .state(k)
-            .map_err(|e| ApiError::unprocessable("bad_scene", e.to_string()))?;
-        let values = direct
-            .compute_facets(&state, &targets)
-            .map_err(|e| ApiError::unprocessable("bad_scene", e.to_string()))?;
-        out.et_tdb_s.push(state.epoch.to_tdb_seconds());
-        for (series, e) in out.series.iter_mut().zip(values) {
-            series.irradiance_w_m2.push(e);
+            .map(|t| resolve(world, t))
+            .collect::<ApiResult<Vec<_>>>()?;
+        let steps = step_range(request, ephemeris)?;
+        let values = targets.len() * steps.len();
+        if targets.is_empty() || values > ask.max_values {
+            return Err(ApiError::unprocessable(
+                "limit_exceeded",
+                format!(
+                    "{} targets × {} steps asked: give 1 or more targets and at most {} values",
+                    targets.len(),
+                    steps.len(),
+                    ask.max_values
+                ),
+            ));
         }
+        let facets: Vec<(usize, usize)> = targets.iter().map(|t| (t.body, t.facet)).collect();
+        let sites = request
+            .targets
+            .iter()
+            .zip(&targets)
+            .map(|(t, r)| self.site(t, r))
+            .collect::<ApiResult<Vec<_>>>()?;
+        let mut out = PointsAnswer {
+            steps: steps.clone().collect(),
+            et_tdb_s: Vec::with_capacity(steps.len()),
+            series: targets
+                .iter()
+                .zip(&sites)
+                .map(|(r, site)| {
+                    let body = &world.bodies[r.body];
+                    let (lat_deg, lon_deg) =
+                        crate::output::read::lat_lon_deg(body.mesh.centroids[r.facet]);
+                    Series {
+                        body: body.name.clone(),
+                        facet: r.facet,
+                        lat_deg,
+                        lon_deg,
+                        irradiance_w_m2: Vec::with_capacity(steps.len()),
+                        panel: site.as_ref().map(|(site, _, height_m)| PanelSeries {
+                            height_m: *height_m,
+                            point_m: site.point().to_array(),
+                            irradiance_w_m2: Vec::with_capacity(steps.len()),
+                            power_w: Vec::with_capacity(steps.len()),
+                            sun_visible: Vec::with_capacity(steps.len()),
+                            energy_wh: 0.0,
+                        }),
+                    }
+                })
+                .collect(),
+        };
+        for k in steps {
+            let state = ephemeris
+                .state(k)
+                .map_err(|e| ApiError::unprocessable("bad_scene", e.to_string()))?;
+            let values = self
+                .direct
+                .compute_facets(&state, &facets)
+                .map_err(|e| ApiError::unprocessable("bad_scene", e.to_string()))?;
+            out.et_tdb_s.push(state.epoch.to_tdb_seconds());
+            for (((series, e), site), r) in
+                out.series.iter_mut().zip(values).zip(&sites).zip(&targets)
+            {
+                series.irradiance_w_m2.push(e);
+                if let (Some((site, panel, _)), Some(p)) = (site, series.panel.as_mut()) {
+                    let sun = &state.bodies[r.body];
+                    let disk = self
+                        .disk
+                        .as_ref()
+                        .map(|d| (d, SolarDisk::angular_radius(sun.sun_distance_m)));
+                    let light = site.sunlight(panel, sun.sun_dir, sun.flux_w_m2, disk);
+                    p.irradiance_w_m2.push(light.irradiance_w_m2);
+                    p.power_w.push(light.power_w);
+                    p.sun_visible.push(light.sun_visible);
+                }
+            }
+        }
+        for p in out.series.iter_mut().filter_map(|s| s.panel.as_mut()) {
+            p.energy_wh = energy_wh(&out.et_tdb_s, &p.power_w);
+        }
+        Ok(out)
     }
-    Ok(out)
+
+    /// The panel site of a target that has a height or a panel, with its panel and height.
+    fn site(&self, t: &Target, r: &Resolved) -> ApiResult<Option<(Site<'_>, Panel, f64)>> {
+        if t.height_m.is_none() && t.panel.is_none() {
+            return Ok(None);
+        }
+        let panel = match &t.panel {
+            Some(spec) => spec.panel()?,
+            None => Panel {
+                orientation: Orientation::SunTracking,
+                area_m2: 1.0,
+                efficiency: 1.0,
+            },
+        };
+        let height_m = t.height_m.unwrap_or(1.0);
+        let mesh = &self.world.bodies[r.body].mesh;
+        let bvh = self.bvhs[r.body].get_or_init(|| Bvh::build(mesh));
+        let site = Site::new(mesh, bvh, r.surface_m, height_m)
+            .map_err(|why| ApiError::bad_request("bad_target", why))?;
+        Ok(Some((site, panel, height_m)))
+    }
 }
 
-/// A target as (body index, facet id).
-fn resolve(world: &World, t: &Target) -> ApiResult<(usize, usize)> {
+/// Energy (Wh) of a power series (W) at epochs `t` (s): each power held until the next
+/// epoch, the last for as long as the step before it.
+fn energy_wh(t: &[f64], power_w: &[f64]) -> f64 {
+    let last = match t {
+        [.., a, b] => b - a,
+        _ => 0.0,
+    };
+    let joules: f64 = power_w
+        .iter()
+        .enumerate()
+        .map(|(k, p)| p * t.get(k + 1).map_or(last, |next| next - t[k]))
+        .sum();
+    joules / 3600.0
+}
+
+/// A target resolved: its body, facet and the surface point a panel stands on (metres,
+/// body frame: the point given, else the facet's centroid).
+struct Resolved {
+    body: usize,
+    facet: usize,
+    surface_m: DVec3,
+}
+
+/// A target resolved, or an error naming what is wrong: an unknown body or facet, or a
+/// place off the mesh ([`on_mesh`]).
+fn resolve(world: &World, t: &Target) -> ApiResult<Resolved> {
     let b = match &t.body {
         None => 0,
         Some(name) => world
@@ -260,20 +463,33 @@ fn resolve(world: &World, t: &Target) -> ApiResult<(usize, usize)> {
             })?,
     };
     let body = &world.bodies[b];
-    let place = || Place::from_parts(t.point_m, t.lat_deg, t.lon_deg);
-    match (
-        t.facet,
-        t.point_m.is_some() || t.lat_deg.is_some() || t.lon_deg.is_some(),
-    ) {
+    let has_place = t.point_m.is_some() || t.lat_deg.is_some() || t.lon_deg.is_some();
+    match (t.facet, has_place) {
         (Some(i), false) => {
             check_facet(&body.name, body.mesh.len(), i)?;
-            Ok((b, i))
+            Ok(Resolved {
+                body: b,
+                facet: i,
+                surface_m: body.mesh.centroids[i],
+            })
         }
         (None, true) => {
-            let i = nearest_facet(&body.mesh.centroids, place()?).ok_or_else(|| {
+            let place = Place::from_parts(t.point_m, t.lat_deg, t.lon_deg)?;
+            let i = nearest_facet(&body.mesh.centroids, place).ok_or_else(|| {
                 ApiError::unprocessable("empty_body", format!("body '{}' has no facets", body.name))
             })?;
-            Ok((b, i))
+            let surface_m = on_mesh(
+                &body.name,
+                i,
+                body.mesh.centroids[i],
+                body.mesh.areas[i],
+                place,
+            )?;
+            Ok(Resolved {
+                body: b,
+                facet: i,
+                surface_m,
+            })
         }
         _ => Err(ApiError::bad_request(
             "bad_target",
@@ -363,7 +579,7 @@ spin_period_h = 12.0
             .into(),
             parse_path: dir.join("t.toml"),
         };
-        let (world, ephemeris) = build(&dir, &text, &Budget::machine()).unwrap();
+        let (world, ephemeris, _) = build(&dir, &text, &Budget::machine()).unwrap();
         let grid = Direct::new(&world, TracerKind::Grid);
         let sunview = Direct::new(&world, TracerKind::Sunview);
         let facets: Vec<(usize, usize)> = (0..world.facet_count()).map(|i| (0, i)).collect();

@@ -192,6 +192,17 @@ pub enum Place {
 }
 
 impl Place {
+    /// The unit direction of the place from the body's centre (body frame).
+    pub fn direction(self) -> DVec3 {
+        match self {
+            Place::Point(p) => p.normalize_or_zero(),
+            Place::LatLon { lat_deg, lon_deg } => {
+                let (lat, lon) = (lat_deg.to_radians(), lon_deg.to_radians());
+                DVec3::new(lat.cos() * lon.cos(), lat.cos() * lon.sin(), lat.sin())
+            }
+        }
+    }
+
     /// From optional query fields: exactly a full point or a full lat/lon, finite.
     pub fn from_parts(
         point: Option<[f64; 3]>,
@@ -224,13 +235,10 @@ impl Place {
 /// The facet whose centroid is nearest to `place`: by distance for a point, by angle
 /// between centroid directions for a latitude/longitude. None for an empty body.
 pub fn nearest_facet(centroids: &[DVec3], place: Place) -> Option<usize> {
+    let dir = place.direction();
     let score = |c: DVec3| match place {
         Place::Point(p) => c.distance_squared(p),
-        Place::LatLon { lat_deg, lon_deg } => {
-            let (lat, lon) = (lat_deg.to_radians(), lon_deg.to_radians());
-            let dir = DVec3::new(lat.cos() * lon.cos(), lat.cos() * lon.sin(), lat.sin());
-            -c.normalize_or_zero().dot(dir)
-        }
+        Place::LatLon { .. } => -c.normalize_or_zero().dot(dir),
     };
     centroids
         .iter()
@@ -269,6 +277,39 @@ impl NearestQuery {
     }
 }
 
+/// The surface point of a place whose nearest facet (on body `body`) is `facet`, with
+/// centroid `c` (m) and area `area_m2`: the point itself, or the centroid for a latitude
+/// and longitude. A place farther from that centroid than three facet sizes (2√area;
+/// along the surface for a latitude and longitude) is refused, with how far it is.
+pub fn on_mesh(body: &str, facet: usize, c: DVec3, area_m2: f64, place: Place) -> ApiResult<DVec3> {
+    let size = 2.0 * area_m2.max(0.0).sqrt();
+    let dir = place.direction();
+    let (apart_m, how_far) = match place {
+        Place::Point(p) => {
+            let d = p.distance(c);
+            (d, format!("{d:.1} m"))
+        }
+        Place::LatLon { .. } => {
+            let angle = dir.cross(c).length().atan2(dir.dot(c));
+            (angle * c.length(), format!("{:.2}°", angle.to_degrees()))
+        }
+    };
+    if apart_m > 3.0 * size {
+        let (lat, lon) = crate::output::read::lat_lon_deg(c);
+        return Err(ApiError::unprocessable(
+            "off_mesh",
+            format!(
+                "the place is {how_far} from the nearest facet of body '{body}' (facet {facet} \
+                 at lat {lat:.2}°, lon {lon:.2}°, about {size:.1} m across): give a place on the mesh"
+            ),
+        ));
+    }
+    Ok(match place {
+        Place::Point(p) => p,
+        Place::LatLon { .. } => c,
+    })
+}
+
 /// The nearest facet.
 #[derive(Debug, Serialize)]
 pub struct NearestAnswer {
@@ -286,6 +327,13 @@ pub fn nearest(run: &RunData, q: &NearestQuery) -> ApiResult<NearestAnswer> {
     let facet = nearest_facet(&body.facets.centroid_m, place).ok_or_else(|| {
         ApiError::unprocessable("empty_body", format!("body '{}' has no facets", body.name))
     })?;
+    on_mesh(
+        &body.name,
+        facet,
+        body.facets.centroid_m[facet],
+        body.facets.area_m2[facet],
+        place,
+    )?;
     let (lat_deg, lon_deg) = body.facets.lat_lon_deg(facet);
     Ok(NearestAnswer {
         body: body.name.clone(),
