@@ -77,7 +77,8 @@ pub fn run_scene(
     let band_parts = bands.map(Bands::into_parts).unwrap_or_default();
     let parts = named_parts(&sim, &band_parts);
     let mut outputs = timings.time("output", || -> Result<Vec<_>> {
-        let mut files = output::write_summary(out_dir, csv, world, &sim.stats, &parts)?;
+        let step_s = even_step_s(&states);
+        let mut files = output::write_summary(out_dir, csv, world, &sim.stats, &parts, step_s)?;
         files.extend(output::write_cdf(out_dir, csv, world, &sim.stats, &parts)?);
         files.extend(output::write_geometry(out_dir, csv, world, &states)?);
         if let Some(h) = history.take() {
@@ -215,4 +216,13 @@ fn remove_if_present(path: &Path) -> Result<()> {
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(()),
         Err(e) => Err(Error::io(path, e)),
     }
+}
+
+/// The time between steps (s) when every step follows the one before by the same
+/// positive interval (to a microsecond); `None` otherwise (one step, listed Suns).
+fn even_step_s(states: &[crate::ephemeris::EpochState]) -> Option<f64> {
+    let t: Vec<f64> = states.iter().map(|s| s.epoch.to_tdb_seconds()).collect();
+    let first = *t.get(1)? - t[0];
+    let even = t.windows(2).all(|w| ((w[1] - w[0]) - first).abs() <= 1e-6);
+    (first > 0.0 && even).then_some(first)
 }

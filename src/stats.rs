@@ -54,6 +54,12 @@ struct Moments {
     mean: f64,
     m2: f64,
     lit: u64,
+    /// Runs of dark steps (E ≤ 0): from the first step on, up to the last step, and the
+    /// longest anywhere. Consecutive time ranges merge exactly: the longest run is the
+    /// longest of either or the first's trailing run joined to the second's leading run.
+    dark_leading: u32,
+    dark_trailing: u32,
+    dark_longest: u32,
 }
 
 const EMPTY: Moments = Moments {
@@ -62,6 +68,9 @@ const EMPTY: Moments = Moments {
     mean: 0.0,
     m2: 0.0,
     lit: 0,
+    dark_leading: 0,
+    dark_trailing: 0,
+    dark_longest: 0,
 };
 
 /// The facets whose statistics a run keeps (those of the bodies that get outputs), as
@@ -134,6 +143,7 @@ impl FacetStats {
     /// Adds one step: `irradiance[i]` is facet i's value in W/m².
     pub fn add_step(&mut self, irradiance: &[f64]) {
         assert_eq!(irradiance.len(), self.moments.len(), "one value per facet");
+        let before = self.steps;
         self.steps += 1;
         let n = self.steps as f64;
         let bins = self.bins;
@@ -147,12 +157,22 @@ impl FacetStats {
                 let delta = e - m.mean;
                 m.mean += delta / n;
                 m.m2 += delta * (e - m.mean);
-                m.lit += (e > 0.0) as u64;
+                if e > 0.0 {
+                    m.lit += 1;
+                    m.dark_trailing = 0;
+                } else {
+                    if m.dark_leading as u64 == before {
+                        m.dark_leading = m.dark_leading.saturating_add(1);
+                    }
+                    m.dark_trailing = m.dark_trailing.saturating_add(1);
+                    m.dark_longest = m.dark_longest.max(m.dark_trailing);
+                }
                 h[bins.index(e)] += 1;
             });
     }
 
-    /// Merges statistics of a disjoint time range of the same facets and bins.
+    /// Merges statistics of the same facets and bins over the time range that follows
+    /// this one's (darkness runs need the order; every other statistic does not).
     pub fn merge(&mut self, other: &FacetStats) {
         assert_eq!(self.bins, other.bins, "merging needs equal bins");
         assert_eq!(
@@ -172,6 +192,20 @@ impl FacetStats {
             a.mean += delta * nb / n;
             a.m2 += b.m2 + delta * delta * na * nb / n;
             a.lit += b.lit;
+            let a_dark_throughout = a.dark_leading as u64 == self.steps;
+            let b_dark_throughout = b.dark_leading as u64 == other.steps;
+            a.dark_longest = a
+                .dark_longest
+                .max(b.dark_longest)
+                .max(a.dark_trailing.saturating_add(b.dark_leading));
+            if a_dark_throughout {
+                a.dark_leading = a.dark_leading.saturating_add(b.dark_leading);
+            }
+            a.dark_trailing = if b_dark_throughout {
+                a.dark_trailing.saturating_add(b.dark_trailing)
+            } else {
+                b.dark_trailing
+            };
         }
         for (a, b) in self.hist.iter_mut().zip(&other.hist) {
             *a += b;
@@ -217,6 +251,11 @@ impl FacetStats {
     /// Share of steps in which facet i was lit (E > 0).
     pub fn lit_fraction(&self, i: usize) -> f64 {
         self.moments[i].lit as f64 / self.steps as f64
+    }
+
+    /// The longest run of consecutive steps in which facet i was dark (E ≤ 0).
+    pub fn longest_dark_steps(&self, i: usize) -> u32 {
+        self.moments[i].dark_longest
     }
 
     /// F_i(x_b) for every threshold b: share of steps with E ≤ x_b.
@@ -268,9 +307,59 @@ mod tests {
             assert_eq!(first.min(i), whole.min(i));
             assert_eq!(first.max(i), whole.max(i));
             assert_eq!(first.lit_fraction(i), whole.lit_fraction(i));
+            assert_eq!(first.longest_dark_steps(i), whole.longest_dark_steps(i));
             assert_eq!(first.histogram(i), whole.histogram(i));
             assert!((first.mean(i) - whole.mean(i)).abs() <= 1e-12 * whole.mean(i).abs().max(1.0));
             assert!((first.std(i) - whole.std(i)).abs() <= 1e-12 * whole.std(i).abs().max(1.0));
+        }
+    }
+
+    /// The longest run of dark steps, counted by a plain scan.
+    fn longest_dark_by_scan(xs: &[f64]) -> u32 {
+        let (mut run, mut longest) = (0u32, 0u32);
+        for &x in xs {
+            run = if x > 0.0 { 0 } else { run + 1 };
+            longest = longest.max(run);
+        }
+        longest
+    }
+
+    #[test]
+    fn darkness_runs_match_a_scan_and_merge_exactly_in_any_split() {
+        // Dark stretches at the start, the end, across split points, and a facet always
+        // dark and one never dark.
+        let steps: usize = 97;
+        let data: Vec<Vec<f64>> = (0..steps)
+            .map(|t| {
+                vec![
+                    if (t / 7) % 3 == 0 { 0.0 } else { 5.0 },
+                    if (20..=80).contains(&t) { 1.0 } else { 0.0 },
+                    0.0,
+                    1.0,
+                    if t % 2 == 0 { 0.0 } else { 1.0 },
+                ]
+            })
+            .collect();
+        let bins = Bins::covering(10.0, 20.0);
+        let scan: Vec<u32> = (0..5)
+            .map(|i| longest_dark_by_scan(&data.iter().map(|e| e[i]).collect::<Vec<_>>()))
+            .collect();
+        assert_eq!(scan, vec![7, 20, 97, 0, 1]);
+        for parts in [1, 2, 3, 7, 13] {
+            let mut merged = FacetStats::new(5, bins);
+            let per = steps.div_ceil(parts);
+            for chunk in data.chunks(per) {
+                let mut part = FacetStats::new(5, bins);
+                chunk.iter().for_each(|e| part.add_step(e));
+                merged.merge(&part);
+            }
+            for (i, expected) in scan.iter().enumerate() {
+                assert_eq!(
+                    merged.longest_dark_steps(i),
+                    *expected,
+                    "{parts} parts, facet {i}"
+                );
+            }
         }
     }
 

@@ -306,7 +306,7 @@ fn assert_close(a: f64, b: f64, rel: f64, what: &str) {
     );
 }
 
-const SUMMARY_COLUMNS: [&str; 14] = [
+const SUMMARY_COLUMNS: [&str; 16] = [
     "body",
     "facet",
     "area_m2",
@@ -321,6 +321,8 @@ const SUMMARY_COLUMNS: [&str; 14] = [
     "mean_w_m2",
     "std_w_m2",
     "lit_fraction",
+    "longest_dark_steps",
+    "longest_dark_h",
 ];
 
 // ---------------------------------------------------------------------------------------
@@ -467,7 +469,18 @@ fn summary_csv_holds_exactly_the_parquet_values() {
             assert_eq!(row[0], body[r]);
             assert_eq!(row[1].parse::<u32>().unwrap(), facet[r]);
         }
+        let dark_steps = pq.u32("longest_dark_steps");
+        for (r, row) in rows.iter().enumerate() {
+            let k = SUMMARY_COLUMNS
+                .iter()
+                .position(|c| *c == "longest_dark_steps")
+                .unwrap();
+            assert_eq!(row[k].parse::<u32>().unwrap(), dark_steps[r]);
+        }
         for (k, name) in SUMMARY_COLUMNS.iter().enumerate().skip(2) {
+            if *name == "longest_dark_steps" {
+                continue;
+            }
             let values = pq.f64(name);
             for (r, row) in rows.iter().enumerate() {
                 let csv: f64 = row[k]
@@ -576,10 +589,18 @@ fn history_series(out: &Path, facets: usize, steps: usize) -> Vec<Vec<f64>> {
 
 #[test]
 fn history_reduces_to_the_summary() {
-    for (run, steps) in [(spin_run(), SPIN_STEPS), (fixed_run(), 3)] {
+    let spin_step_s = SPIN_PERIOD_H * 3600.0 / SPIN_STEPS as f64;
+    for (run, steps, step_s) in [
+        (spin_run(), SPIN_STEPS, spin_step_s),
+        (fixed_run(), 3, 100.0),
+    ] {
         let summary = Pq::open(&run.out.join("summary.parquet"));
         let facets = summary.rows();
         let series = history_series(&run.out, facets, steps);
+        let (dark_steps, dark_h) = (
+            summary.u32("longest_dark_steps"),
+            summary.f64("longest_dark_h"),
+        );
         let (min, max, mean, std, lit) = (
             summary.f64("min_w_m2"),
             summary.f64("max_w_m2"),
@@ -613,6 +634,15 @@ fn history_reduces_to_the_summary() {
                 lit[k],
                 "facet {k} lit"
             );
+            // The longest darkness by a plain scan of the history.
+            let (mut run, mut longest) = (0u32, 0u32);
+            for &x in e {
+                run = if x > 0.0 { 0 } else { run + 1 };
+                longest = longest.max(run);
+            }
+            assert_eq!(dark_steps[k], longest, "facet {k} longest darkness");
+            // The fixed run's listed Suns are `step_s = 100` apart.
+            assert_close(dark_h[k], longest as f64 * step_s / 3600.0, 1e-12, "hours");
         }
     }
 }

@@ -74,7 +74,9 @@ fn with_stat_columns(
 }
 
 /// Writes `summary` (one row per facet). The min/max/mean/std/lit columns are of the
-/// total irradiance; each of `parts` adds the same statistics as `NAME_*` columns
+/// total irradiance, with the longest run of dark steps (E ≤ 0) and, when the steps are
+/// `step_s` seconds apart, its duration in hours (each step standing for `step_s`; NaN
+/// when the steps are not evenly spaced in time); each of `parts` adds the same statistics as `NAME_*` columns
 /// (`direct_*` and `scattered_*`, `band_NAME_*`, `bands_*`).
 pub fn write_summary(
     dir: &Path,
@@ -82,6 +84,7 @@ pub fn write_summary(
     world: &World,
     stats: &FacetStats,
     parts: NamedStats,
+    step_s: Option<f64>,
 ) -> Result<Vec<PathBuf>> {
     let mut writer = TableWriter::new(dir, "summary", csv);
     for_facet_batches(world, FACETS_PER_BATCH, |body, range, offset| {
@@ -104,10 +107,24 @@ pub fn write_summary(
             .with("normal_x", vec_column(&|i| mesh.normals[i].x))
             .with("normal_y", vec_column(&|i| mesh.normals[i].y))
             .with("normal_z", vec_column(&|i| mesh.normals[i].z));
-        let batch = with_stat_columns(batch, "", stats, global()).with(
-            "lit_fraction",
-            Values::F64(global().map(|g| stats.lit_fraction(g)).collect()),
-        );
+        let dark_h = |g: usize| {
+            step_s.map_or(f64::NAN, |s| {
+                stats.longest_dark_steps(g) as f64 * s / 3600.0
+            })
+        };
+        let batch = with_stat_columns(batch, "", stats, global())
+            .with(
+                "lit_fraction",
+                Values::F64(global().map(|g| stats.lit_fraction(g)).collect()),
+            )
+            .with(
+                "longest_dark_steps",
+                Values::U32(global().map(|g| stats.longest_dark_steps(g)).collect()),
+            )
+            .with(
+                "longest_dark_h",
+                Values::F64(global().map(dark_h).collect()),
+            );
         let batch = parts.iter().fold(batch, |batch, (name, stats)| {
             with_stat_columns(batch, &format!("{name}_"), stats, global())
         });
