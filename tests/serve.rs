@@ -518,7 +518,7 @@ fn facet_window_and_point_queries_agree_with_the_files() {
     let epochs: Vec<f64> = serde_json::from_value(answer["et_tdb_s"].clone()).unwrap();
     assert_eq!(on_panel.len(), steps);
     assert!(seen.iter().all(|v| (0.0..=1.0).contains(v)));
-    assert!(seen.iter().any(|&v| v == 1.0) && seen.iter().any(|&v| v == 0.0));
+    assert!(seen.contains(&1.0) && seen.contains(&0.0));
     let mut joules = 0.0;
     for k in 0..steps {
         assert!((power[k] - on_panel[k] * 0.5).abs() <= 1e-12 * on_panel[k].max(1.0));
