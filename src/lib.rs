@@ -42,6 +42,7 @@
 //! | scattered light | [`scatter`] | direct W/m² → scattered W/m² (form factors, Jacobi/CG) |
 //! | spectral bands | [`bands`] | per-band irradiance and statistics |
 //! | panels | [`panel`] | a place, height and panel → its horizon; per step W/m² and W on the panel |
+//! | sight | [`sight`] | a place and another body → its elevation over the horizon, windows of sight |
 //! | caches | [`cache`] | horizon maps and form factors kept on disk between runs |
 //! | step loop | [`simulate`] | world and states → statistics, each step's irradiance |
 //! | statistics | [`stats`] | per-step W/m² → min, max, mean, std, lit fraction, CDF |
@@ -93,6 +94,7 @@ pub mod scatter;
 pub mod scene;
 #[cfg(feature = "serve")]
 pub mod serve;
+pub mod sight;
 pub mod simulate;
 pub mod stats;
 pub mod trace;

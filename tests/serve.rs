@@ -650,6 +650,54 @@ fn windows_of_a_second_body_read_its_own_rows() {
             "facet {k}: {w}"
         );
     }
+
+    // The pebble, 100 km out in Itokawa's equatorial plane, seen from a place on the
+    // spinning Itokawa: over a spin its elevation sweeps ±(90° − |latitude|) (within the
+    // 0.2° the 0.3 km parallax allows, and the 5° the 10° steps may miss the top by).
+    let ito = &run.bodies[0].facets;
+    for k in [0, ito.len() / 3, ito.len() / 2] {
+        let c = ito.centroid_m[k];
+        let lat = (c.z / c.length()).asin();
+        let request = serde_json::json!({"targets": [{"facet": k, "sight_of": ["pebble"]}]});
+        let (status, a) = post_json(&server, &format!("/v1/jobs/{id}/irradiance"), &request);
+        assert_eq!(status, 200, "{a}");
+        let sight = &a["series"][0]["sight"][0];
+        assert_eq!(sight["body"], "pebble");
+        assert!(a["series"][0].get("panel").is_none());
+        let deg = |name: &str| -> Vec<f64> { serde_json::from_value(sight[name].clone()).unwrap() };
+        let (elevation, horizon) = (deg("elevation_deg"), deg("horizon_deg"));
+        let seen: Vec<bool> = serde_json::from_value(sight["seen"].clone()).unwrap();
+        let top = 90.0 - lat.abs().to_degrees();
+        let lowest_top = (lat.cos() * 5f64.to_radians().cos()).asin().to_degrees();
+        let max = elevation.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+        let min = elevation.iter().copied().fold(f64::INFINITY, f64::min);
+        assert!(
+            max <= top + 0.2 && max >= lowest_top - 0.2,
+            "facet {k}: {max} vs {top}"
+        );
+        assert!(
+            -min <= top + 0.2 && -min >= lowest_top - 0.2,
+            "facet {k}: {min} vs {top}"
+        );
+        for j in 0..seen.len() {
+            assert_eq!(seen[j], elevation[j] > horizon[j]);
+        }
+        // Each window spans its seen steps, its edges within a step of them.
+        let windows = sight["windows"].as_array().unwrap();
+        let step = period / 36.0;
+        let seen_steps = seen.iter().filter(|&&v| v).count() as f64;
+        let total: f64 = windows
+            .iter()
+            .map(|w| w["duration_s"].as_f64().unwrap())
+            .sum();
+        assert!(
+            (total - seen_steps * step).abs() <= windows.len() as f64 * step,
+            "facet {k}"
+        );
+        assert!(windows
+            .iter()
+            .all(|w| w["end_utc"].as_str().unwrap().ends_with('Z')));
+    }
 }
 
 /// A stored job whose `job.json` names another folder (copied or crafted) is skipped at
@@ -1029,6 +1077,15 @@ fn every_bad_request_gets_a_json_4xx() {
         ),
         400,
         "bad_target",
+    );
+    assert_error(
+        post_json(
+            s,
+            &irradiance,
+            &target(serde_json::json!({"facet": 1, "sight_of": ["vulcan"]})),
+        ),
+        404,
+        "unknown_body",
     );
     assert_error(
         get(s, "/v1/jobs/0123456789abcdef/facets?ids=1"),

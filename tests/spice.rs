@@ -848,3 +848,88 @@ fn rays_through_a_disk_sun_to_a_mesh_mars_agree_with_the_closed_form() {
         assert!(worst < 0.03 + 1.5 / samples as f64, "{worst}");
     }
 }
+
+#[test]
+fn the_earth_seen_from_a_smooth_lunar_site_rises_and_sets_where_cspice_says() {
+    // 87.5° S, 5° W on the 1737.4 km Moon (MOON_ME), 2 m up, hourly through September
+    // 2024: Earth's elevation against CSPICE's spkcpo, and its windows above 0 against
+    // CSPICE's bisected crossings (tests/fixtures/spice/make_reference.py).
+    let scene = spice_scene(
+        &[
+            "lsk/naif0012.tls",
+            "pck/pck00011.tpc",
+            "spk/de421.bsp",
+            "pck/moon_pa_de421_1900-2050.bpc",
+            "fk/moon_080317.tf",
+        ],
+        "start = \"2024-09-01T00:00:00 UTC\"\nstop = \"2024-10-01T00:00:00 UTC\"\nstep_s = 3600\n\
+         [[body]]\nname = \"moon\"\nnaif_id = 301\nframe = \"MOON_ME\"\nellipsoid = { levels = 3 }\n\
+         [[body]]\nname = \"earth\"\nnaif_id = 399\nellipsoid = { levels = 1 }\noutputs = false\n",
+    );
+    let prepared =
+        slim::prepare::prepare(&scene, &Default::default(), &mut Default::default()).unwrap();
+    let (world, states) = (&prepared.assembly.world, &prepared.states);
+    let (lat, lon) = ((-87.5f64).to_radians(), (-5f64).to_radians());
+    let surface = DVec3::new(lat.cos() * lon.cos(), lat.cos() * lon.sin(), lat.sin()) * 1737.4e3;
+    let mesh = &world.bodies[0].mesh;
+    let bvh = slim::trace::bvh::Bvh::build(mesh);
+    let site = slim::panel::Site::new(mesh, &bvh, surface, 2.0).unwrap();
+    let expected = rows("earth_from_haworth.csv");
+    assert_eq!(states.len(), expected.len());
+    let (mut t, mut elevation) = (Vec::new(), Vec::new());
+    let mut worst: f64 = 0.0;
+    for (state, row) in states.iter().zip(&expected) {
+        let d = state.epoch.to_tdb_seconds() - num(row, "et_tdb_s");
+        // hifitime's and CSPICE's TDB − TT series differ by a few microseconds.
+        assert!(d.abs() < 1e-4, "epoch {} differs by {d} s", state.epoch);
+        let seen = slim::sight::Sighting::of(&site, state, 0, 1);
+        let cspice = num(row, "elevation_deg");
+        worst = worst.max((seen.elevation.to_degrees() - cspice).abs());
+        t.push(state.epoch.to_tdb_seconds());
+        elevation.push(seen.elevation);
+    }
+    println!("Earth elevation: largest difference from CSPICE {worst:.2e}°");
+    // The Sun-direction tests hold directions to 1e-6 rad; the Earth's from a point on
+    // the surface inherits that.
+    assert!(worst < 1e-6f64.to_degrees(), "{worst}°");
+
+    // Windows of elevation above 0 (no terrain): the edges between hourly samples by the
+    // straight line, within Δt²·max|ë|/(8|ė|) from the samples around each crossing.
+    let windows = slim::sight::windows_above(&t, &elevation);
+    let crossings = rows("earth_rise_set_haworth.csv");
+    let edges: Vec<(bool, f64, bool)> = windows
+        .iter()
+        .flat_map(|w| {
+            [
+                (true, w.start_tdb_s, w.cut_at_start),
+                (false, w.end_tdb_s, w.cut_at_end),
+            ]
+        })
+        .filter(|(_, _, cut)| !cut)
+        .collect();
+    assert_eq!(edges.len(), crossings.len(), "{windows:?}");
+    for ((rise, at, _), row) in edges.iter().zip(&crossings) {
+        assert_eq!(*rise, row["kind"] == "rise");
+        let exact = num(row, "et_tdb_s");
+        let k = t.iter().position(|&x| x > exact).unwrap();
+        let dt = t[k] - t[k - 1];
+        let slope = ((elevation[k] - elevation[k - 1]) / dt).abs();
+        let curvature = (k.saturating_sub(2)..(k + 2).min(t.len() - 1))
+            .map(|j| (elevation[j + 1] - 2.0 * elevation[j] + elevation[j - 1]).abs() / (dt * dt))
+            .fold(0.0, f64::max);
+        // The curvature is taken from neighbouring samples: allow it to double in between.
+        let bound = dt * dt * 2.0 * curvature / (8.0 * slope) + 1e-3;
+        println!(
+            "Earth {} at {exact}: slim {at} ({:+.1} s, bound {bound:.1} s)",
+            row["kind"],
+            at - exact
+        );
+        assert!(
+            (at - exact).abs() <= bound,
+            "{} s off, bound {bound} s",
+            at - exact
+        );
+    }
+    // Earth is up at the start and again at the end: both windows are cut by the month.
+    assert!(windows.first().unwrap().cut_at_start && windows.last().unwrap().cut_at_end);
+}

@@ -56,6 +56,19 @@ pub trait Ephemeris: Send + Sync {
     }
 }
 
+/// A TDB epoch (seconds past J2000) as UTC text rounded to the millisecond,
+/// `YYYY-MM-DDTHH:MM:SS.sssZ`: no rounding noise such as `03:59:59.999999997`.
+pub fn utc_text(tdb_s: f64) -> String {
+    let utc = Epoch::from_tdb_seconds(tdb_s)
+        .to_time_scale(hifitime::TimeScale::UTC)
+        .round(hifitime::Unit::Millisecond * 1);
+    let (y, mo, d, h, mi, s, ns) = utc.to_gregorian_utc();
+    format!(
+        "{y:04}-{mo:02}-{d:02}T{h:02}:{mi:02}:{s:02}.{:03}Z",
+        ns / 1_000_000
+    )
+}
+
 /// Solar irradiance (W/m²) at `distance_m` from the Sun for a solar constant at 1 AU.
 pub fn flux_at(solar_constant_w_m2: f64, distance_m: f64) -> f64 {
     let r_au = distance_m / crate::AU_M;

@@ -28,6 +28,7 @@ use crate::illum::Direct;
 use crate::panel::{Orientation, Panel, Site};
 use crate::prepare::assemble;
 use crate::progress::Timings;
+use crate::sight::{windows_above, Sighting};
 use crate::trace::bvh::Bvh;
 use crate::trace::TracerKind;
 use crate::world::World;
@@ -54,6 +55,10 @@ pub struct Target {
     pub height_m: Option<f64>,
     /// A panel at the place (default with a height: one facing the Sun, 1 m², 100 %).
     pub panel: Option<PanelSpec>,
+    /// Other bodies of the scene whose elevation over the horizon, seen from the place
+    /// (at `height_m`, default 1 m), is wanted: the Earth for direct-to-Earth links.
+    #[serde(default)]
+    pub sight_of: Vec<String>,
 }
 
 /// A panel as a request gives it.
@@ -164,6 +169,23 @@ pub struct Series {
     /// With a height or a panel: what the panel receives.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub panel: Option<PanelSeries>,
+    /// Per body of `sight_of`: where it stands over the place's horizon.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub sight: Vec<SightSeries>,
+}
+
+/// Another body seen from a target's place ([`crate::sight`]).
+#[derive(Debug, Clone, Serialize)]
+pub struct SightSeries {
+    pub body: String,
+    /// Elevation of its centre above the local horizontal, degrees, per step.
+    pub elevation_deg: Vec<f64>,
+    /// Elevation of the terrain's horizon toward it, degrees, per step.
+    pub horizon_deg: Vec<f64>,
+    /// Its centre above the horizon, per step.
+    pub seen: Vec<bool>,
+    /// When it is seen, edges refined between steps, cut ones flagged.
+    pub windows: Vec<crate::sight::Window>,
 }
 
 /// A panel's series at one target.
@@ -359,14 +381,28 @@ impl Engine<'_> {
                         lat_deg,
                         lon_deg,
                         irradiance_w_m2: Vec::with_capacity(steps.len()),
-                        panel: site.as_ref().map(|(site, _, height_m)| PanelSeries {
-                            height_m: *height_m,
-                            point_m: site.point().to_array(),
-                            irradiance_w_m2: Vec::with_capacity(steps.len()),
-                            power_w: Vec::with_capacity(steps.len()),
-                            sun_visible: Vec::with_capacity(steps.len()),
-                            energy_wh: 0.0,
-                        }),
+                        panel: site
+                            .as_ref()
+                            .filter(|_| r.panel)
+                            .map(|(site, _, height_m)| PanelSeries {
+                                height_m: *height_m,
+                                point_m: site.point().to_array(),
+                                irradiance_w_m2: Vec::with_capacity(steps.len()),
+                                power_w: Vec::with_capacity(steps.len()),
+                                sun_visible: Vec::with_capacity(steps.len()),
+                                energy_wh: 0.0,
+                            }),
+                        sight: r
+                            .sight_of
+                            .iter()
+                            .map(|&t| SightSeries {
+                                body: world.bodies[t].name.clone(),
+                                elevation_deg: Vec::with_capacity(steps.len()),
+                                horizon_deg: Vec::with_capacity(steps.len()),
+                                seen: Vec::with_capacity(steps.len()),
+                                windows: Vec::new(),
+                            })
+                            .collect(),
                     }
                 })
                 .collect(),
@@ -384,6 +420,14 @@ impl Engine<'_> {
                 out.series.iter_mut().zip(values).zip(&sites).zip(&targets)
             {
                 series.irradiance_w_m2.push(e);
+                if let Some((site, _, _)) = site {
+                    for (sight, &t) in series.sight.iter_mut().zip(&r.sight_of) {
+                        let at = Sighting::of(site, &state, r.body, t);
+                        sight.elevation_deg.push(at.elevation.to_degrees());
+                        sight.horizon_deg.push(at.horizon.to_degrees());
+                        sight.seen.push(at.seen());
+                    }
+                }
                 if let (Some((site, panel, _)), Some(p)) = (site, series.panel.as_mut()) {
                     let sun = &state.bodies[r.body];
                     let disk = self
@@ -400,12 +444,21 @@ impl Engine<'_> {
         for p in out.series.iter_mut().filter_map(|s| s.panel.as_mut()) {
             p.energy_wh = energy_wh(&out.et_tdb_s, &p.power_w);
         }
+        for sight in out.series.iter_mut().flat_map(|s| s.sight.iter_mut()) {
+            let margin: Vec<f64> = sight
+                .elevation_deg
+                .iter()
+                .zip(&sight.horizon_deg)
+                .map(|(e, h)| e - h)
+                .collect();
+            sight.windows = windows_above(&out.et_tdb_s, &margin);
+        }
         Ok(out)
     }
 
     /// The panel site of a target that has a height or a panel, with its panel and height.
     fn site(&self, t: &Target, r: &Resolved) -> ApiResult<Option<(Site<'_>, Panel, f64)>> {
-        if t.height_m.is_none() && t.panel.is_none() {
+        if t.height_m.is_none() && t.panel.is_none() && t.sight_of.is_empty() {
             return Ok(None);
         }
         let panel = match &t.panel {
@@ -446,6 +499,10 @@ struct Resolved {
     body: usize,
     facet: usize,
     surface_m: DVec3,
+    /// Whether a panel's series is asked for (a height or a panel given).
+    panel: bool,
+    /// The bodies of `sight_of`.
+    sight_of: Vec<usize>,
 }
 
 /// A target resolved, or an error naming what is wrong: an unknown body or facet, or a
@@ -453,49 +510,66 @@ struct Resolved {
 fn resolve(world: &World, t: &Target) -> ApiResult<Resolved> {
     let b = match &t.body {
         None => 0,
-        Some(name) => world
-            .bodies
-            .iter()
-            .position(|b| &b.name == name)
-            .ok_or_else(|| {
-                let names: Vec<&str> = world.bodies.iter().map(|b| b.name.as_str()).collect();
-                unknown_body(name, &names)
-            })?,
+        Some(name) => body_index(world, name)?,
     };
     let body = &world.bodies[b];
     let has_place = t.point_m.is_some() || t.lat_deg.is_some() || t.lon_deg.is_some();
-    match (t.facet, has_place) {
+    let (facet, surface_m) = match (t.facet, has_place) {
         (Some(i), false) => {
             check_facet(&body.name, body.mesh.len(), i)?;
-            Ok(Resolved {
-                body: b,
-                facet: i,
-                surface_m: body.mesh.centroids[i],
-            })
+            (i, body.mesh.centroids[i])
         }
         (None, true) => {
             let place = Place::from_parts(t.point_m, t.lat_deg, t.lon_deg)?;
             let i = nearest_facet(&body.mesh.centroids, place).ok_or_else(|| {
                 ApiError::unprocessable("empty_body", format!("body '{}' has no facets", body.name))
             })?;
-            let surface_m = on_mesh(
+            let surface = on_mesh(
                 &body.name,
                 i,
                 body.mesh.centroids[i],
                 body.mesh.areas[i],
                 place,
             )?;
-            Ok(Resolved {
-                body: b,
-                facet: i,
-                surface_m,
-            })
+            (i, surface)
         }
-        _ => Err(ApiError::bad_request(
-            "bad_target",
-            "each target gives either facet, or point_m, or lat_deg and lon_deg",
-        )),
-    }
+        _ => {
+            return Err(ApiError::bad_request(
+                "bad_target",
+                "each target gives either facet, or point_m, or lat_deg and lon_deg",
+            ))
+        }
+    };
+    let sight_of = t
+        .sight_of
+        .iter()
+        .map(|name| match body_index(world, name)? {
+            same if same == b => Err(ApiError::bad_request(
+                "bad_target",
+                format!("sight_of names '{name}', the body the place is on"),
+            )),
+            other => Ok(other),
+        })
+        .collect::<ApiResult<Vec<_>>>()?;
+    Ok(Resolved {
+        body: b,
+        facet,
+        surface_m,
+        panel: t.height_m.is_some() || t.panel.is_some(),
+        sight_of,
+    })
+}
+
+/// The index of the body named `name`, or a 404 listing the names.
+fn body_index(world: &World, name: &str) -> ApiResult<usize> {
+    world
+        .bodies
+        .iter()
+        .position(|b| b.name == name)
+        .ok_or_else(|| {
+            let names: Vec<&str> = world.bodies.iter().map(|b| b.name.as_str()).collect();
+            unknown_body(name, &names)
+        })
 }
 
 /// The steps asked for: the step range, narrowed to the epoch window if one is given.

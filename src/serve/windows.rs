@@ -7,12 +7,14 @@
 //! threshold (W/m²) and a least duration (s). Out: windows with start and end (TDB seconds
 //! past J2000, and UTC), duration (s) and energy (J/m²). Each sample stands for the step
 //! that starts at its epoch, so a window runs from its first sample's epoch to the end of
-//! its last sample's step and its energy is Σ E·Δt.
+//! its last sample's step and its energy is Σ E·Δt; its edges are those of the steps (not
+//! refined inside them), and it is flagged when it touches the first or last sample asked
+//! for. Times print in UTC to the millisecond.
 
 use super::reply::{ApiError, ApiResult};
+use crate::ephemeris::utc_text;
 use crate::output::read::column;
 use arrow::array::{Float64Array, StringArray, UInt32Array};
-use hifitime::{Epoch, TimeScale};
 use parquet::arrow::arrow_reader::{
     ArrowReaderOptions, ParquetRecordBatchReaderBuilder, RowSelection, RowSelector,
 };
@@ -66,6 +68,10 @@ pub struct Window {
     pub energy_j_m2: f64,
     /// Least irradiance in the window, W/m².
     pub min_w_m2: f64,
+    /// It begins at the first sample asked for: it may have begun earlier.
+    pub cut_at_start: bool,
+    /// It ends with the last sample asked for: it may go on later.
+    pub cut_at_end: bool,
 }
 
 /// The windows of `samples` (epoch in TDB seconds, irradiance W/m², in time order), each
@@ -77,6 +83,10 @@ pub fn charging_windows(
     min_duration_s: f64,
 ) -> Vec<Window> {
     let mut windows = Vec::new();
+    let (first, final_sample) = match (samples.first(), samples.last()) {
+        (Some(a), Some(b)) => (a.0, b.0),
+        _ => return windows,
+    };
     let mut run: Option<(f64, f64, f64, f64)> = None; // start, last epoch, energy, min
     let mut close = |run: Option<(f64, f64, f64, f64)>| {
         if let Some((start, last, energy, min)) = run {
@@ -85,11 +95,13 @@ pub fn charging_windows(
                 windows.push(Window {
                     start_tdb_s: start,
                     end_tdb_s: end,
-                    start_utc: utc(start),
-                    end_utc: utc(end),
+                    start_utc: utc_text(start),
+                    end_utc: utc_text(end),
                     duration_s: end - start,
                     energy_j_m2: energy,
                     min_w_m2: min,
+                    cut_at_start: start == first,
+                    cut_at_end: last == final_sample,
                 });
             }
         }
@@ -113,13 +125,6 @@ pub fn charging_windows(
     }
     close(run);
     windows
-}
-
-/// ISO-8601 UTC of a TDB epoch.
-fn utc(tdb_s: f64) -> String {
-    Epoch::from_tdb_seconds(tdb_s)
-        .to_time_scale(TimeScale::UTC)
-        .to_string()
 }
 
 /// Where one facet's rows lie in `history.parquet`: each step writes every facet of every
@@ -254,6 +259,8 @@ mod tests {
             spans,
             [(0.0, 2.0, 20.0), (3.0, 5.0, 20.0), (6.0, 7.0, 10.0)]
         );
+        let cuts: Vec<(bool, bool)> = w.iter().map(|w| (w.cut_at_start, w.cut_at_end)).collect();
+        assert_eq!(cuts, [(true, false), (false, false), (false, true)]);
         assert_eq!(charging_windows(&samples, 1.0, 5.0, 2.0).len(), 2);
         assert!(charging_windows(&[], 1.0, 5.0, 0.0).is_empty());
     }
