@@ -4,7 +4,8 @@
 //! point on the surface and a height above it, a [`Panel`] (orientation, area,
 //! efficiency); per step the Sun's unit direction in the body frame, the solar flux
 //! (W/m²) and, for a disk Sun, its angular radius. Out: the irradiance on the panel
-//! (W/m²), its electrical power (W) and the visible share of the Sun.
+//! (W/m²), its electrical power (W) and the visible share of the Sun; and a [`Battery`]'s
+//! charge (Wh) along a power series and a load.
 //!
 //! The place's frame: *up* is the radial direction of the surface point, *north* the
 //! body's +z axis projected on the horizontal plane (+x where that vanishes, at the
@@ -186,5 +187,82 @@ impl<'a> Site<'a> {
             power_w: irradiance * panel.area_m2 * panel.efficiency,
             sun_visible: visible,
         }
+    }
+}
+
+/// A battery charged by a panel and drained by a load.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Battery {
+    /// Most energy it holds, Wh.
+    pub capacity_wh: f64,
+    /// Energy held at the first step, Wh.
+    pub initial_wh: f64,
+    /// Share of surplus power stored, 0 to 1.
+    pub charge_efficiency: f64,
+    /// Share of stored energy delivered to the load, 0 to 1 (above 0).
+    pub discharge_efficiency: f64,
+}
+
+/// What a battery went through over a series of steps.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Charge {
+    /// Energy held at the end of each step, Wh.
+    pub charge_wh: Vec<f64>,
+    /// The least energy held, Wh.
+    pub min_wh: f64,
+    /// Time spent below the low mark, s.
+    pub below_low_s: f64,
+    /// Load the empty battery could not serve, Wh.
+    pub unmet_wh: f64,
+}
+
+impl Battery {
+    /// Runs the battery through steps of `duration_s[k]` seconds in which the panel gives
+    /// `power_w[k]` and the load takes `load_w[k]` (both held over the step). Surplus is
+    /// stored at the charge efficiency up to the capacity, deficit drawn at the
+    /// discharge efficiency down to empty; within a step the energy changes linearly
+    /// until it meets a bound, so the time below `low_wh` is exact for that model.
+    pub fn run(&self, power_w: &[f64], load_w: &[f64], duration_s: &[f64], low_wh: f64) -> Charge {
+        let mut held = self.initial_wh.clamp(0.0, self.capacity_wh);
+        let mut out = Charge {
+            charge_wh: Vec::with_capacity(power_w.len()),
+            min_wh: held,
+            below_low_s: 0.0,
+            unmet_wh: 0.0,
+        };
+        for ((&p, &load), &dt) in power_w.iter().zip(load_w).zip(duration_s) {
+            let net = p - load;
+            // Rate of change of the stored energy, Wh per second.
+            let rate = if net >= 0.0 {
+                net * self.charge_efficiency / 3600.0
+            } else {
+                net / self.discharge_efficiency / 3600.0
+            };
+            out.below_low_s += time_below(held, rate, dt, low_wh);
+            let free = held + rate * dt;
+            if free < 0.0 {
+                out.unmet_wh += -free * self.discharge_efficiency;
+            }
+            held = free.clamp(0.0, self.capacity_wh);
+            out.min_wh = out.min_wh.min(held);
+            out.charge_wh.push(held);
+        }
+        out
+    }
+}
+
+/// Seconds within a step of `dt` seconds that a store starting at `start` Wh and changing
+/// at `rate` Wh/s (clamped to its bounds, which does not change which side of a mark
+/// between them it is on) spends below `low` Wh.
+fn time_below(start: f64, rate: f64, dt: f64, low: f64) -> f64 {
+    if rate == 0.0 {
+        return if start < low { dt } else { 0.0 };
+    }
+    // The time at which it passes the mark, if within the step.
+    let cross = ((low - start) / rate).clamp(0.0, dt);
+    if rate > 0.0 {
+        cross // below until it rises past the mark
+    } else {
+        dt - cross // below once it falls past the mark
     }
 }

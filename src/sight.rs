@@ -57,7 +57,8 @@ impl Sighting {
     }
 }
 
-/// An interval of time in which a sampled quantity stays above zero.
+/// An interval of time (in which a sampled quantity stays above zero), with its edges
+/// in TDB seconds and UTC and whether the sampled range cut it.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct Window {
     pub start_tdb_s: f64,
@@ -93,27 +94,30 @@ pub fn windows_above(t: &[f64], margin: &[f64]) -> Vec<Window> {
                 });
             }
             (false, Some((begin, cut))) => {
-                windows.push(window(begin, crossing(k - 1), cut, false));
+                windows.push(Window::new(begin, crossing(k - 1), cut, false));
                 start = None;
             }
             _ => {}
         }
     }
     if let (Some((begin, cut)), Some(&end)) = (start, t.last()) {
-        windows.push(window(begin, end, cut, true));
+        windows.push(Window::new(begin, end, cut, true));
     }
     windows
 }
 
-fn window(start: f64, end: f64, cut_at_start: bool, cut_at_end: bool) -> Window {
-    Window {
-        start_tdb_s: start,
-        end_tdb_s: end,
-        start_utc: utc_text(start),
-        end_utc: utc_text(end),
-        duration_s: end - start,
-        cut_at_start,
-        cut_at_end,
+impl Window {
+    /// The window from `start` to `end` (TDB seconds), with its cut flags.
+    pub fn new(start: f64, end: f64, cut_at_start: bool, cut_at_end: bool) -> Window {
+        Window {
+            start_tdb_s: start,
+            end_tdb_s: end,
+            start_utc: utc_text(start),
+            end_utc: utc_text(end),
+            duration_s: end - start,
+            cut_at_start,
+            cut_at_end,
+        }
     }
 }
 

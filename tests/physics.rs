@@ -1661,3 +1661,38 @@ fn a_panel_at_a_height_sees_the_sun_that_the_ground_below_it_does_not() {
     assert!((seen - 1000.0).abs() < 1e-9, "{seen}");
     assert!(Site::new(&mesh, &bvh, surface, 0.0).is_err());
 }
+
+#[test]
+fn a_battery_fills_and_drains_as_the_closed_form_says() {
+    use slim::panel::Battery;
+    // 20 h at 100 W then 20 h dark, a 50 W load, hourly steps: +45 Wh/h stored (90 %)
+    // until full at 11.1 h, then −62.5 Wh/h drawn (80 %) from 20 h: below 200 Wh from
+    // 32.8 h, empty from 36 h, so 4 h × 50 W go unserved.
+    let power: Vec<f64> = (0..40).map(|k| if k < 20 { 100.0 } else { 0.0 }).collect();
+    let battery = Battery {
+        capacity_wh: 1000.0,
+        initial_wh: 500.0,
+        charge_efficiency: 0.9,
+        discharge_efficiency: 0.8,
+    };
+    let run = battery.run(&power, &[50.0; 40], &[3600.0; 40], 200.0);
+    for (k, held) in run.charge_wh.iter().enumerate() {
+        let hours = (k + 1) as f64;
+        let expected = if hours <= 20.0 {
+            (500.0 + 45.0 * hours).min(1000.0)
+        } else {
+            (1000.0 - 62.5 * (hours - 20.0)).max(0.0)
+        };
+        assert!(
+            (held - expected).abs() < 1e-9,
+            "hour {hours}: {held} vs {expected}"
+        );
+    }
+    assert_eq!(run.min_wh, 0.0);
+    assert!(
+        (run.below_low_s - 7.2 * 3600.0).abs() < 1e-6,
+        "{}",
+        run.below_low_s
+    );
+    assert!((run.unmet_wh - 200.0).abs() < 1e-9, "{}", run.unmet_wh);
+}

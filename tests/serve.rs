@@ -504,7 +504,9 @@ fn facet_window_and_point_queries_agree_with_the_files() {
     // and its energy the power held over each step.
     let request = serde_json::json!({
         "targets": [{"facet": partly, "height_m": 2.0,
-                     "panel": {"mount": "sun_tracking", "area_m2": 2.0, "efficiency": 0.25}}]
+                     "panel": {"mount": "sun_tracking", "area_m2": 2.0, "efficiency": 0.25},
+                     "battery": {"capacity_wh": 100.0, "initial_wh": 50.0, "load_w": 20.0,
+                                 "discharge_efficiency": 0.9, "low_wh": 30.0}}]
     });
     let (status, answer) = post_json(&server, &format!("/v1/jobs/{id}/irradiance"), &request);
     assert_eq!(status, 200, "{answer}");
@@ -534,6 +536,27 @@ fn facet_window_and_point_queries_agree_with_the_files() {
         (energy - joules / 3600.0).abs() <= 1e-9 * energy,
         "{energy}"
     );
+    // Lit share and longest darkness at the panel by a scan of the visible Sun.
+    let lit = seen.iter().filter(|&&v| v > 0.0).count() as f64 / steps as f64;
+    assert_eq!(panel["lit_fraction"].as_f64().unwrap(), lit);
+    let step = epochs[1] - epochs[0];
+    let (mut run, mut longest) = (0usize, 0usize);
+    for &v in &seen {
+        run = if v == 0.0 { run + 1 } else { 0 };
+        longest = longest.max(run);
+    }
+    let dark_s = panel["longest_dark_s"].as_f64().unwrap();
+    assert!(
+        (dark_s - longest as f64 * step).abs() < 1e-6 * step.max(1.0),
+        "{dark_s}"
+    );
+    // The battery stays within its bounds and reports its least charge.
+    let battery = &panel["battery"];
+    let charge: Vec<f64> = serde_json::from_value(battery["charge_wh"].clone()).unwrap();
+    assert_eq!(charge.len(), steps);
+    assert!(charge.iter().all(|&c| (0.0..=100.0).contains(&c)));
+    let least = charge.iter().copied().fold(50.0, f64::min);
+    assert_eq!(battery["min_wh"].as_f64().unwrap(), least);
     // A window of steps, asked twice (the second time from the cached engine), and the
     // same window by epochs.
     let epochs: Vec<f64> = serde_json::from_value(series["et_tdb_s"].clone()).unwrap();
@@ -1086,6 +1109,16 @@ fn every_bad_request_gets_a_json_4xx() {
         ),
         404,
         "unknown_body",
+    );
+    assert_error(
+        post_json(
+            s,
+            &irradiance,
+            &target(serde_json::json!({"facet": 1, "height_m": 1,
+                "battery": {"capacity_wh": 10, "load_w": [1, 2]}})),
+        ),
+        400,
+        "bad_battery",
     );
     assert_error(
         get(s, "/v1/jobs/0123456789abcdef/facets?ids=1"),

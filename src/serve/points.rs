@@ -25,7 +25,7 @@ use crate::ephemeris::Ephemeris;
 use crate::horizon::disk::SolarDisk;
 use crate::horizon::SunShape;
 use crate::illum::Direct;
-use crate::panel::{Orientation, Panel, Site};
+use crate::panel::{Battery, Orientation, Panel, Site};
 use crate::prepare::assemble;
 use crate::progress::Timings;
 use crate::sight::{windows_above, Sighting};
@@ -55,6 +55,8 @@ pub struct Target {
     pub height_m: Option<f64>,
     /// A panel at the place (default with a height: one facing the Sun, 1 m², 100 %).
     pub panel: Option<PanelSpec>,
+    /// A battery the panel charges while a load draws on it.
+    pub battery: Option<BatterySpec>,
     /// Other bodies of the scene whose elevation over the horizon, seen from the place
     /// (at `height_m`, default 1 m), is wanted: the Earth for direct-to-Earth links.
     #[serde(default)]
@@ -80,6 +82,86 @@ pub struct PanelSpec {
     /// Efficiency, 0 to 1 (default 1).
     #[serde(default = "one")]
     pub efficiency: f64,
+}
+
+/// A battery as a request gives it.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct BatterySpec {
+    pub capacity_wh: f64,
+    /// Energy at the first step, Wh (default: full).
+    pub initial_wh: Option<f64>,
+    /// Default 1.
+    #[serde(default = "one")]
+    pub charge_efficiency: f64,
+    /// Default 1.
+    #[serde(default = "one")]
+    pub discharge_efficiency: f64,
+    /// The load, W: one number for every step, or one per step asked for.
+    pub load_w: Load,
+    /// The low mark, Wh: time below it is reported (default 0).
+    #[serde(default)]
+    pub low_wh: f64,
+}
+
+/// A constant load or one per step.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(untagged)]
+pub enum Load {
+    Constant(f64),
+    PerStep(Vec<f64>),
+}
+
+impl BatterySpec {
+    /// The battery and the load at each of `steps` steps, or a 400 naming the bad field.
+    fn battery(&self, steps: usize) -> ApiResult<(Battery, Vec<f64>)> {
+        let bad = |field: &str, msg: String| {
+            ApiError::bad_request("bad_battery", format!("battery.{field}: {msg}"))
+        };
+        if !(self.capacity_wh.is_finite() && self.capacity_wh > 0.0) {
+            return Err(bad("capacity_wh", "must be above 0".into()));
+        }
+        let initial_wh = self.initial_wh.unwrap_or(self.capacity_wh);
+        if !(0.0..=self.capacity_wh).contains(&initial_wh) {
+            return Err(bad("initial_wh", "must be 0 to capacity_wh".into()));
+        }
+        for (field, eta) in [
+            ("charge_efficiency", self.charge_efficiency),
+            ("discharge_efficiency", self.discharge_efficiency),
+        ] {
+            if !(eta > 0.0 && eta <= 1.0) {
+                return Err(bad(field, "must be above 0 and at most 1".into()));
+            }
+        }
+        if !self.low_wh.is_finite() {
+            return Err(bad("low_wh", "must be finite".into()));
+        }
+        let load = match &self.load_w {
+            Load::Constant(w) => vec![*w; steps],
+            Load::PerStep(list) if list.len() == steps => list.clone(),
+            Load::PerStep(list) => {
+                return Err(bad(
+                    "load_w",
+                    format!(
+                        "{} values for {steps} steps: give one per step, or one number",
+                        list.len()
+                    ),
+                ))
+            }
+        };
+        if load.iter().any(|w| !(w.is_finite() && *w >= 0.0)) {
+            return Err(bad("load_w", "loads must be finite and ≥ 0".into()));
+        }
+        Ok((
+            Battery {
+                capacity_wh: self.capacity_wh,
+                initial_wh,
+                charge_efficiency: self.charge_efficiency,
+                discharge_efficiency: self.discharge_efficiency,
+            },
+            load,
+        ))
+    }
 }
 
 /// How a panel is mounted.
@@ -201,6 +283,26 @@ pub struct PanelSeries {
     /// Energy over the steps, Wh: each step's power held until the next step (the last
     /// for as long as the one before it).
     pub energy_wh: f64,
+    /// Share of steps in which some of the Sun is seen from the panel.
+    pub lit_fraction: f64,
+    /// The longest run of steps with none of the Sun seen, s (each step held as for the
+    /// energy).
+    pub longest_dark_s: f64,
+    /// With a battery: its charge along the steps.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub battery: Option<BatterySeries>,
+}
+
+/// A battery's charge along a panel's steps ([`Battery::run`]).
+#[derive(Debug, Clone, Serialize)]
+pub struct BatterySeries {
+    /// Energy held at the end of each step, Wh.
+    pub charge_wh: Vec<f64>,
+    pub min_wh: f64,
+    /// Time below the low mark, s.
+    pub below_low_s: f64,
+    /// Load the empty battery could not serve, Wh.
+    pub unmet_wh: f64,
 }
 
 /// The answer.
@@ -391,6 +493,9 @@ impl Engine<'_> {
                                 power_w: Vec::with_capacity(steps.len()),
                                 sun_visible: Vec::with_capacity(steps.len()),
                                 energy_wh: 0.0,
+                                lit_fraction: 0.0,
+                                longest_dark_s: 0.0,
+                                battery: None,
                             }),
                         sight: r
                             .sight_of
@@ -441,8 +546,31 @@ impl Engine<'_> {
                 }
             }
         }
-        for p in out.series.iter_mut().filter_map(|s| s.panel.as_mut()) {
-            p.energy_wh = energy_wh(&out.et_tdb_s, &p.power_w);
+        let durations = step_durations(&out.et_tdb_s);
+        for (series, t) in out.series.iter_mut().zip(&request.targets) {
+            let Some(p) = series.panel.as_mut() else {
+                continue;
+            };
+            p.energy_wh = p
+                .power_w
+                .iter()
+                .zip(&durations)
+                .map(|(w, dt)| w * dt)
+                .sum::<f64>()
+                / 3600.0;
+            let dark: Vec<bool> = p.sun_visible.iter().map(|&v| v == 0.0).collect();
+            p.lit_fraction = dark.iter().filter(|&&d| !d).count() as f64 / dark.len() as f64;
+            p.longest_dark_s = longest_run_s(&dark, &durations);
+            if let Some(spec) = &t.battery {
+                let (battery, load) = spec.battery(durations.len())?;
+                let charge = battery.run(&p.power_w, &load, &durations, spec.low_wh);
+                p.battery = Some(BatterySeries {
+                    charge_wh: charge.charge_wh,
+                    min_wh: charge.min_wh,
+                    below_low_s: charge.below_low_s,
+                    unmet_wh: charge.unmet_wh,
+                });
+            }
         }
         for sight in out.series.iter_mut().flat_map(|s| s.sight.iter_mut()) {
             let margin: Vec<f64> = sight
@@ -458,6 +586,12 @@ impl Engine<'_> {
 
     /// The panel site of a target that has a height or a panel, with its panel and height.
     fn site(&self, t: &Target, r: &Resolved) -> ApiResult<Option<(Site<'_>, Panel, f64)>> {
+        if t.battery.is_some() && t.height_m.is_none() && t.panel.is_none() {
+            return Err(ApiError::bad_request(
+                "bad_battery",
+                "a battery needs a panel (or a height for the default Sun-tracking one)",
+            ));
+        }
         if t.height_m.is_none() && t.panel.is_none() && t.sight_of.is_empty() {
             return Ok(None);
         }
@@ -478,19 +612,26 @@ impl Engine<'_> {
     }
 }
 
-/// Energy (Wh) of a power series (W) at epochs `t` (s): each power held until the next
-/// epoch, the last for as long as the step before it.
-fn energy_wh(t: &[f64], power_w: &[f64]) -> f64 {
+/// How long each of the steps at epochs `t` (s) lasts: until the next epoch, the last as
+/// long as the one before it (0 for a single step).
+fn step_durations(t: &[f64]) -> Vec<f64> {
     let last = match t {
         [.., a, b] => b - a,
         _ => 0.0,
     };
-    let joules: f64 = power_w
-        .iter()
-        .enumerate()
-        .map(|(k, p)| p * t.get(k + 1).map_or(last, |next| next - t[k]))
-        .sum();
-    joules / 3600.0
+    (0..t.len())
+        .map(|k| t.get(k + 1).map_or(last, |next| next - t[k]))
+        .collect()
+}
+
+/// The longest run of `true` in `flags`, as the sum of those steps' `durations` (s).
+fn longest_run_s(flags: &[bool], durations: &[f64]) -> f64 {
+    let (mut run, mut longest) = (0.0f64, 0.0f64);
+    for (&on, &dt) in flags.iter().zip(durations) {
+        run = if on { run + dt } else { 0.0 };
+        longest = longest.max(run);
+    }
+    longest
 }
 
 /// A target resolved: its body, facet and the surface point a panel stands on (metres,

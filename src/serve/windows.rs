@@ -12,7 +12,6 @@
 //! for. Times print in UTC to the millisecond.
 
 use super::reply::{ApiError, ApiResult};
-use crate::ephemeris::utc_text;
 use crate::output::read::column;
 use arrow::array::{Float64Array, StringArray, UInt32Array};
 use parquet::arrow::arrow_reader::{
@@ -56,22 +55,15 @@ impl WindowsQuery {
     }
 }
 
-/// One charging window.
+/// One charging window: its span (edges, duration, cut flags) and what it brings.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct Window {
-    pub start_tdb_s: f64,
-    pub end_tdb_s: f64,
-    pub start_utc: String,
-    pub end_utc: String,
-    pub duration_s: f64,
+    #[serde(flatten)]
+    pub span: crate::sight::Window,
     /// ∫ E dt over the window, J/m².
     pub energy_j_m2: f64,
     /// Least irradiance in the window, W/m².
     pub min_w_m2: f64,
-    /// It begins at the first sample asked for: it may have begun earlier.
-    pub cut_at_start: bool,
-    /// It ends with the last sample asked for: it may go on later.
-    pub cut_at_end: bool,
 }
 
 /// The windows of `samples` (epoch in TDB seconds, irradiance W/m², in time order), each
@@ -93,15 +85,14 @@ pub fn charging_windows(
             let end = last + step_s;
             if end - start >= min_duration_s {
                 windows.push(Window {
-                    start_tdb_s: start,
-                    end_tdb_s: end,
-                    start_utc: utc_text(start),
-                    end_utc: utc_text(end),
-                    duration_s: end - start,
+                    span: crate::sight::Window::new(
+                        start,
+                        end,
+                        start == first,
+                        last == final_sample,
+                    ),
                     energy_j_m2: energy,
                     min_w_m2: min,
-                    cut_at_start: start == first,
-                    cut_at_end: last == final_sample,
                 });
             }
         }
@@ -224,7 +215,7 @@ mod tests {
         let w = charging_windows(&samples, dt, s / 2.0, 0.0);
         assert_eq!(w.len(), 1);
         assert!(
-            (w[0].duration_s - period / 3.0).abs() <= 2.0 * dt,
+            (w[0].span.duration_s - period / 3.0).abs() <= 2.0 * dt,
             "{:?}",
             w[0]
         );
@@ -253,13 +244,16 @@ mod tests {
         let w = charging_windows(&samples, 1.0, 5.0, 0.0);
         let spans: Vec<(f64, f64, f64)> = w
             .iter()
-            .map(|w| (w.start_tdb_s, w.end_tdb_s, w.energy_j_m2))
+            .map(|w| (w.span.start_tdb_s, w.span.end_tdb_s, w.energy_j_m2))
             .collect();
         assert_eq!(
             spans,
             [(0.0, 2.0, 20.0), (3.0, 5.0, 20.0), (6.0, 7.0, 10.0)]
         );
-        let cuts: Vec<(bool, bool)> = w.iter().map(|w| (w.cut_at_start, w.cut_at_end)).collect();
+        let cuts: Vec<(bool, bool)> = w
+            .iter()
+            .map(|w| (w.span.cut_at_start, w.span.cut_at_end))
+            .collect();
         assert_eq!(cuts, [(true, false), (false, false), (false, true)]);
         assert_eq!(charging_windows(&samples, 1.0, 5.0, 2.0).len(), 2);
         assert!(charging_windows(&[], 1.0, 5.0, 0.0).is_empty());
