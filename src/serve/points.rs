@@ -395,7 +395,8 @@ struct Engine<'w> {
     world: &'w World,
     ephemeris: &'w dyn Ephemeris,
     direct: Direct<'w>,
-    /// Each body's tree for panels' horizons, built when first asked for.
+    /// Each body's tree over its shadow mesh (with its surroundings) for panels'
+    /// horizons, built when first asked for.
     bvhs: Vec<OnceCell<Bvh>>,
     /// The scene's Sun: a disk (with its limb darkening) or a point.
     disk: Option<SolarDisk>,
@@ -604,7 +605,8 @@ impl Engine<'_> {
             },
         };
         let height_m = t.height_m.unwrap_or(1.0);
-        let mesh = &self.world.bodies[r.body].mesh;
+        // The panel sees the body's surroundings too, where it has them.
+        let mesh = self.world.bodies[r.body].shadow_mesh();
         let bvh = self.bvhs[r.body].get_or_init(|| Bvh::build(mesh));
         let site = Site::new(mesh, bvh, r.surface_m, height_m)
             .map_err(|why| ApiError::bad_request("bad_target", why))?;
