@@ -83,6 +83,18 @@ impl<'a> Site<'a> {
         surface_m: DVec3,
         height_m: f64,
     ) -> Result<Site<'a>, String> {
+        Site::with_horizon(mesh, bvh, surface_m, height_m, None)
+    }
+
+    /// [`Site::new`] with the horizon already built for this place and height (kept by a
+    /// caller that answers many queries), or `None` to build it.
+    pub fn with_horizon(
+        mesh: &Mesh,
+        bvh: &'a Bvh,
+        surface_m: DVec3,
+        height_m: f64,
+        horizon: Option<PointHorizon>,
+    ) -> Result<Site<'a>, String> {
         if !(height_m.is_finite() && height_m > 0.0) {
             return Err(format!("height {height_m} m: give a height above 0"));
         }
@@ -108,9 +120,15 @@ impl<'a> Site<'a> {
             up,
             north,
             east: north.cross(up),
-            horizon: PointHorizon::build(mesh, bvh, point, up, PANEL_AZIMUTHS),
+            horizon: horizon
+                .unwrap_or_else(|| PointHorizon::build(mesh, bvh, point, up, PANEL_AZIMUTHS)),
             reach_m,
         })
+    }
+
+    /// The horizon seen from the panel.
+    pub fn horizon(&self) -> &PointHorizon {
+        &self.horizon
     }
 
     /// The panel's position, body frame, metres.

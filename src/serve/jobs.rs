@@ -22,6 +22,14 @@ use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Condvar, Mutex, MutexGuard};
 
+/// How big a job's scene is, from its plan: what an engine holding it costs.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct SceneSize {
+    pub facets: usize,
+    pub steps: usize,
+    pub bodies: usize,
+}
+
 /// Live progress of one job, shared with its compute thread.
 #[derive(Debug, Default)]
 pub struct Live {
@@ -295,11 +303,16 @@ impl Jobs {
     }
 
     /// The scene of a job (any state), and its facets from the plan.
-    pub fn scene(&self, id: &str) -> ApiResult<(SceneText, usize)> {
+    pub fn scene(&self, id: &str) -> ApiResult<(SceneText, SceneSize)> {
         let table = self.shared.lock();
         find(&table, id).map(|e| {
-            let facets = e.record.plan["facets"].as_u64().unwrap_or(0) as usize;
-            (e.scene.clone(), facets)
+            let count = |key: &str| e.record.plan[key].as_u64().unwrap_or(0) as usize;
+            let size = SceneSize {
+                facets: count("facets"),
+                steps: count("steps"),
+                bodies: count("bodies"),
+            };
+            (e.scene.clone(), size)
         })
     }
 

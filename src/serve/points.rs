@@ -15,14 +15,16 @@
 //! that owns them and answers requests through a channel; the service keeps engines
 //! across requests within a byte budget, the least recently asked leaving first.
 
+use super::jobs::SceneSize;
 use super::limits::Limits;
 use super::lru::Lru;
 use super::query::{check_facet, nearest_facet, on_mesh, unknown_body, Place};
 use super::reply::{ApiError, ApiResult};
 use super::scene_input::{bad_scene, check_files, SceneText};
 use crate::budget::{Budget, GEOMETRY_BYTES_PER_FACET};
-use crate::ephemeris::Ephemeris;
+use crate::ephemeris::{Ephemeris, EpochState};
 use crate::horizon::disk::SolarDisk;
+use crate::horizon::map::PointHorizon;
 use crate::horizon::SunShape;
 use crate::illum::Direct;
 use crate::panel::{Battery, Orientation, Panel, Site};
@@ -34,7 +36,8 @@ use crate::trace::TracerKind;
 use crate::world::World;
 use glam::DVec3;
 use serde::{Deserialize, Serialize};
-use std::cell::OnceCell;
+use std::cell::{OnceCell, RefCell};
+use std::collections::HashMap;
 use std::ops::Range;
 use std::path::{Path, PathBuf};
 use std::sync::mpsc;
@@ -341,7 +344,7 @@ impl EngineCache {
         &self,
         dir: &Path,
         id: &str,
-        (scene, facets): (SceneText, usize),
+        (scene, size): (SceneText, SceneSize),
         request: PointsRequest,
         limits: &Limits,
     ) -> ApiResult<PointsAnswer> {
@@ -357,7 +360,9 @@ impl EngineCache {
                 Some(s) => s,
                 None => {
                     let s = start_engine(dir.to_path_buf(), scene, limits.job_budget())?;
-                    let bytes = (facets as f64 * GEOMETRY_BYTES_PER_FACET) as u64;
+                    let geometry = size.facets as f64 * GEOMETRY_BYTES_PER_FACET;
+                    let states = (size.steps * size.bodies.max(1) * STATE_BYTES_PER_BODY) as f64;
+                    let bytes = (geometry + states + KEPT_HORIZON_BYTES) as u64;
                     engines.insert(id.to_string(), s.clone(), bytes);
                     s
                 }
@@ -400,7 +405,26 @@ struct Engine<'w> {
     bvhs: Vec<OnceCell<Bvh>>,
     /// The scene's Sun: a disk (with its limb darkening) or a point.
     disk: Option<SolarDisk>,
+    /// Each step's geometry once computed: the ephemeris is the costliest part of a
+    /// query, and later queries on the same job ask for the same steps.
+    states: RefCell<Vec<Option<EpochState>>>,
+    /// Horizons of the places asked for (body, surface point and height bits), at most
+    /// [`KEPT_HORIZONS`] (16 kB each), so that asking again skips the search.
+    horizons: RefCell<HashMap<HorizonKey, PointHorizon>>,
 }
+
+/// A place's horizon: its body, surface point (bits of x, y, z) and height (bits).
+type HorizonKey = (usize, [u64; 3], u64);
+
+/// Horizons an engine keeps; beyond this they are dropped and built again when asked.
+const KEPT_HORIZONS: usize = 256;
+
+/// Memory of one body's geometry at one step, kept by an engine (bytes, with room for the
+/// step's own fields).
+const STATE_BYTES_PER_BODY: usize = 192;
+
+/// Memory of the kept horizons at most (two f64 per wedge), bytes.
+const KEPT_HORIZON_BYTES: f64 = KEPT_HORIZONS as f64 * crate::panel::PANEL_AZIMUTHS as f64 * 16.0;
 
 /// The engine thread: builds the scene once, then answers until its sender is dropped.
 fn engine(dir: &Path, scene: &SceneText, budget: &Budget, asks: mpsc::Receiver<Ask>) {
@@ -412,6 +436,8 @@ fn engine(dir: &Path, scene: &SceneText, budget: &Budget, asks: mpsc::Receiver<A
                 direct: Direct::new(&world, TracerKind::Grid),
                 bvhs: world.bodies.iter().map(|_| OnceCell::new()).collect(),
                 disk,
+                states: RefCell::new(vec![None; ephemeris.steps()]),
+                horizons: RefCell::new(HashMap::new()),
             };
             for ask in asks {
                 let answer = engine.answer(&ask);
@@ -514,9 +540,7 @@ impl Engine<'_> {
                 .collect(),
         };
         for k in steps {
-            let state = ephemeris
-                .state(k)
-                .map_err(|e| ApiError::unprocessable("bad_scene", e.to_string()))?;
+            let state = self.state(k)?;
             let values = self
                 .direct
                 .compute_facets(&state, &facets)
@@ -585,6 +609,19 @@ impl Engine<'_> {
         Ok(out)
     }
 
+    /// The geometry of step `k`, computed once.
+    fn state(&self, k: usize) -> ApiResult<EpochState> {
+        if let Some(state) = &self.states.borrow()[k] {
+            return Ok(state.clone());
+        }
+        let state = self
+            .ephemeris
+            .state(k)
+            .map_err(|e| ApiError::unprocessable("bad_scene", e.to_string()))?;
+        self.states.borrow_mut()[k] = Some(state.clone());
+        Ok(state)
+    }
+
     /// The panel site of a target that has a height or a panel, with its panel and height.
     fn site(&self, t: &Target, r: &Resolved) -> ApiResult<Option<(Site<'_>, Panel, f64)>> {
         if t.battery.is_some() && t.height_m.is_none() && t.panel.is_none() {
@@ -608,8 +645,21 @@ impl Engine<'_> {
         // The panel sees the body's surroundings too, where it has them.
         let mesh = self.world.bodies[r.body].shadow_mesh();
         let bvh = self.bvhs[r.body].get_or_init(|| Bvh::build(mesh));
-        let site = Site::new(mesh, bvh, r.surface_m, height_m)
+        let key = (
+            r.body,
+            r.surface_m.to_array().map(f64::to_bits),
+            height_m.to_bits(),
+        );
+        let kept = self.horizons.borrow().get(&key).cloned();
+        let site = Site::with_horizon(mesh, bvh, r.surface_m, height_m, kept)
             .map_err(|why| ApiError::bad_request("bad_target", why))?;
+        let mut horizons = self.horizons.borrow_mut();
+        if !horizons.contains_key(&key) {
+            if horizons.len() >= KEPT_HORIZONS {
+                horizons.clear();
+            }
+            horizons.insert(key, site.horizon().clone());
+        }
         Ok(Some((site, panel, height_m)))
     }
 }
