@@ -2,7 +2,8 @@
 //! on a mesh's content and a few settings (horizon maps, form factors).
 //!
 //! In: a folder, the [`Kind`] of file, a content key (SHA-256 of everything the result
-//! depends on, [`mesh_content`] included) and the payload's bytes. Out: the payload read
+//! depends on: [`mesh_content`], the settings, and the [`code`] that builds it) and the
+//! payload's bytes. Out: the payload read
 //! back when the file for exactly that key is there and intact; files written to a
 //! temporary name, then renamed.
 //!
@@ -77,6 +78,16 @@ pub fn mesh_content(h: &mut Sha256, mesh: &Mesh) {
         for i in t {
             h.update(i.to_le_bytes());
         }
+    }
+}
+
+/// Adds to a key the source text of the code that builds a kind of file, so that any
+/// change to that code (a developer's as well as a release's) builds the file again
+/// instead of reading one the old code wrote.
+pub fn code(h: &mut Sha256, sources: &[&str]) {
+    for text in sources {
+        h.update((text.len() as u64).to_le_bytes());
+        h.update(text.as_bytes());
     }
 }
 

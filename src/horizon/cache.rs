@@ -13,8 +13,10 @@
 //! | 8 | facets F |
 //! | 4·A·F | per facet, per wedge: upper and centre elevation, u16 quanta of 90°/65535 |
 //!
-//! The content key is the SHA-256 of the format version, A, the receiving facets, every
-//! vertex (f64 m) and every triangle.
+//! The content key is the SHA-256 of the format version, the source of the code that
+//! builds a map (the map, its geometry, this file, the tree and the ray predicate: changed
+//! code never reads an old map), A, the receiving facets, every vertex (f64 m) and every
+//! triangle.
 
 use super::map::HorizonMap;
 use crate::cache::{self, Kind, Lookup, Reader};
@@ -35,6 +37,16 @@ pub fn content_key(mesh: &Mesh, receivers: usize, azimuths: u32) -> [u8; 32] {
     let mut h = Sha256::new();
     h.update(b"slim horizon map");
     h.update(KIND.version.to_le_bytes());
+    cache::code(
+        &mut h,
+        &[
+            include_str!("map.rs"),
+            include_str!("geometry.rs"),
+            include_str!("cache.rs"),
+            include_str!("../trace/bvh.rs"),
+            include_str!("../trace/ray.rs"),
+        ],
+    );
     h.update(azimuths.to_le_bytes());
     if receivers < mesh.len() {
         // Facets after the first `receivers` only cast shadows (surrounding terrain).

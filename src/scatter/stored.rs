@@ -9,9 +9,10 @@
 //!
 //! Payload (little-endian), in files named `form-factors-<key>.bin`: the largest row sum
 //! (f64), the capped rows (u64), then the matrix as [`Csr::encode`] writes it. The
-//! content key is the SHA-256 of the format version, slim's version (form factors or
-//! visibility that change between releases give other blocks), the near-field settings,
-//! and the mesh's facet count, vertices (f64 m) and triangles.
+//! content key is the SHA-256 of the format version, the source of the code that builds
+//! a block (this stage, the form factors, visibility, storage, the tree and the ray
+//! predicate: changed code never reads an old block), the near-field settings, and the
+//! mesh's facet count, vertices (f64 m) and triangles.
 
 use super::csr::Csr;
 use super::form_factor::NearField;
@@ -43,7 +44,18 @@ pub fn content_key(mesh: &Mesh, near: &NearField) -> [u8; 32] {
     let mut h = Sha256::new();
     h.update(b"slim form factors");
     h.update(KIND.version.to_le_bytes());
-    h.update(env!("CARGO_PKG_VERSION").as_bytes());
+    cache::code(
+        &mut h,
+        &[
+            include_str!("mod.rs"),
+            include_str!("form_factor.rs"),
+            include_str!("visibility.rs"),
+            include_str!("csr.rs"),
+            include_str!("stored.rs"),
+            include_str!("../trace/bvh.rs"),
+            include_str!("../trace/ray.rs"),
+        ],
+    );
     h.update(near.far_ratio.to_le_bytes());
     h.update(near.tolerance.to_le_bytes());
     h.update(near.max_depth.to_le_bytes());
