@@ -94,6 +94,18 @@ enum Command {
     /// Serve jobs, result files and facet queries over HTTP (docs/service.md).
     #[cfg(feature = "serve")]
     Serve(ServeArgs),
+    /// Answer a place query on a scene, as the service's /irradiance does: irradiance of
+    /// facets or places, panels at a height, a battery, other bodies' sight (JSON).
+    #[cfg(feature = "serve")]
+    Place {
+        /// The scene file (TOML).
+        scene: PathBuf,
+        /// The query, as JSON (`-` for standard input); docs/service.md has examples.
+        query: PathBuf,
+        /// Write the answer here instead of to standard output.
+        #[arg(short, long)]
+        output: Option<PathBuf>,
+    },
     /// Load a mesh and report its size, topology and orientation.
     Info {
         /// The mesh file.
@@ -429,6 +441,34 @@ fn emit(text: &str) -> Result<()> {
         .map_err(|e| Error::io(std::path::Path::new("standard output"), e))
 }
 
+/// `slim place`: one place query on a scene, answered as JSON.
+#[cfg(feature = "serve")]
+fn place(
+    scene: &std::path::Path,
+    query: &std::path::Path,
+    output: Option<&std::path::Path>,
+) -> Result<()> {
+    let text = if query == std::path::Path::new("-") {
+        let mut text = String::new();
+        std::io::Read::read_to_string(&mut std::io::stdin(), &mut text)
+            .map_err(|e| Error::io(std::path::Path::new("standard input"), e))?;
+        text
+    } else {
+        std::fs::read_to_string(query).map_err(|e| Error::io(query, e))?
+    };
+    let request =
+        serve::points::PointsRequest::from_body(text.as_bytes()).map_err(|e| Error::File {
+            path: query.to_path_buf(),
+            msg: e.message,
+        })?;
+    let answer = serve::points::answer_scene_file(scene, &request)?;
+    let json = serde_json::to_string_pretty(&answer).expect("answers serialise") + "\n";
+    match output {
+        Some(path) => slim::atomic::write_atomic(path, json.as_bytes()),
+        None => emit(&json),
+    }
+}
+
 fn execute(cli: Cli) -> Result<()> {
     match cli.command {
         Command::Run {
@@ -490,6 +530,12 @@ fn execute(cli: Cli) -> Result<()> {
         }
         #[cfg(feature = "serve")]
         Command::Serve(args) => serve::serve(args.config()?),
+        #[cfg(feature = "serve")]
+        Command::Place {
+            scene,
+            query,
+            output,
+        } => place(&scene, &query, output.as_deref()),
         Command::Info {
             mesh,
             units,

@@ -543,3 +543,55 @@ fn missing_body_key_is_a_one_line_error_naming_the_key() {
     let out = slim(&["run", "nokey.toml", "-o", "out"], &dir.0);
     assert_one_line_error(&out, &["nokey.toml", "body[0]", "units"]);
 }
+
+/// `slim place` answers the service's place query on a scene file: the facet series equals
+/// the run's history, and a panel at a height comes with it.
+#[cfg(feature = "serve")]
+#[test]
+fn place_answers_a_query_on_a_scene_file_and_refuses_places_off_the_mesh() {
+    let dir = TempDir::new("place");
+    write_scene(&dir, "s.toml");
+    let query = dir.join("q.json");
+    std::fs::write(
+        &query,
+        r#"{"targets": [{"facet": 100, "height_m": 1.5, "panel": {"mount": "sun_tracking"}}]}"#,
+    )
+    .unwrap();
+    let out = slim(&["place", "s.toml", "q.json", "-o", "a.json"], &dir.0);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let answer: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("a.json")).unwrap()).unwrap();
+    let series = &answer["series"][0];
+    assert_eq!(series["facet"], 100);
+    assert_eq!(series["irradiance_w_m2"].as_array().unwrap().len(), 24);
+    assert_eq!(series["panel"]["power_w"].as_array().unwrap().len(), 24);
+    // The same facet's values as `slim run` writes them in its history.
+    let run = slim(&["run", "s.toml", "-o", "out", "--quiet"], &dir.0);
+    assert!(run.status.success(), "{}", text(&run.stderr));
+    let (header, rows) = read_csv_rows(&dir.join("out/history.csv"));
+    let (facet, value) = (
+        header.iter().position(|h| h == "facet").unwrap(),
+        header.iter().position(|h| h == "irradiance_w_m2").unwrap(),
+    );
+    let history: Vec<f64> = rows
+        .iter()
+        .filter(|r| r[facet] == "100")
+        .map(|r| r[value].parse().unwrap())
+        .collect();
+    let placed: Vec<f64> = serde_json::from_value(series["irradiance_w_m2"].clone()).unwrap();
+    assert_eq!(placed, history);
+    // Far off the mesh: one line naming the distance.
+    std::fs::write(&query, r#"{"targets": [{"point_m": [1e7, 0, 0]}]}"#).unwrap();
+    let out = slim(&["place", "s.toml", "q.json"], &dir.0);
+    assert_one_line_error(&out, &["from the nearest facet", "off_mesh"]);
+}
+
+/// A CSV file's header and rows (no quoting: slim's numeric tables need none).
+#[cfg(feature = "serve")]
+fn read_csv_rows(path: &Path) -> (Vec<String>, Vec<Vec<String>>) {
+    let text = std::fs::read_to_string(path).unwrap();
+    let mut lines = text.lines();
+    let split = |l: &str| l.split(',').map(str::to_string).collect::<Vec<_>>();
+    let header = split(lines.next().unwrap());
+    (header, lines.map(split).collect())
+}

@@ -430,17 +430,9 @@ const KEPT_HORIZON_BYTES: f64 = KEPT_HORIZONS as f64 * crate::panel::PANEL_AZIMU
 fn engine(dir: &Path, scene: &SceneText, budget: &Budget, asks: mpsc::Receiver<Ask>) {
     match build(dir, scene, budget) {
         Ok((world, ephemeris, disk)) => {
-            let engine = Engine {
-                world: &world,
-                ephemeris: ephemeris.as_ref(),
-                direct: Direct::new(&world, TracerKind::Grid),
-                bvhs: world.bodies.iter().map(|_| OnceCell::new()).collect(),
-                disk,
-                states: RefCell::new(vec![None; ephemeris.steps()]),
-                horizons: RefCell::new(HashMap::new()),
-            };
+            let engine = Engine::new(&world, ephemeris.as_ref(), disk);
             for ask in asks {
-                let answer = engine.answer(&ask);
+                let answer = engine.answer(&ask.request, ask.max_values);
                 let _ = ask.reply.send(answer);
             }
         }
@@ -465,10 +457,33 @@ fn build(dir: &Path, text: &SceneText, budget: &Budget) -> ApiResult<Built> {
     Ok((assembly.world, assembly.ephemeris, disk))
 }
 
-impl Engine<'_> {
-    fn answer(&self, ask: &Ask) -> ApiResult<PointsAnswer> {
+/// Answers one query on a scene file without the service (`slim place`): the scene is
+/// read as `slim run` reads it (paths beside it), within the machine's memory.
+pub fn answer_scene_file(scene: &Path, request: &PointsRequest) -> crate::Result<PointsAnswer> {
+    let scene = crate::scene::Scene::load(scene)?;
+    let shadows = scene.shadows();
+    let disk = (shadows.sun == SunShape::Disk).then_some(shadows.disk);
+    let assembly = assemble(&scene, &Budget::machine(), &mut Timings::default())?;
+    let engine = Engine::new(&assembly.world, assembly.ephemeris.as_ref(), disk);
+    let answer = engine.answer(request, usize::MAX);
+    answer.map_err(|e| crate::Error::Usage(format!("{} ({})", e.message, e.code)))
+}
+
+impl<'w> Engine<'w> {
+    fn new(world: &'w World, ephemeris: &'w dyn Ephemeris, disk: Option<SolarDisk>) -> Engine<'w> {
+        Engine {
+            world,
+            ephemeris,
+            direct: Direct::new(world, TracerKind::Grid),
+            bvhs: world.bodies.iter().map(|_| OnceCell::new()).collect(),
+            disk,
+            states: RefCell::new(vec![None; ephemeris.steps()]),
+            horizons: RefCell::new(HashMap::new()),
+        }
+    }
+
+    fn answer(&self, request: &PointsRequest, max_values: usize) -> ApiResult<PointsAnswer> {
         let (world, ephemeris) = (self.world, self.ephemeris);
-        let request = &ask.request;
         let targets = request
             .targets
             .iter()
@@ -476,14 +491,14 @@ impl Engine<'_> {
             .collect::<ApiResult<Vec<_>>>()?;
         let steps = step_range(request, ephemeris)?;
         let values = targets.len() * steps.len();
-        if targets.is_empty() || values > ask.max_values {
+        if targets.is_empty() || values > max_values {
             return Err(ApiError::unprocessable(
                 "limit_exceeded",
                 format!(
                     "{} targets × {} steps asked: give 1 or more targets and at most {} values",
                     targets.len(),
                     steps.len(),
-                    ask.max_values
+                    max_values
                 ),
             ));
         }
