@@ -516,41 +516,8 @@ impl<'w> Engine<'w> {
                 .iter()
                 .zip(&sites)
                 .map(|(r, site)| {
-                    let body = &world.bodies[r.body];
-                    let (lat_deg, lon_deg) =
-                        crate::output::read::lat_lon_deg(body.mesh.centroids[r.facet]);
-                    Series {
-                        body: body.name.clone(),
-                        facet: r.facet,
-                        lat_deg,
-                        lon_deg,
-                        irradiance_w_m2: Vec::with_capacity(steps.len()),
-                        panel: site
-                            .as_ref()
-                            .filter(|_| r.panel)
-                            .map(|(site, _, height_m)| PanelSeries {
-                                height_m: *height_m,
-                                point_m: site.point().to_array(),
-                                irradiance_w_m2: Vec::with_capacity(steps.len()),
-                                power_w: Vec::with_capacity(steps.len()),
-                                sun_visible: Vec::with_capacity(steps.len()),
-                                energy_wh: 0.0,
-                                lit_fraction: 0.0,
-                                longest_dark_s: 0.0,
-                                battery: None,
-                            }),
-                        sight: r
-                            .sight_of
-                            .iter()
-                            .map(|&t| SightSeries {
-                                body: world.bodies[t].name.clone(),
-                                elevation_deg: Vec::with_capacity(steps.len()),
-                                horizon_deg: Vec::with_capacity(steps.len()),
-                                seen: Vec::with_capacity(steps.len()),
-                                windows: Vec::new(),
-                            })
-                            .collect(),
-                    }
+                    let point = site.as_ref().map(|(site, _)| site.point());
+                    empty_series(world, r, point, steps.len())
                 })
                 .collect(),
         };
@@ -565,7 +532,7 @@ impl<'w> Engine<'w> {
                 out.series.iter_mut().zip(values).zip(&sites).zip(&targets)
             {
                 series.irradiance_w_m2.push(e);
-                if let Some((site, _, _)) = site {
+                if let Some((site, _)) = site {
                     for (sight, &t) in series.sight.iter_mut().zip(&r.sight_of) {
                         let at = Sighting::of(site, &state, r.body, t);
                         sight.elevation_deg.push(at.elevation.to_degrees());
@@ -573,7 +540,7 @@ impl<'w> Engine<'w> {
                         sight.seen.push(at.seen());
                     }
                 }
-                if let (Some((site, panel, _)), Some(p)) = (site, series.panel.as_mut()) {
+                if let (Some((site, panel)), Some(p)) = (site, series.panel.as_mut()) {
                     let sun = &state.bodies[r.body];
                     let disk = self
                         .disk
@@ -588,38 +555,12 @@ impl<'w> Engine<'w> {
         }
         let durations = step_durations(&out.et_tdb_s);
         for (series, t) in out.series.iter_mut().zip(&request.targets) {
-            let Some(p) = series.panel.as_mut() else {
-                continue;
-            };
-            p.energy_wh = p
-                .power_w
-                .iter()
-                .zip(&durations)
-                .map(|(w, dt)| w * dt)
-                .sum::<f64>()
-                / 3600.0;
-            let dark: Vec<bool> = p.sun_visible.iter().map(|&v| v == 0.0).collect();
-            p.lit_fraction = dark.iter().filter(|&&d| !d).count() as f64 / dark.len() as f64;
-            p.longest_dark_s = longest_run_s(&dark, &durations);
-            if let Some(spec) = &t.battery {
-                let (battery, load) = spec.battery(durations.len())?;
-                let charge = battery.run(&p.power_w, &load, &durations, spec.low_wh);
-                p.battery = Some(BatterySeries {
-                    charge_wh: charge.charge_wh,
-                    min_wh: charge.min_wh,
-                    below_low_s: charge.below_low_s,
-                    unmet_wh: charge.unmet_wh,
-                });
+            if let Some(p) = series.panel.as_mut() {
+                p.sum_up(&durations, t.battery.as_ref())?;
             }
-        }
-        for sight in out.series.iter_mut().flat_map(|s| s.sight.iter_mut()) {
-            let margin: Vec<f64> = sight
-                .elevation_deg
-                .iter()
-                .zip(&sight.horizon_deg)
-                .map(|(e, h)| e - h)
-                .collect();
-            sight.windows = windows_above(&out.et_tdb_s, &margin);
+            for sight in &mut series.sight {
+                sight.windows = sight.windows(&out.et_tdb_s);
+            }
         }
         Ok(out)
     }
@@ -637,8 +578,8 @@ impl<'w> Engine<'w> {
         Ok(state)
     }
 
-    /// The panel site of a target that has a height or a panel, with its panel and height.
-    fn site(&self, t: &Target, r: &Resolved) -> ApiResult<Option<(Site<'_>, Panel, f64)>> {
+    /// The site of a target that has a height, a panel or a sight, with its panel.
+    fn site(&self, t: &Target, r: &Resolved) -> ApiResult<Option<(Site<'_>, Panel)>> {
         if t.battery.is_some() && t.height_m.is_none() && t.panel.is_none() {
             return Err(ApiError::bad_request(
                 "bad_battery",
@@ -656,7 +597,7 @@ impl<'w> Engine<'w> {
                 efficiency: 1.0,
             },
         };
-        let height_m = t.height_m.unwrap_or(1.0);
+        let height_m = r.height_m;
         // The panel sees the body's surroundings too, where it has them.
         let mesh = self.world.bodies[r.body].shadow_mesh();
         let bvh = self.bvhs[r.body].get_or_init(|| Bvh::build(mesh));
@@ -675,7 +616,84 @@ impl<'w> Engine<'w> {
             }
             horizons.insert(key, site.horizon().clone());
         }
-        Ok(Some((site, panel, height_m)))
+        Ok(Some((site, panel)))
+    }
+}
+
+/// A target's series before its steps: the facet's, and the panel's and sights' when
+/// asked for (`panel_point`: where its site's panel stands, if it has a site).
+fn empty_series(world: &World, r: &Resolved, panel_point: Option<DVec3>, steps: usize) -> Series {
+    let body = &world.bodies[r.body];
+    let (lat_deg, lon_deg) = crate::output::read::lat_lon_deg(body.mesh.centroids[r.facet]);
+    Series {
+        body: body.name.clone(),
+        facet: r.facet,
+        lat_deg,
+        lon_deg,
+        irradiance_w_m2: Vec::with_capacity(steps),
+        panel: panel_point.filter(|_| r.panel).map(|point| PanelSeries {
+            height_m: r.height_m,
+            point_m: point.to_array(),
+            irradiance_w_m2: Vec::with_capacity(steps),
+            power_w: Vec::with_capacity(steps),
+            sun_visible: Vec::with_capacity(steps),
+            energy_wh: 0.0,
+            lit_fraction: 0.0,
+            longest_dark_s: 0.0,
+            battery: None,
+        }),
+        sight: r
+            .sight_of
+            .iter()
+            .map(|&t| SightSeries {
+                body: world.bodies[t].name.clone(),
+                elevation_deg: Vec::with_capacity(steps),
+                horizon_deg: Vec::with_capacity(steps),
+                seen: Vec::with_capacity(steps),
+                windows: Vec::new(),
+            })
+            .collect(),
+    }
+}
+
+impl PanelSeries {
+    /// The totals over the steps of `durations` (s): energy, lit share, longest darkness,
+    /// and the battery's charge when one is asked for.
+    fn sum_up(&mut self, durations: &[f64], battery: Option<&BatterySpec>) -> ApiResult<()> {
+        let joules: f64 = self
+            .power_w
+            .iter()
+            .zip(durations)
+            .map(|(w, dt)| w * dt)
+            .sum();
+        self.energy_wh = joules / 3600.0;
+        let dark: Vec<bool> = self.sun_visible.iter().map(|&v| v == 0.0).collect();
+        self.lit_fraction = dark.iter().filter(|&&d| !d).count() as f64 / dark.len() as f64;
+        self.longest_dark_s = longest_run_s(&dark, durations);
+        if let Some(spec) = battery {
+            let (battery, load) = spec.battery(durations.len())?;
+            let charge = battery.run(&self.power_w, &load, durations, spec.low_wh);
+            self.battery = Some(BatterySeries {
+                charge_wh: charge.charge_wh,
+                min_wh: charge.min_wh,
+                below_low_s: charge.below_low_s,
+                unmet_wh: charge.unmet_wh,
+            });
+        }
+        Ok(())
+    }
+}
+
+impl SightSeries {
+    /// The windows in which the body is above the horizon, at epochs `t` (TDB s).
+    fn windows(&self, t: &[f64]) -> Vec<crate::sight::Window> {
+        let margin: Vec<f64> = self
+            .elevation_deg
+            .iter()
+            .zip(&self.horizon_deg)
+            .map(|(e, h)| e - h)
+            .collect();
+        windows_above(t, &margin)
     }
 }
 
@@ -709,6 +727,8 @@ struct Resolved {
     surface_m: DVec3,
     /// Whether a panel's series is asked for (a height or a panel given).
     panel: bool,
+    /// Height of the panel or viewpoint above the surface, m (default 1).
+    height_m: f64,
     /// The bodies of `sight_of`.
     sight_of: Vec<usize>,
 }
@@ -764,6 +784,7 @@ fn resolve(world: &World, t: &Target) -> ApiResult<Resolved> {
         facet,
         surface_m,
         panel: t.height_m.is_some() || t.panel.is_some(),
+        height_m: t.height_m.unwrap_or(1.0),
         sight_of,
     })
 }
