@@ -721,6 +721,13 @@ fn windows_of_a_second_body_read_its_own_rows() {
             .iter()
             .all(|w| w["end_utc"].as_str().unwrap().ends_with('Z')));
     }
+    // A body named twice would double the answer for nothing.
+    let twice = serde_json::json!({"targets": [{"facet": 0, "sight_of": ["pebble", "pebble"]}]});
+    assert_error(
+        post_json(&server, &format!("/v1/jobs/{id}/irradiance"), &twice),
+        400,
+        "bad_target",
+    );
 }
 
 /// A stored job whose `job.json` names another folder (copied or crafted) is skipped at
@@ -1109,6 +1116,15 @@ fn every_bad_request_gets_a_json_4xx() {
         ),
         404,
         "unknown_body",
+    );
+    assert_error(
+        post_json(
+            s,
+            &irradiance,
+            &target(serde_json::json!({"facet": 1, "sight_of": ["itokawa"]})),
+        ),
+        400,
+        "bad_target",
     );
     assert_error(
         post_json(

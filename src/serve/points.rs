@@ -490,13 +490,19 @@ impl<'w> Engine<'w> {
             .map(|t| resolve(world, t))
             .collect::<ApiResult<Vec<_>>>()?;
         let steps = step_range(request, ephemeris)?;
-        let values = targets.len() * steps.len();
+        // Each target's series, its panel's and each sight's count against the limit.
+        let series: usize = targets
+            .iter()
+            .map(|t| 1 + t.panel as usize + t.sight_of.len())
+            .sum();
+        let values = series.saturating_mul(steps.len());
         if targets.is_empty() || values > max_values {
             return Err(ApiError::unprocessable(
                 "limit_exceeded",
                 format!(
-                    "{} targets × {} steps asked: give 1 or more targets and at most {} values",
-                    targets.len(),
+                    "{} series (targets, panels and sights) × {} steps asked: give 1 or more \
+                     targets and at most {} values",
+                    series,
                     steps.len(),
                     max_values
                 ),
@@ -771,10 +777,15 @@ fn resolve(world: &World, t: &Target) -> ApiResult<Resolved> {
     let sight_of = t
         .sight_of
         .iter()
-        .map(|name| match body_index(world, name)? {
+        .enumerate()
+        .map(|(k, name)| match body_index(world, name)? {
             same if same == b => Err(ApiError::bad_request(
                 "bad_target",
                 format!("sight_of names '{name}', the body the place is on"),
+            )),
+            _ if t.sight_of[..k].contains(name) => Err(ApiError::bad_request(
+                "bad_target",
+                format!("sight_of names '{name}' twice"),
             )),
             other => Ok(other),
         })
