@@ -294,7 +294,8 @@ struct ServeArgs {
     /// Most facets or places per query.
     #[arg(long, default_value_t = Limits::default().max_query_targets)]
     max_query_targets: usize,
-    /// Most values (targets × steps) per on-demand irradiance query.
+    /// Most values (steps × series: targets, their panels and sights) per on-demand
+    /// irradiance query.
     #[arg(long, default_value_t = Limits::default().max_query_values)]
     max_query_values: usize,
 }
