@@ -35,12 +35,25 @@ pub mod solve;
 pub mod stored;
 pub mod visibility;
 
+use crate::cache::Lookup;
 use crate::ephemeris::EpochState;
 use crate::error::Result;
 use crate::horizon::bound::HorizonBound;
 use crate::plan::Decision;
 use crate::scene::{FirstBounceKind, PlanetShineKind, Scene};
+use crate::trace::bvh::Bvh;
+use crate::world::{Body, FrameTransform, World};
+use csr::{Csr, Lanes};
+use form_factor::NearField;
 use planet::{PlanetSettings, PlanetShine, Receiver};
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+use solve::{Exchange, SolveReport, SolverKind, Stopping};
+use std::borrow::Cow;
+use std::f64::consts::{PI, SQRT_2};
+use std::path::PathBuf;
+use std::time::Instant;
+use visibility::{cross_block, facets, facing_pairs, own_block, Occluder, SAME_FRAME};
 
 /// One spectral band's inputs to a solve: its albedo (global ids), its first bounce and
 /// its share of the solar flux.
@@ -50,20 +63,6 @@ pub struct BandInput<'a> {
     pub first: &'a dyn FirstScatter,
     pub flux_share: f64,
 }
-use crate::cache::Lookup;
-use crate::trace::bvh::Bvh;
-use crate::world::Body;
-use crate::world::{FrameTransform, World};
-use csr::{Csr, Lanes};
-use form_factor::NearField;
-use rayon::prelude::*;
-use serde::{Deserialize, Serialize};
-use solve::{Exchange, SolveReport, SolverKind, Stopping};
-use std::borrow::Cow;
-use std::f64::consts::{PI, SQRT_2};
-use std::path::PathBuf;
-use std::time::Instant;
-use visibility::{cross_block, facets, facing_pairs, own_block, Occluder, SAME_FRAME};
 
 /// How scattered light is computed.
 #[derive(Debug, Clone, PartialEq)]
@@ -325,12 +324,8 @@ impl Settings {
         let mut computed = 0;
         for state in needed {
             let pose = relative_pose(state, a, b);
-            let keep = cached.is_some_and(|c| {
-                c == pose
-                    || (self.inter_body_reuse > 0.0
-                        && sizes.reuse_bound(&c, &pose) <= self.inter_body_reuse)
-            });
-            if !keep {
+            let keep = cached.map_or(Keep::No, |c| sizes.keeps(&c, &pose, self.inter_body_reuse));
+            if keep == Keep::No {
                 cached = Some(pose);
                 computed += 1;
             }
@@ -451,6 +446,34 @@ impl PairSizes {
             rho / (1.0 - rho) * self.area_m2[k] / (PI * gap * gap)
         };
         change * light(0).max(light(1))
+    }
+}
+
+/// Whether an inter-body block computed at one pose still serves at another.
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Keep {
+    /// The same pose.
+    Same,
+    /// A pose whose change misses at most this share of the flux, within the tolerance.
+    Within(f64),
+    /// Compute it again.
+    No,
+}
+
+impl PairSizes {
+    /// Whether the block computed at `then` serves at `now` with `inter_body_reuse`
+    /// `reuse` (0: only the same pose).
+    fn keeps(&self, then: &FrameTransform, now: &FrameTransform, reuse: f64) -> Keep {
+        if then == now {
+            return Keep::Same;
+        }
+        if reuse > 0.0 {
+            let bound = self.reuse_bound(then, now);
+            if bound <= reuse {
+                return Keep::Within(bound);
+            }
+        }
+        Keep::No
     }
 }
 
@@ -953,18 +976,21 @@ impl<'w> Scatter<'w> {
                     continue;
                 }
                 let pose = state.bodies[b].pose.relative_to(&state.bodies[a].pose);
-                let cached = self.cache[a * n + b].as_ref();
                 let reuse = self.settings.inter_body_reuse;
-                let bound = cached.map(|c| c.sizes.reuse_bound(&c.pose, &pose));
-                if cached.is_some_and(|c| c.pose == pose) {
-                    self.record.inter_body_reused += 1;
-                } else if let Some(bound) = bound.filter(|&e| reuse > 0.0 && e <= reuse) {
-                    self.record.inter_body_kept += 1;
-                    self.record.inter_body_kept_bound =
-                        self.record.inter_body_kept_bound.max(bound);
-                } else {
-                    self.cache[a * n + b] = Some(self.inter_block(state, a, b, pose));
-                    self.record.inter_body_computed += 1;
+                let keep = self.cache[a * n + b]
+                    .as_ref()
+                    .map_or(Keep::No, |c| c.sizes.keeps(&c.pose, &pose, reuse));
+                match keep {
+                    Keep::Same => self.record.inter_body_reused += 1,
+                    Keep::Within(bound) => {
+                        self.record.inter_body_kept += 1;
+                        self.record.inter_body_kept_bound =
+                            self.record.inter_body_kept_bound.max(bound);
+                    }
+                    Keep::No => {
+                        self.cache[a * n + b] = Some(self.inter_block(state, a, b, pose));
+                        self.record.inter_body_computed += 1;
+                    }
                 }
                 active.push((a, b));
             }
