@@ -103,10 +103,9 @@ impl<'a> Site<'a> {
             return Err("the place is the body's centre: give a point on its surface".into());
         }
         let point = surface_m + up * height_m;
-        let level = |axis: DVec3| (axis - up * up.dot(axis)).normalize_or_zero();
-        let north = match level(DVec3::Z) {
+        let north = match level(up, DVec3::Z) {
             n if n != DVec3::ZERO => n,
-            _ => level(DVec3::X),
+            _ => level(up, DVec3::X),
         };
         let reach_m = 2.0
             * mesh
@@ -172,10 +171,7 @@ impl<'a> Site<'a> {
                 let a = azimuth_deg.to_radians();
                 facing(tilt_deg, self.north * a.cos() + self.east * a.sin())
             }
-            Orientation::AzimuthTracking { tilt_deg } => {
-                let level = (toward - self.up * self.up.dot(toward)).normalize_or_zero();
-                facing(tilt_deg, level)
-            }
+            Orientation::AzimuthTracking { tilt_deg } => facing(tilt_deg, level(self.up, toward)),
             Orientation::SunTracking => toward,
         }
     }
@@ -193,8 +189,7 @@ impl<'a> Site<'a> {
             Some((disk, radius)) => {
                 let at = self.horizon.position(sun);
                 let (share, e) = disk.above(at.elevation, self.horizon.horizon(&at), radius);
-                let level = (sun - self.up * self.up.dot(sun)).normalize_or_zero();
-                (share, level * e.cos() + self.up * e.sin())
+                (share, level(self.up, sun) * e.cos() + self.up * e.sin())
             }
             None => (if self.sees(sun) { 1.0 } else { 0.0 }, sun),
         };
@@ -206,6 +201,11 @@ impl<'a> Site<'a> {
             sun_visible: visible,
         }
     }
+}
+
+/// The horizontal (normal to `up`) unit direction of `dir`; zero straight up or down.
+fn level(up: DVec3, dir: DVec3) -> DVec3 {
+    (dir - up * up.dot(dir)).normalize_or_zero()
 }
 
 /// A battery charged by a panel and drained by a load.
@@ -222,7 +222,7 @@ pub struct Battery {
 }
 
 /// What a battery went through over a series of steps.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct Charge {
     /// Energy held at the end of each step, Wh.
     pub charge_wh: Vec<f64>,

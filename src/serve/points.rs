@@ -27,7 +27,7 @@ use crate::horizon::disk::SolarDisk;
 use crate::horizon::map::PointHorizon;
 use crate::horizon::SunShape;
 use crate::illum::Direct;
-use crate::panel::{Battery, Orientation, Panel, Site};
+use crate::panel::{Battery, Charge, Orientation, Panel, Site};
 use crate::prepare::assemble;
 use crate::progress::Timings;
 use crate::sight::{windows_above, Sighting};
@@ -107,6 +107,13 @@ pub struct BatterySpec {
     pub low_wh: f64,
 }
 
+/// A checked battery request: the battery, its load per step (W) and low mark (Wh).
+struct ChargedBattery {
+    battery: Battery,
+    load_w: Vec<f64>,
+    low_wh: f64,
+}
+
 /// A constant load or one per step.
 #[derive(Debug, Clone, Deserialize)]
 #[serde(untagged)]
@@ -116,8 +123,9 @@ pub enum Load {
 }
 
 impl BatterySpec {
-    /// The battery and the load at each of `steps` steps, or a 400 naming the bad field.
-    fn battery(&self, steps: usize) -> ApiResult<(Battery, Vec<f64>)> {
+    /// The battery with the load at each of `steps` steps and its low mark, or a 400
+    /// naming the bad field.
+    fn battery(&self, steps: usize) -> ApiResult<ChargedBattery> {
         let bad = |field: &str, msg: String| {
             ApiError::bad_request("bad_battery", format!("battery.{field}: {msg}"))
         };
@@ -155,15 +163,16 @@ impl BatterySpec {
         if load.iter().any(|w| !(w.is_finite() && *w >= 0.0)) {
             return Err(bad("load_w", "loads must be finite and ≥ 0".into()));
         }
-        Ok((
-            Battery {
+        Ok(ChargedBattery {
+            battery: Battery {
                 capacity_wh: self.capacity_wh,
                 initial_wh,
                 charge_efficiency: self.charge_efficiency,
                 discharge_efficiency: self.discharge_efficiency,
             },
-            load,
-        ))
+            load_w: load,
+            low_wh: self.low_wh,
+        })
     }
 }
 
@@ -293,19 +302,7 @@ pub struct PanelSeries {
     pub longest_dark_s: f64,
     /// With a battery: its charge along the steps.
     #[serde(skip_serializing_if = "Option::is_none")]
-    pub battery: Option<BatterySeries>,
-}
-
-/// A battery's charge along a panel's steps ([`Battery::run`]).
-#[derive(Debug, Clone, Serialize)]
-pub struct BatterySeries {
-    /// Energy held at the end of each step, Wh.
-    pub charge_wh: Vec<f64>,
-    pub min_wh: f64,
-    /// Time below the low mark, s.
-    pub below_low_s: f64,
-    /// Load the empty battery could not serve, Wh.
-    pub unmet_wh: f64,
+    pub battery: Option<Charge>,
 }
 
 /// The answer.
@@ -515,6 +512,17 @@ impl<'w> Engine<'w> {
             .zip(&targets)
             .map(|(t, r)| self.site(t, r))
             .collect::<ApiResult<Vec<_>>>()?;
+        // Batteries are checked before any step is computed.
+        let batteries = request
+            .targets
+            .iter()
+            .map(|t| {
+                t.battery
+                    .as_ref()
+                    .map(|b| b.battery(steps.len()))
+                    .transpose()
+            })
+            .collect::<ApiResult<Vec<_>>>()?;
         let mut out = PointsAnswer {
             steps: steps.clone().collect(),
             et_tdb_s: Vec::with_capacity(steps.len()),
@@ -560,9 +568,9 @@ impl<'w> Engine<'w> {
             }
         }
         let durations = step_durations(&out.et_tdb_s);
-        for (series, t) in out.series.iter_mut().zip(&request.targets) {
+        for (series, battery) in out.series.iter_mut().zip(&batteries) {
             if let Some(p) = series.panel.as_mut() {
-                p.sum_up(&durations, t.battery.as_ref())?;
+                p.sum_up(&durations, battery.as_ref());
             }
             for sight in &mut series.sight {
                 sight.windows = sight.windows(&out.et_tdb_s);
@@ -665,7 +673,7 @@ fn empty_series(world: &World, r: &Resolved, panel_point: Option<DVec3>, steps: 
 impl PanelSeries {
     /// The totals over the steps of `durations` (s): energy, lit share, longest darkness,
     /// and the battery's charge when one is asked for.
-    fn sum_up(&mut self, durations: &[f64], battery: Option<&BatterySpec>) -> ApiResult<()> {
+    fn sum_up(&mut self, durations: &[f64], battery: Option<&ChargedBattery>) {
         let joules: f64 = self
             .power_w
             .iter()
@@ -676,17 +684,8 @@ impl PanelSeries {
         let dark: Vec<bool> = self.sun_visible.iter().map(|&v| v == 0.0).collect();
         self.lit_fraction = dark.iter().filter(|&&d| !d).count() as f64 / dark.len() as f64;
         self.longest_dark_s = longest_run_s(&dark, durations);
-        if let Some(spec) = battery {
-            let (battery, load) = spec.battery(durations.len())?;
-            let charge = battery.run(&self.power_w, &load, durations, spec.low_wh);
-            self.battery = Some(BatterySeries {
-                charge_wh: charge.charge_wh,
-                min_wh: charge.min_wh,
-                below_low_s: charge.below_low_s,
-                unmet_wh: charge.unmet_wh,
-            });
-        }
-        Ok(())
+        self.battery =
+            battery.map(|b| b.battery.run(&self.power_w, &b.load_w, durations, b.low_wh));
     }
 }
 
