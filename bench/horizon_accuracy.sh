@@ -6,15 +6,11 @@
 #   bench/horizon_accuracy.sh [OUT_DIR]    (default target/horizon-accuracy)
 set -euo pipefail
 cd "$(dirname "$0")/.."
-cargo build --release --quiet
-OUT=$(realpath -m "${1:-target/horizon-accuracy}")
-rm -rf "$OUT" && mkdir -p "$OUT"
-DATA=$(realpath data)
-B=target/release/slim
+source bench/common.sh
+bench_init target/horizon-accuracy "${1:-}"
 # The scene with `keys` added to [run], paths made absolute, written to $OUT/NAME.toml.
 scene() {
-  sed -e "s|^\[run\]|[run]\n$2|" -e "s|\"kernels/|\"$DATA/kernels/|" -e "s|\"shapes/|\"$DATA/shapes/|" \
-    data/moon-haworth.toml > "$OUT/$1.toml"
+  sed -e "s|^\[run\]|[run]\n$2|" "${ABSOLUTE[@]}" data/moon-haworth.toml > "$OUT/$1.toml"
 }
 scene rays 'shadows = "rays"'
 $B run "$OUT/rays.toml" -o "$OUT/rays" > /dev/null 2>&1
