@@ -43,6 +43,7 @@
 //! | spectral bands | [`bands`] | per-band irradiance and statistics |
 //! | panels | [`panel`] | a place, height and panel → its horizon; per step W/m² and W on the panel |
 //! | sight | [`sight`] | a place and another body → its elevation over the horizon, windows of sight |
+//! | traverses | [`route`] | a body's facets, their light over time and a rover → a planned or evaluated route: times, energy, charge, darkness, cost |
 //! | caches | [`cache`] | horizon maps and form factors kept on disk between runs |
 //! | step loop | [`simulate`] | world and states → statistics, each step's irradiance |
 //! | statistics | [`stats`] | per-step W/m² → min, max, mean, std, lit fraction, CDF |
@@ -89,6 +90,7 @@ pub mod quadrature;
 pub mod render;
 #[cfg(feature = "report")]
 pub mod report;
+pub mod route;
 pub mod run;
 pub mod scatter;
 pub mod scene;

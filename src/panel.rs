@@ -235,6 +235,37 @@ pub struct Charge {
 }
 
 impl Battery {
+    /// A battery of `capacity_wh` holding `initial_wh` (default: full) with the given
+    /// efficiencies, or the name of the first bad field and why.
+    pub fn checked(
+        capacity_wh: f64,
+        initial_wh: Option<f64>,
+        charge_efficiency: f64,
+        discharge_efficiency: f64,
+    ) -> Result<Battery, (&'static str, &'static str)> {
+        if !(capacity_wh.is_finite() && capacity_wh > 0.0) {
+            return Err(("capacity_wh", "must be above 0"));
+        }
+        let initial_wh = initial_wh.unwrap_or(capacity_wh);
+        if !(0.0..=capacity_wh).contains(&initial_wh) {
+            return Err(("initial_wh", "must be 0 to capacity_wh"));
+        }
+        for (field, eta) in [
+            ("charge_efficiency", charge_efficiency),
+            ("discharge_efficiency", discharge_efficiency),
+        ] {
+            if !(eta > 0.0 && eta <= 1.0) {
+                return Err((field, "must be above 0 and at most 1"));
+            }
+        }
+        Ok(Battery {
+            capacity_wh,
+            initial_wh,
+            charge_efficiency,
+            discharge_efficiency,
+        })
+    }
+
     /// Runs the battery through steps of `duration_s[k]` seconds in which the panel gives
     /// `power_w[k]` and the load takes `load_w[k]` (both held over the step). Surplus is
     /// stored at the charge efficiency up to the capacity, deficit drawn at the
@@ -249,13 +280,7 @@ impl Battery {
             unmet_wh: 0.0,
         };
         for ((&p, &load), &dt) in power_w.iter().zip(load_w).zip(duration_s) {
-            let net = p - load;
-            // Rate of change of the stored energy, Wh per second.
-            let rate = if net >= 0.0 {
-                net * self.charge_efficiency / 3600.0
-            } else {
-                net / self.discharge_efficiency / 3600.0
-            };
+            let rate = self.rate_wh_s(p, load);
             out.below_low_s += time_below(held, rate, dt, low_wh);
             let free = held + rate * dt;
             if free < 0.0 {
@@ -266,6 +291,26 @@ impl Battery {
             out.charge_wh.push(held);
         }
         out
+    }
+
+    /// The energy held after `dt` seconds that start with `held_wh` while the panel gives
+    /// `power_w` and the load takes `load_w`: (unbounded, kept). The unbounded value may
+    /// fall below 0 (load the battery could not serve) or rise past the capacity; the
+    /// kept one is clamped to 0..capacity.
+    pub fn after(&self, held_wh: f64, power_w: f64, load_w: f64, dt: f64) -> (f64, f64) {
+        let free = held_wh + self.rate_wh_s(power_w, load_w) * dt;
+        (free, free.clamp(0.0, self.capacity_wh))
+    }
+
+    /// Rate of change of the stored energy, Wh per second: surplus stored at the charge
+    /// efficiency, deficit drawn at the discharge efficiency.
+    fn rate_wh_s(&self, power_w: f64, load_w: f64) -> f64 {
+        let net = power_w - load_w;
+        if net >= 0.0 {
+            net * self.charge_efficiency / 3600.0
+        } else {
+            net / self.discharge_efficiency / 3600.0
+        }
     }
 }
 

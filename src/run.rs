@@ -220,7 +220,7 @@ fn remove_if_present(path: &Path) -> Result<()> {
 
 /// The time between steps (s) when every step follows the one before by the same
 /// positive interval (to a microsecond); `None` otherwise (one step, listed Suns).
-fn even_step_s(states: &[crate::ephemeris::EpochState]) -> Option<f64> {
+pub(crate) fn even_step_s(states: &[crate::ephemeris::EpochState]) -> Option<f64> {
     let t: Vec<f64> = states.iter().map(|s| s.epoch.to_tdb_seconds()).collect();
     let first = *t.get(1)? - t[0];
     let even = t.windows(2).all(|w| ((w[1] - w[0]) - first).abs() <= 1e-6);

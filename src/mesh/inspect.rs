@@ -7,7 +7,8 @@
 //! gives one sentence per problem, for warnings.
 //!
 //! Edges are found with a hash map keyed by the sorted vertex pair, so a million-facet
-//! mesh takes a fraction of a second.
+//! mesh takes a fraction of a second. The same map gives each facet's neighbours across
+//! its edges ([`facet_neighbours`]), the graph a rover drives on.
 
 use super::Mesh;
 use glam::DVec3;
@@ -112,6 +113,32 @@ pub fn is_watertight(mesh: &Mesh) -> bool {
             .values()
             .all(|e| e.uses == 2 && e.forward[0] != e.forward[1])
         && signed_volume(mesh) > 0.0
+}
+
+/// Each facet's neighbours: the facets sharing one of its edges once coincident vertices
+/// are merged (so duplicated seam and pole vertices do not cut the surface), in
+/// increasing id order. Degenerate facets with a repeated vertex have none; at an edge
+/// shared by more than two facets, the first two are joined.
+pub fn facet_neighbours(mesh: &Mesh) -> Vec<Vec<u32>> {
+    let welded = welded(mesh);
+    let degenerate: Vec<bool> = (0..welded.len())
+        .map(|f| is_degenerate(&welded, f))
+        .collect();
+    let mut neighbours = vec![Vec::new(); mesh.len()];
+    for edge in edge_map(&welded, &degenerate).values() {
+        if edge.uses >= 2 {
+            let [a, b] = edge.facets;
+            if a != b {
+                neighbours[a as usize].push(b);
+                neighbours[b as usize].push(a);
+            }
+        }
+    }
+    for list in &mut neighbours {
+        list.sort_unstable();
+        list.dedup();
+    }
+    neighbours
 }
 
 /// `mesh` with every vertex replaced by the first vertex at the same position.

@@ -129,21 +129,13 @@ impl BatterySpec {
         let bad = |field: &str, msg: String| {
             ApiError::bad_request("bad_battery", format!("battery.{field}: {msg}"))
         };
-        if !(self.capacity_wh.is_finite() && self.capacity_wh > 0.0) {
-            return Err(bad("capacity_wh", "must be above 0".into()));
-        }
-        let initial_wh = self.initial_wh.unwrap_or(self.capacity_wh);
-        if !(0.0..=self.capacity_wh).contains(&initial_wh) {
-            return Err(bad("initial_wh", "must be 0 to capacity_wh".into()));
-        }
-        for (field, eta) in [
-            ("charge_efficiency", self.charge_efficiency),
-            ("discharge_efficiency", self.discharge_efficiency),
-        ] {
-            if !(eta > 0.0 && eta <= 1.0) {
-                return Err(bad(field, "must be above 0 and at most 1".into()));
-            }
-        }
+        let battery = Battery::checked(
+            self.capacity_wh,
+            self.initial_wh,
+            self.charge_efficiency,
+            self.discharge_efficiency,
+        )
+        .map_err(|(field, why)| bad(field, why.into()))?;
         if !self.low_wh.is_finite() {
             return Err(bad("low_wh", "must be finite".into()));
         }
@@ -164,12 +156,7 @@ impl BatterySpec {
             return Err(bad("load_w", "loads must be finite and ≥ 0".into()));
         }
         Ok(ChargedBattery {
-            battery: Battery {
-                capacity_wh: self.capacity_wh,
-                initial_wh,
-                charge_efficiency: self.charge_efficiency,
-                discharge_efficiency: self.discharge_efficiency,
-            },
+            battery,
             load_w: load,
             low_wh: self.low_wh,
         })
