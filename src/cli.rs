@@ -106,6 +106,24 @@ enum Command {
         #[arg(short, long)]
         output: Option<PathBuf>,
     },
+    /// Plan a rover's route between two places, or evaluate one through waypoints, as
+    /// the service's /route does (GeoJSON-like JSON; docs/service.md#routes).
+    #[cfg(feature = "serve")]
+    Route {
+        /// The scene file (TOML).
+        scene: PathBuf,
+        /// The request, as JSON (`-` for standard input).
+        request: PathBuf,
+        /// Write the answer here instead of to standard output.
+        #[arg(short, long)]
+        output: Option<PathBuf>,
+        /// Most memory the run may use (e.g. 8G; default: three quarters of this machine's).
+        #[arg(long, value_name = "SIZE", value_parser = size)]
+        max_memory: Option<u64>,
+        /// No progress bar.
+        #[arg(short, long)]
+        quiet: bool,
+    },
     /// Load a mesh and report its size, topology and orientation.
     Info {
         /// The mesh file.
@@ -298,6 +316,9 @@ struct ServeArgs {
     /// irradiance query.
     #[arg(long, default_value_t = Limits::default().max_query_values)]
     max_query_values: usize,
+    /// Most labels a route plan may take (about 96 bytes each).
+    #[arg(long, default_value_t = Limits::default().max_route_labels)]
+    max_route_labels: usize,
 }
 
 #[cfg(feature = "serve")]
@@ -337,6 +358,7 @@ impl ServeArgs {
                 max_steps: self.max_steps,
                 max_query_targets: self.max_query_targets,
                 max_query_values: self.max_query_values,
+                max_route_labels: self.max_route_labels,
             },
         })
     }
@@ -442,6 +464,61 @@ fn emit(text: &str) -> Result<()> {
         .map_err(|e| Error::io(std::path::Path::new("standard output"), e))
 }
 
+/// The text of a query file, or of standard input for `-`.
+#[cfg(feature = "serve")]
+fn read_query(path: &std::path::Path) -> Result<String> {
+    if path == std::path::Path::new("-") {
+        let mut text = String::new();
+        std::io::Read::read_to_string(&mut std::io::stdin(), &mut text)
+            .map_err(|e| Error::io(std::path::Path::new("standard input"), e))?;
+        Ok(text)
+    } else {
+        std::fs::read_to_string(path).map_err(|e| Error::io(path, e))
+    }
+}
+
+/// `slim route`: one route query on a scene, answered as GeoJSON-like JSON.
+#[cfg(feature = "serve")]
+fn route(
+    scene_path: &std::path::Path,
+    request_path: &std::path::Path,
+    output: Option<&std::path::Path>,
+    budget: Budget,
+    progress: &dyn Progress,
+) -> Result<()> {
+    let text = read_query(request_path)?;
+    let request =
+        serve::traverse::RouteRequest::from_body(text.as_bytes()).map_err(|e| Error::File {
+            path: request_path.to_path_buf(),
+            msg: e.message,
+        })?;
+    let scene = slim::scene::Scene::load(scene_path)?;
+    let limits = serve::traverse::RouteLimits {
+        budget,
+        max_labels: serve::limits::Limits::default().max_route_labels,
+        max_waypoints: usize::MAX,
+    };
+    let answer = serve::traverse::answer(
+        std::path::Path::new(""),
+        &scene,
+        &request,
+        &limits,
+        progress,
+    )
+    .map_err(|e| Error::Usage(format!("{} ({})", e.message, e.code)))?;
+    write_json(&answer, output)
+}
+
+/// `answer` as pretty JSON to `output` (written whole, then renamed) or standard output.
+#[cfg(feature = "serve")]
+fn write_json(answer: &impl serde::Serialize, output: Option<&std::path::Path>) -> Result<()> {
+    let json = serde_json::to_string_pretty(answer).expect("answers serialise") + "\n";
+    match output {
+        Some(path) => slim::atomic::write_atomic(path, json.as_bytes()),
+        None => emit(&json),
+    }
+}
+
 /// `slim place`: one place query on a scene, answered as JSON.
 #[cfg(feature = "serve")]
 fn place(
@@ -449,24 +526,24 @@ fn place(
     query: &std::path::Path,
     output: Option<&std::path::Path>,
 ) -> Result<()> {
-    let text = if query == std::path::Path::new("-") {
-        let mut text = String::new();
-        std::io::Read::read_to_string(&mut std::io::stdin(), &mut text)
-            .map_err(|e| Error::io(std::path::Path::new("standard input"), e))?;
-        text
-    } else {
-        std::fs::read_to_string(query).map_err(|e| Error::io(query, e))?
-    };
+    let text = read_query(query)?;
     let request =
         serve::points::PointsRequest::from_body(text.as_bytes()).map_err(|e| Error::File {
             path: query.to_path_buf(),
             msg: e.message,
         })?;
     let answer = serve::points::answer_scene_file(scene, &request)?;
-    let json = serde_json::to_string_pretty(&answer).expect("answers serialise") + "\n";
-    match output {
-        Some(path) => slim::atomic::write_atomic(path, json.as_bytes()),
-        None => emit(&json),
+    write_json(&answer, output)
+}
+
+/// The memory budget `--max-memory` sets, or the machine's.
+fn budget_of(max_memory: Option<u64>) -> Budget {
+    match max_memory {
+        Some(max_bytes) => Budget {
+            max_bytes,
+            source: "--max-memory",
+        },
+        None => Budget::machine(),
     }
 }
 
@@ -487,13 +564,7 @@ fn execute(cli: Cli) -> Result<()> {
             let scene = Scene::load(&scene)?;
             let out = output.unwrap_or_else(|| PathBuf::from("results").join(&scene.name));
             let progress = TerminalProgress::new(quiet);
-            let budget = match max_memory {
-                Some(max_bytes) => Budget {
-                    max_bytes,
-                    source: "--max-memory",
-                },
-                None => Budget::machine(),
-            };
+            let budget = budget_of(max_memory);
             let record = run_scene(&scene, &out, &budget, &progress)?;
             if !quiet {
                 eprintln!(
@@ -537,6 +608,20 @@ fn execute(cli: Cli) -> Result<()> {
             query,
             output,
         } => place(&scene, &query, output.as_deref()),
+        #[cfg(feature = "serve")]
+        Command::Route {
+            scene,
+            request,
+            output,
+            max_memory,
+            quiet,
+        } => route(
+            &scene,
+            &request,
+            output.as_deref(),
+            budget_of(max_memory),
+            &TerminalProgress::new(quiet),
+        ),
         Command::Info {
             mesh,
             units,

@@ -43,12 +43,14 @@ mod walk;
 
 pub use light::Light;
 pub use model::{Action, Model, Rover, Weights};
-pub use search::{plan, SearchLimits};
+pub use search::{plan, Found, SearchLimits, BYTES_PER_LABEL};
 pub use walk::{evaluate, Leg, Route, Waypoint};
 
 use crate::mesh::inspect::facet_neighbours;
 use crate::mesh::Mesh;
 use glam::DVec3;
+use std::cmp::{Ordering, Reverse};
+use std::collections::BinaryHeap;
 
 /// The facet graph a rover drives on, with each facet's slope and roughness.
 #[derive(Debug, Clone)]
@@ -112,6 +114,35 @@ impl Terrain {
         self.centroids[a as usize].distance(self.centroids[b as usize])
     }
 
+    /// Dijkstra from `source`: per facet the least sum of `cost(settled, neighbour)` over
+    /// a chain to it (`None`: that step is not allowed), and the facet before it on that
+    /// chain (`u32::MAX` for the source and unreached facets).
+    pub fn dijkstra(
+        &self,
+        source: u32,
+        cost: impl Fn(u32, u32) -> Option<f64>,
+    ) -> (Vec<f64>, Vec<u32>) {
+        let mut best = vec![f64::INFINITY; self.len()];
+        let mut parent = vec![u32::MAX; self.len()];
+        let mut queue = BinaryHeap::new();
+        best[source as usize] = 0.0;
+        queue.push(Reverse(Ordered(0.0, source)));
+        while let Some(Reverse(Ordered(c, f))) = queue.pop() {
+            if c > best[f as usize] {
+                continue;
+            }
+            for &g in &self.neighbours[f as usize] {
+                let Some(step) = cost(f, g) else { continue };
+                if c + step < best[g as usize] {
+                    best[g as usize] = c + step;
+                    parent[g as usize] = f;
+                    queue.push(Reverse(Ordered(c + step, g)));
+                }
+            }
+        }
+        (best, parent)
+    }
+
     /// The median distance between neighbouring centroids, metres (0 without edges).
     pub fn median_edge_m(&self) -> f64 {
         let mut d: Vec<f64> = self
@@ -127,6 +158,21 @@ impl Terrain {
         }
         let mid = d.len() / 2;
         *d.select_nth_unstable_by(mid, f64::total_cmp).1
+    }
+}
+
+/// A cost and a facet, ordered by the cost (`total_cmp`), then the facet.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Ordered(f64, u32);
+impl Eq for Ordered {}
+impl PartialOrd for Ordered {
+    fn partial_cmp(&self, other: &Self) -> Option<Ordering> {
+        Some(self.cmp(other))
+    }
+}
+impl Ord for Ordered {
+    fn cmp(&self, other: &Self) -> Ordering {
+        self.0.total_cmp(&other.0).then(self.1.cmp(&other.1))
     }
 }
 

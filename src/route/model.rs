@@ -272,7 +272,7 @@ impl<'a> Model<'a> {
     }
 
     /// The cost of a move from `a` to `b` in mean darkness `darkness` (0 to 1).
-    fn move_cost(&self, a: u32, b: u32, darkness: f64) -> CostParts {
+    pub(super) fn move_cost(&self, a: u32, b: u32, darkness: f64) -> CostParts {
         let t = self.terrain;
         let d = t.distance_m(a, b);
         let limit = self.rover.max_slope_deg;
@@ -284,6 +284,17 @@ impl<'a> Model<'a> {
             roughness: d * self.weights.roughness * (mean(&t.roughness_deg) / limit).min(1.0),
             waiting: 0.0,
         }
+    }
+
+    /// The most light `facet` gets at any step of the window, as a share of the flux
+    /// on a surface facing the Sun (0 to 1).
+    pub fn brightest(&self, facet: u32) -> f64 {
+        (0..self.light.steps())
+            .map(|k| match self.light.flux(k) {
+                f if f > 0.0 => (self.light.irradiance(k, facet) / f).clamp(0.0, 1.0),
+                _ => 0.0,
+            })
+            .fold(0.0, f64::max)
     }
 
     /// Whether an outcome keeps the charge at or above the rover's minimum.

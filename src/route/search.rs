@@ -7,10 +7,12 @@
 //!
 //! The search is A* over labels (facet, quantum, charge, cost): states are
 //! (facet, quantum), so waiting and driving at different times are different states and
-//! the light of each quantum is exact. The heuristic is the straight distance to the
-//! goal, which never exceeds the cost left (each metre driven costs at least 1 and no
-//! path between centroids is shorter than the chord), and is consistent, so labels leave
-//! the queue in order of cost at each state. A label is dropped when one already taken
+//! the light of each quantum is exact. The heuristic is the cheapest cost to the goal
+//! over the facet graph with every move at its least cost over the window (each facet at
+//! its brightest step; slope, roughness and distance do not change in time), found once
+//! by Dijkstra from the goal. It never exceeds the cost left and is consistent, so labels
+//! leave the queue in order of cost at each state, and facets that cannot reach the goal
+//! are never entered. A label is dropped when one already taken
 //! at its state holds at least as much charge: from the same facet at the same time,
 //! more charge can do everything less charge can (the battery's update is monotone in
 //! the charge, and costs do not depend on it). The first goal label taken is therefore
@@ -20,17 +22,22 @@ use super::model::{Action, Model, State};
 use std::cmp::Ordering;
 use std::collections::{BinaryHeap, HashMap};
 
-/// How far the search may go.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+/// How far the search may go, and how close to the cheapest route it must come.
+#[derive(Debug, Clone, Copy, PartialEq)]
 pub struct SearchLimits {
     /// Most labels taken from the queue before giving up.
     pub max_labels: usize,
+    /// The route found may cost up to `1 + gap` times the cheapest (0: the cheapest).
+    /// The heuristic is weighted by `1 + gap` (weighted A*): far fewer labels on long
+    /// routes, where light changes often.
+    pub gap: f64,
 }
 
 impl Default for SearchLimits {
     fn default() -> SearchLimits {
         SearchLimits {
             max_labels: 4_000_000,
+            gap: 0.0,
         }
     }
 }
@@ -73,13 +80,20 @@ impl Ord for Queued {
     }
 }
 
+/// A plan found: its actions and the labels the search took.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Found {
+    pub actions: Vec<Action>,
+    pub labels: usize,
+}
+
 /// A label taken from the queue.
 struct Taken {
     parent: u32,
     action: Action,
 }
 
-/// The actions of the cheapest feasible route from `from` to `to` departing at quantum
+/// The cheapest feasible route from `from` to `to` departing at quantum
 /// `depart`, or why there is none.
 pub fn plan(
     model: &Model,
@@ -87,14 +101,22 @@ pub fn plan(
     to: u32,
     depart: u32,
     limits: SearchLimits,
-) -> Result<Vec<Action>, String> {
+) -> Result<Found, String> {
     let terrain = model.terrain;
-    let goal = terrain.centroids[to as usize];
-    let heuristic = |f: u32| terrain.centroids[f as usize].distance(goal);
+    let bound = least_costs_to(model, to);
+    let weight = 1.0 + limits.gap;
+    let heuristic = |f: u32| bound[f as usize];
+    if heuristic(from).is_infinite() {
+        return Err(format!(
+            "no chain of facets from facet {from} to facet {to} avoids slopes steeper than \
+             {}°: allow steeper slopes or choose other places",
+            model.rover.max_slope_deg
+        ));
+    }
     let mut queue = BinaryHeap::new();
     let start = model.start(from, depart);
     queue.push(Queued {
-        key: heuristic(from),
+        key: weight * heuristic(from),
         state: start,
         parent: u32::MAX,
         action: Action::Wait,
@@ -111,8 +133,9 @@ pub fn plan(
         *slot = s.charge_wh;
         if taken.len() >= limits.max_labels {
             return Err(format!(
-                "the search took {} labels without reaching the goal: raise max_labels, or \
-                 shorten the window (a later departure, fewer steps), or use fewer substeps",
+                "the search took {} labels without reaching the goal: allow an optimality \
+                 gap (0.3 finds long routes in a few thousand labels), raise max_labels, or \
+                 use fewer substeps",
                 limits.max_labels
             ));
         }
@@ -122,7 +145,10 @@ pub fn plan(
             action: label.action,
         });
         if s.facet == to {
-            return Ok(actions_to(&taken, index));
+            return Ok(Found {
+                actions: actions_to(&taken, index),
+                labels: taken.len(),
+            });
         }
         let moves = terrain.neighbours[s.facet as usize]
             .iter()
@@ -136,6 +162,9 @@ pub fn plan(
                 continue;
             }
             let next = outcome.state;
+            if heuristic(next.facet).is_infinite() {
+                continue;
+            }
             if best
                 .get(&state_key(&next))
                 .is_some_and(|&c| next.charge_wh <= c)
@@ -143,7 +172,7 @@ pub fn plan(
                 continue;
             }
             queue.push(Queued {
-                key: next.cost + heuristic(next.facet),
+                key: next.cost + weight * heuristic(next.facet),
                 state: next,
                 parent: index,
                 action,
@@ -151,6 +180,23 @@ pub fn plan(
         }
     }
     Err(no_route_message(model))
+}
+
+/// Per facet, the least cost from it to `goal` with every move at its least cost over
+/// the window (infinite where the goal cannot be reached): moves into facets the rover
+/// may enter, each at the light of both facets' brightest steps.
+fn least_costs_to(model: &Model, goal: u32) -> Vec<f64> {
+    let brightest: Vec<f64> = (0..model.terrain.len() as u32)
+        .map(|f| model.brightest(f))
+        .collect();
+    // From the goal backwards: settled `g`, a move from neighbour `f` into it.
+    let (cost, _) = model.terrain.dijkstra(goal, |g, f| {
+        let light = 0.5 * (brightest[f as usize] + brightest[g as usize]);
+        model
+            .allowed(g)
+            .then(|| model.move_cost(f, g, (1.0 - light).max(0.0)).total())
+    });
+    cost
 }
 
 fn state_key(s: &State) -> u64 {
@@ -291,7 +337,7 @@ mod tests {
             let (from, to) = (seed as u32 % 4, n - 1 - (seed as u32 / 4) % 4);
             let best = exhaustive(&model, model.start(from, 0), to);
             match plan(&model, from, to, 0, SearchLimits::default()) {
-                Ok(actions) => {
+                Ok(Found { actions, .. }) => {
                     let (end, ok) = replay(&model, from, &actions);
                     assert!(ok, "seed {seed}: the plan breaks a limit");
                     assert_eq!(end.facet, to);
@@ -331,7 +377,9 @@ mod tests {
         r.battery.initial_wh = 2.0;
         r.idle_load_w = 0.0;
         let model = Model::new(&terrain, &light, r, Weights::default(), Some(4)).unwrap();
-        let actions = plan(&model, 0, (facets - 1) as u32, 0, SearchLimits::default()).unwrap();
+        let actions = plan(&model, 0, (facets - 1) as u32, 0, SearchLimits::default())
+            .unwrap()
+            .actions;
         assert!(actions.contains(&Action::Wait), "{actions:?}");
         let (end, ok) = replay(&model, 0, &actions);
         assert!(ok && end.facet == (facets - 1) as u32);
@@ -349,7 +397,17 @@ mod tests {
             Some(3),
         )
         .unwrap();
-        let err = plan(&model, 0, 11, 0, SearchLimits { max_labels: 2 }).unwrap_err();
+        let err = plan(
+            &model,
+            0,
+            11,
+            0,
+            SearchLimits {
+                max_labels: 2,
+                gap: 0.0,
+            },
+        )
+        .unwrap_err();
         assert!(err.contains("max_labels"), "{err}");
     }
 }

@@ -10,8 +10,6 @@
 //! facet, the least charge).
 
 use super::model::{Action, CostParts, Model, State};
-use std::cmp::Reverse;
-use std::collections::BinaryHeap;
 
 /// A stop on a given route: a facet, and optionally the quantum before which the rover
 /// does not leave it.
@@ -212,52 +210,20 @@ pub fn evaluate(model: &Model, waypoints: &[Waypoint], depart: u32) -> Result<Ro
     Route::walk(model, first.facet, depart, &actions)
 }
 
-/// The shortest chain of neighbouring facets from `a` to `b` by centroid distance
-/// (Dijkstra), both ends included.
+/// The shortest chain of neighbouring facets from `a` to `b` by centroid distance,
+/// both ends included.
 fn shortest_chain(model: &Model, a: u32, b: u32) -> Option<Vec<u32>> {
     let t = model.terrain;
-    let mut dist = vec![f64::INFINITY; t.len()];
-    let mut parent = vec![u32::MAX; t.len()];
-    let mut queue = BinaryHeap::new();
-    dist[a as usize] = 0.0;
-    queue.push((Reverse(Ordered(0.0)), a));
-    while let Some((Reverse(Ordered(d)), f)) = queue.pop() {
-        if f == b {
-            let mut chain = vec![b];
-            while *chain.last()? != a {
-                chain.push(parent[*chain.last()? as usize]);
-            }
-            chain.reverse();
-            return Some(chain);
-        }
-        if d > dist[f as usize] {
-            continue;
-        }
-        for &g in &t.neighbours[f as usize] {
-            let nd = d + t.distance_m(f, g);
-            if nd < dist[g as usize] {
-                dist[g as usize] = nd;
-                parent[g as usize] = f;
-                queue.push((Reverse(Ordered(nd)), g));
-            }
-        }
+    let (distance, parent) = t.dijkstra(a, |f, g| Some(t.distance_m(f, g)));
+    if distance[b as usize].is_infinite() {
+        return None;
     }
-    None
-}
-
-/// A distance ordered by `total_cmp`.
-#[derive(Debug, Clone, Copy, PartialEq)]
-struct Ordered(f64);
-impl Eq for Ordered {}
-impl PartialOrd for Ordered {
-    fn partial_cmp(&self, other: &Self) -> Option<std::cmp::Ordering> {
-        Some(self.cmp(other))
+    let mut chain = vec![b];
+    while *chain.last()? != a {
+        chain.push(parent[*chain.last()? as usize]);
     }
-}
-impl Ord for Ordered {
-    fn cmp(&self, other: &Self) -> std::cmp::Ordering {
-        self.0.total_cmp(&other.0)
-    }
+    chain.reverse();
+    Some(chain)
 }
 
 #[cfg(test)]

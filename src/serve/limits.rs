@@ -27,6 +27,8 @@ pub struct Limits {
     pub max_query_targets: usize,
     /// Most values (targets × steps) an on-demand irradiance query may compute.
     pub max_query_values: usize,
+    /// Most labels a route plan may take (each up to [`crate::route::BYTES_PER_LABEL`]).
+    pub max_route_labels: usize,
 }
 
 impl Default for Limits {
@@ -44,12 +46,23 @@ impl Default for Limits {
             max_steps: 100_000,
             max_query_targets: 64,
             max_query_values: 1_000_000,
+            max_route_labels: crate::route::SearchLimits::default().max_labels,
         }
     }
 }
 
 impl Limits {
     /// The memory budget of one job.
+    /// The bounds of a route query: the job's memory, the planner's labels and, as for
+    /// other queries, the places one query may name (its waypoints).
+    pub fn route_limits(&self) -> super::traverse::RouteLimits {
+        super::traverse::RouteLimits {
+            budget: self.job_budget(),
+            max_labels: self.max_route_labels,
+            max_waypoints: self.max_query_targets,
+        }
+    }
+
     pub fn job_budget(&self) -> Budget {
         Budget {
             max_bytes: self.max_job_memory_bytes,

@@ -9,7 +9,7 @@
 //! [`jobs`] runs scenes on a bounded pool of compute threads outside the async runtime and
 //! [`store`] keeps their records on disk; [`scene_input`] turns request bodies into scenes
 //! whose files all lie inside `DIR` ([`catalogue`]); [`query`], [`windows`] and [`points`]
-//! answer facet questions; [`files`] serves result files with HTTP ranges; [`reply`] turns
+//! answer facet questions; [`traverse`] plans and evaluates rover routes; [`files`] serves result files with HTTP ranges; [`reply`] turns
 //! every failure into a JSON error; [`limits`] holds the configurable bounds.
 
 pub mod catalogue;
@@ -23,6 +23,7 @@ pub mod reply;
 pub mod routes;
 pub mod scene_input;
 pub mod store;
+pub mod traverse;
 pub mod windows;
 
 use crate::error::{Error, Result};

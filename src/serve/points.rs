@@ -18,7 +18,7 @@
 use super::jobs::SceneSize;
 use super::limits::Limits;
 use super::lru::Lru;
-use super::query::{check_facet, nearest_facet, on_mesh, unknown_body, Place};
+use super::query::{locate, unknown_body};
 use super::reply::{ApiError, ApiResult};
 use super::scene_input::{bad_scene, check_files, SceneText};
 use crate::budget::{Budget, GEOMETRY_BYTES_PER_FACET};
@@ -733,33 +733,7 @@ fn resolve(world: &World, t: &Target) -> ApiResult<Resolved> {
         Some(name) => body_index(world, name)?,
     };
     let body = &world.bodies[b];
-    let has_place = t.point_m.is_some() || t.lat_deg.is_some() || t.lon_deg.is_some();
-    let (facet, surface_m) = match (t.facet, has_place) {
-        (Some(i), false) => {
-            check_facet(&body.name, body.mesh.len(), i)?;
-            (i, body.mesh.centroids[i])
-        }
-        (None, true) => {
-            let place = Place::from_parts(t.point_m, t.lat_deg, t.lon_deg)?;
-            let i = nearest_facet(&body.mesh.centroids, place).ok_or_else(|| {
-                ApiError::unprocessable("empty_body", format!("body '{}' has no facets", body.name))
-            })?;
-            let surface = on_mesh(
-                &body.name,
-                i,
-                body.mesh.centroids[i],
-                body.mesh.areas[i],
-                place,
-            )?;
-            (i, surface)
-        }
-        _ => {
-            return Err(ApiError::bad_request(
-                "bad_target",
-                "each target gives either facet, or point_m, or lat_deg and lon_deg",
-            ))
-        }
-    };
+    let (facet, surface_m) = locate(body, t.facet, t.point_m, t.lat_deg, t.lon_deg)?;
     let sight_of = t
         .sight_of
         .iter()
@@ -787,7 +761,7 @@ fn resolve(world: &World, t: &Target) -> ApiResult<Resolved> {
 }
 
 /// The index of the body named `name`, or a 404 listing the names.
-fn body_index(world: &World, name: &str) -> ApiResult<usize> {
+pub(super) fn body_index(world: &World, name: &str) -> ApiResult<usize> {
     world
         .bodies
         .iter()

@@ -277,6 +277,37 @@ impl NearestQuery {
     }
 }
 
+/// The facet and surface point (m, body frame) of a place on `body` given as a facet id
+/// (its centroid), a body-fixed point or a latitude and longitude (the nearest facet,
+/// [`on_mesh`]); exactly one of the three.
+pub fn locate(
+    body: &crate::world::Body,
+    facet: Option<usize>,
+    point_m: Option<[f64; 3]>,
+    lat_deg: Option<f64>,
+    lon_deg: Option<f64>,
+) -> ApiResult<(usize, DVec3)> {
+    let has_place = point_m.is_some() || lat_deg.is_some() || lon_deg.is_some();
+    match (facet, has_place) {
+        (Some(i), false) => {
+            check_facet(&body.name, body.mesh.len(), i)?;
+            Ok((i, body.mesh.centroids[i]))
+        }
+        (None, true) => {
+            let place = Place::from_parts(point_m, lat_deg, lon_deg)?;
+            let i = nearest_facet(&body.mesh.centroids, place).ok_or_else(|| {
+                ApiError::unprocessable("empty_body", format!("body '{}' has no facets", body.name))
+            })?;
+            let c = body.mesh.centroids[i];
+            Ok((i, on_mesh(&body.name, i, c, body.mesh.areas[i], place)?))
+        }
+        _ => Err(ApiError::bad_request(
+            "bad_target",
+            "each target gives either facet, or point_m, or lat_deg and lon_deg",
+        )),
+    }
+}
+
 /// The surface point of a place whose nearest facet (on body `body`) is `facet`, with
 /// centroid `c` (m) and area `area_m2`: the point itself, or the centroid for a latitude
 /// and longitude. A place farther from that centroid than three facet sizes (2√area;

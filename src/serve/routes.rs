@@ -12,7 +12,8 @@ use super::jobs::{Jobs, RESULT_FILES};
 use super::points::PointsRequest;
 use super::query::{self, FacetsQuery, NearestQuery, ResultCache};
 use super::reply::{json, json_errors, ApiError, ApiResult};
-use super::scene_input::{plan, scene_text};
+use super::scene_input::{check_files, plan, scene_text};
+use super::traverse::{self, RouteRequest};
 use super::windows::{charging_windows, facet_history, HistoryRows, WindowsQuery};
 use super::{App, AppState};
 use axum::body::Bytes;
@@ -62,6 +63,10 @@ fn routes() -> Vec<(Route, MethodRouter<AppState>)> {
         (
             route("POST", "/v1/jobs/{id}/irradiance", Read),
             post(irradiance),
+        ),
+        (
+            route("POST", "/v1/jobs/{id}/route", Read),
+            post(rover_route),
         ),
     ];
     for (file, path) in RESULT_FILES.iter().zip(RESULT_PATHS) {
@@ -352,4 +357,22 @@ async fn irradiance(
     )
     .await?;
     Ok(json(&answer))
+}
+
+/// Plans a rover's route, or evaluates one through waypoints, on a job's scene.
+async fn rover_route(
+    State(app): State<AppState>,
+    Path(id): Path<String>,
+    body: Bytes,
+) -> ApiResult<Response> {
+    let request = RouteRequest::from_body(&body)?;
+    let (scene, _) = app.jobs.scene(&id)?;
+    let limits = app.config.limits.route_limits();
+    let dir = app.data_dir.clone();
+    let work = blocking(move || {
+        let parsed = scene.parse(&dir)?;
+        check_files(&dir, &parsed)?;
+        traverse::answer(&dir, &parsed, &request, &limits, &crate::progress::Silent)
+    });
+    Ok(json(&heavy(&app, work).await?))
 }
