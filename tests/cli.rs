@@ -595,3 +595,123 @@ fn read_csv_rows(path: &Path) -> (Vec<String>, Vec<Vec<String>>) {
     let header = split(lines.next().unwrap());
     (header, lines.map(split).collect())
 }
+
+/// `slim route` plans a drive on a scene file. Its energy, recomputed here leg by leg
+/// from the run's own history (the deck panel's η·A·E, each quantum at its step's
+/// light, a drive at the mean of its two facets), equals the route's; walking the plan's
+/// facets as waypoints with its departures gives the same route; a request with both a
+/// goal and waypoints is a one-line error naming the request file.
+#[cfg(feature = "serve")]
+#[test]
+fn route_plans_on_a_scene_file_with_the_runs_own_light() {
+    let dir = TempDir::new("route");
+    write_scene(&dir, "s.toml");
+    let rover = r#""rover": {"speed_m_s": 0.05, "max_slope_deg": 89,
+        "panel": {"area_m2": 2, "efficiency": 0.25},
+        "battery": {"capacity_wh": 200, "initial_wh": 120, "min_charge_wh": 20},
+        "idle_load_w": 5, "drive_load_w": 30}"#;
+    let request = dir.join("r.json");
+    std::fs::write(
+        &request,
+        format!(r#"{{"from": {{"facet": 100}}, "to": {{"facet": 400}}, {rover}}}"#),
+    )
+    .unwrap();
+    let out = slim(
+        &["route", "s.toml", "r.json", "-o", "plan.json", "-q"],
+        &dir.0,
+    );
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let plan: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("plan.json")).unwrap()).unwrap();
+    assert_eq!(plan["type"], "Feature");
+    assert_eq!(plan["geometry"]["type"], "LineString");
+    let p = &plan["properties"];
+    let facets: Vec<u32> = serde_json::from_value(p["facets"].clone()).unwrap();
+    assert_eq!((facets[0], *facets.last().unwrap()), (100, 400));
+    assert_eq!(
+        plan["geometry"]["coordinates"].as_array().unwrap().len(),
+        facets.len()
+    );
+    assert_eq!(p["feasible"], true);
+    assert!(p["min_charge_wh"].as_f64().unwrap() >= 20.0);
+
+    // The energy from the run's history.
+    let run = slim(&["run", "s.toml", "-o", "out", "--quiet"], &dir.0);
+    assert!(run.status.success(), "{}", text(&run.stderr));
+    let (header, rows) = read_csv_rows(&dir.join("out/history.csv"));
+    let col = |name: &str| header.iter().position(|h| h == name).unwrap();
+    let (step, facet, value) = (col("step"), col("facet"), col("irradiance_w_m2"));
+    let light = |k: usize, f: u64| -> f64 {
+        let row = rows
+            .iter()
+            .find(|r| r[step] == k.to_string() && r[facet] == f.to_string())
+            .unwrap();
+        row[value].parse().unwrap()
+    };
+    let t0 = p["arrive_tdb_s"][0].as_f64().unwrap();
+    let (tau, substeps) = (
+        p["quantum_s"].as_f64().unwrap(),
+        p["substeps"].as_u64().unwrap(),
+    );
+    let mut energy_wh = 0.0;
+    for leg in p["legs"].as_array().unwrap() {
+        let (a, b) = (
+            leg["from_facet"].as_u64().unwrap(),
+            leg["to_facet"].as_u64().unwrap(),
+        );
+        let first = ((leg["start_tdb_s"].as_f64().unwrap() - t0) / tau).round() as u64;
+        let last = ((leg["end_tdb_s"].as_f64().unwrap() - t0) / tau).round() as u64;
+        for q in first..last {
+            let k = (q / substeps) as usize;
+            energy_wh += 0.25 * 2.0 * 0.5 * (light(k, a) + light(k, b)) * tau / 3600.0;
+        }
+    }
+    let routed = p["energy_wh"].as_f64().unwrap();
+    assert!(
+        (energy_wh - routed).abs() <= 1e-4 * routed.max(1.0),
+        "{energy_wh} vs {routed}"
+    );
+
+    // The plan's facets as waypoints, leaving each when the plan does.
+    let departures: Vec<f64> = p["legs"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|l| l["kind"] == "drive")
+        .map(|l| l["start_tdb_s"].as_f64().unwrap())
+        .collect();
+    let waypoints: Vec<String> = facets
+        .iter()
+        .enumerate()
+        .map(|(i, f)| match departures.get(i) {
+            Some(t) => format!(r#"{{"facet": {f}, "depart_tdb_s": {t}}}"#),
+            None => format!(r#"{{"facet": {f}}}"#),
+        })
+        .collect();
+    std::fs::write(
+        &request,
+        format!(r#"{{"waypoints": [{}], {rover}}}"#, waypoints.join(",")),
+    )
+    .unwrap();
+    let out = slim(
+        &["route", "s.toml", "r.json", "-o", "walk.json", "-q"],
+        &dir.0,
+    );
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let walked: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("walk.json")).unwrap()).unwrap();
+    let w = &walked["properties"];
+    assert_eq!(w["mode"], "evaluate");
+    for key in ["facets", "energy_wh", "charge_wh", "distance_m", "dark_s"] {
+        assert_eq!(w[key], p[key], "{key}");
+    }
+
+    // A goal and waypoints at once.
+    std::fs::write(
+        &request,
+        format!(r#"{{"to": {{"facet": 4}}, "waypoints": [], {rover}}}"#),
+    )
+    .unwrap();
+    let out = slim(&["route", "s.toml", "r.json"], &dir.0);
+    assert_one_line_error(&out, &["either from and to", "bad_route"]);
+}

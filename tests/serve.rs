@@ -1342,3 +1342,110 @@ fn openapi_matches_the_route_table() {
         assert!(schemas.contains_key(name), "$ref to missing schema {name}");
     }
 }
+
+// ---------------------------------------------------------------------------------------
+// Routes
+
+/// `POST /v1/jobs/{id}/route` plans a drive and evaluates waypoints on a job's scene, and
+/// answers every bad request with a JSON 4xx naming what is wrong.
+#[test]
+fn routes_are_planned_and_evaluated_and_bad_ones_refused() {
+    let data = DataDir::new("route");
+    let server = Server::start(data.path(), &["--max-route-labels", "100000"]);
+    let id = run_job(
+        &server,
+        post_toml(&server, &scene("shapes/itokawa_8.obj", 24)),
+    );
+    let path = format!("/v1/jobs/{id}/route");
+    let rover = serde_json::json!({
+        "speed_m_s": 0.05, "max_slope_deg": 89,
+        "battery": {"capacity_wh": 100, "min_charge_wh": 10},
+        "idle_load_w": 2, "drive_load_w": 10
+    });
+    let (status, plan) = post_json(
+        &server,
+        &path,
+        &serde_json::json!({"from": {"facet": 10}, "to": {"facet": 300}, "rover": rover}),
+    );
+    assert_eq!(status, 200, "{plan}");
+    assert_eq!(plan["type"], "Feature");
+    let p = &plan["properties"];
+    assert_eq!(p["mode"], "plan");
+    assert_eq!(p["facets"][0], 10);
+    assert_eq!(p["feasible"], true);
+    let n = p["facets"].as_array().unwrap().len();
+    assert_eq!(plan["geometry"]["coordinates"].as_array().unwrap().len(), n);
+    assert_eq!(p["arrive_utc"].as_array().unwrap().len(), n);
+
+    let (status, walked) = post_json(
+        &server,
+        &path,
+        &serde_json::json!({"waypoints": [{"facet": 10}, {"facet": 300}], "rover": rover}),
+    );
+    assert_eq!(status, 200, "{walked}");
+    assert_eq!(walked["properties"]["mode"], "evaluate");
+
+    let bad = |body: serde_json::Value| post_json(&server, &path, &body);
+    assert_error(
+        bad(serde_json::json!({"from": {"facet": 1}})),
+        400,
+        "malformed_body",
+    );
+    assert_error(
+        bad(serde_json::json!({"from": {"facet": 1}, "rover": rover})),
+        400,
+        "bad_route",
+    );
+    assert_error(
+        bad(
+            serde_json::json!({"body": "eros", "waypoints": [{"facet": 1}, {"facet": 2}],
+                               "rover": rover}),
+        ),
+        404,
+        "unknown_body",
+    );
+    assert_error(
+        bad(
+            serde_json::json!({"from": {"point_m": [1e7, 0, 0]}, "to": {"facet": 2},
+                               "rover": rover}),
+        ),
+        422,
+        "off_mesh",
+    );
+    assert_error(
+        bad(serde_json::json!({"from": {"facet": 1}, "to": {"facet": 99999}, "rover": rover})),
+        404,
+        "unknown_facet",
+    );
+    let mut slow = rover.clone();
+    slow["speed_m_s"] = serde_json::json!(-1);
+    assert_error(
+        bad(serde_json::json!({"from": {"facet": 1}, "to": {"facet": 2}, "rover": slow})),
+        400,
+        "bad_route",
+    );
+    assert_error(
+        bad(
+            serde_json::json!({"from": {"facet": 1}, "to": {"facet": 2}, "rover": rover,
+                               "max_labels": 100001}),
+        ),
+        400,
+        "bad_route",
+    );
+    assert_error(
+        bad(
+            serde_json::json!({"from": {"facet": 1}, "to": {"facet": 2}, "rover": rover,
+                               "depart_step": 24}),
+        ),
+        400,
+        "bad_route",
+    );
+    // A crawl that cannot reach the far waypoint within the day.
+    let mut crawl = rover.clone();
+    crawl["speed_m_s"] = serde_json::json!(1e-6);
+    assert_error(
+        bad(serde_json::json!({"waypoints": [{"facet": 10}, {"facet": 300}], "rover": crawl})),
+        400,
+        "bad_route",
+    );
+}

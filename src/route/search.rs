@@ -347,6 +347,14 @@ mod tests {
                         "seed {seed}: planned {} vs best {best}",
                         end.cost
                     );
+                    // With a gap, the route is feasible and within its bound.
+                    let loose = SearchLimits {
+                        gap: 0.5,
+                        ..SearchLimits::default()
+                    };
+                    let found = plan(&model, from, to, 0, loose).unwrap();
+                    let (end, ok) = replay(&model, from, &found.actions);
+                    assert!(ok && end.facet == to && end.cost <= 1.5 * best * (1.0 + 1e-12));
                     feasible += 1;
                 }
                 Err(why) => {
