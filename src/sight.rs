@@ -75,35 +75,75 @@ pub struct Window {
 /// The windows in which `margin` (sampled at the increasing epochs `t`, TDB seconds) is
 /// above zero, edges refined as the module doc says.
 pub fn windows_above(t: &[f64], margin: &[f64]) -> Vec<Window> {
+    stretches(t, margin, |m| m > 0.0)
+        .into_iter()
+        .map(|s| Window::new(s.start, s.end, s.cut_at_start, s.cut_at_end))
+        .collect()
+}
+
+/// A run of consecutive samples inside a set (above zero, at or above a threshold), with
+/// its edges in time.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Stretch {
+    /// Its first and last sample.
+    pub first: usize,
+    pub last: usize,
+    /// Its edges, TDB seconds: refined between samples, or the first or last sample's
+    /// epoch where it is cut.
+    pub start: f64,
+    pub end: f64,
+    /// It holds the first sample: its true start is not known.
+    pub cut_at_start: bool,
+    /// It holds the last sample: its true end is not known.
+    pub cut_at_end: bool,
+}
+
+/// The stretches of samples whose `margin` (at the increasing epochs `t`) is `inside`,
+/// where the margin's zero is the set's border. Each edge between a sample outside and one
+/// inside is refined to where the straight line through the two crosses zero (so it lies
+/// in that step, at the inside sample at the latest); a stretch holding the first or last
+/// sample starts or ends at its epoch and is flagged as cut, never extended past it.
+pub fn stretches(t: &[f64], margin: &[f64], inside: impl Fn(f64) -> bool) -> Vec<Stretch> {
     assert_eq!(t.len(), margin.len(), "one margin per epoch");
     let crossing = |k: usize| {
-        // Between samples k and k + 1, where the line through them is zero.
+        // Between samples k and k + 1, one on each side: a and b differ in sign (or b is
+        // zero), so the division is safe and the result lies in [t[k], t[k + 1]].
         let (a, b) = (margin[k], margin[k + 1]);
         t[k] + (t[k + 1] - t[k]) * (a / (a - b))
     };
-    let mut windows = Vec::new();
-    let mut start: Option<(f64, bool)> = None;
-    for (k, m) in margin.iter().enumerate() {
-        let above = *m > 0.0;
-        match (above, start) {
+    let mut found = Vec::new();
+    let mut open: Option<(usize, f64)> = None;
+    for (k, &m) in margin.iter().enumerate() {
+        match (inside(m), open) {
             (true, None) => {
-                start = Some(if k == 0 {
-                    (t[0], true)
-                } else {
-                    (crossing(k - 1), false)
-                });
+                open = Some((k, if k == 0 { t[0] } else { crossing(k - 1) }));
             }
-            (false, Some((begin, cut))) => {
-                windows.push(Window::new(begin, crossing(k - 1), cut, false));
-                start = None;
+            (false, Some((first, start))) => {
+                found.push(Stretch {
+                    first,
+                    last: k - 1,
+                    start,
+                    end: crossing(k - 1),
+                    cut_at_start: first == 0,
+                    cut_at_end: false,
+                });
+                open = None;
             }
             _ => {}
         }
     }
-    if let (Some((begin, cut)), Some(&end)) = (start, t.last()) {
-        windows.push(Window::new(begin, end, cut, true));
+    if let Some((first, start)) = open {
+        let last = t.len() - 1;
+        found.push(Stretch {
+            first,
+            last,
+            start,
+            end: t[last],
+            cut_at_start: first == 0,
+            cut_at_end: true,
+        });
     }
-    windows
+    found
 }
 
 impl Window {

@@ -440,9 +440,12 @@ fn facet_window_and_point_queries_agree_with_the_files() {
         "{near}"
     );
 
-    // Windows above ~0 W/m² cover exactly the lit time and hold all the energy:
-    // Σ duration = lit fraction × period, Σ energy = mean × period.
+    // Windows above ~0 W/m² cover the lit time and hold the energy: Σ duration = lit
+    // fraction × period and Σ energy = mean × period (the summary's steps held), but for
+    // the edges, refined inside their steps: each moves by under a step, and the energy
+    // of its partial step (under max E × step) moves with it.
     let period = 12.0 * 3600.0;
+    let step = period / steps as f64;
     let (status, w) = get(
         &server,
         &format!("/v1/jobs/{id}/windows?facet={partly}&threshold_w_m2=1e-9"),
@@ -457,14 +460,15 @@ fn facet_window_and_point_queries_agree_with_the_files() {
             .sum::<f64>()
     };
     let lit = facets.lit_fraction[partly] * period;
+    let edges = 2.0 * windows.len() as f64;
     assert!(
-        (total("duration_s") - lit).abs() < 1e-6 * period,
+        (total("duration_s") - lit).abs() <= edges * step,
         "{} vs {lit}",
         total("duration_s")
     );
     let energy = facets.mean_w_m2[partly] * period;
     assert!(
-        (total("energy_j_m2") - energy).abs() < 1e-9 * energy,
+        (total("energy_j_m2") - energy).abs() <= edges * facets.max_w_m2[partly] * step,
         "{} vs {energy}",
         total("energy_j_m2")
     );
@@ -652,24 +656,25 @@ fn windows_of_a_second_body_read_its_own_rows() {
     let run = RunData::read(&data.path().join("jobs").join(&id).join("result")).unwrap();
     let pebble = &run.bodies[1].facets;
     let period = 12.0 * 3600.0;
+    // As for Itokawa's facet: edges refined inside their steps move each by under a step.
+    let step = period / 36.0;
     for k in [0, 17, pebble.len() - 1] {
         let (status, w) = get(
             &server,
             &format!("/v1/jobs/{id}/windows?body=pebble&facet={k}&threshold_w_m2=1e-9"),
         );
         assert_eq!(status, 200, "{w}");
-        let total = |key: &str| -> f64 {
-            let windows = w["windows"].as_array().unwrap();
-            windows.iter().map(|w| w[key].as_f64().unwrap()).sum()
-        };
+        let windows = w["windows"].as_array().unwrap();
+        let total = |key: &str| -> f64 { windows.iter().map(|w| w[key].as_f64().unwrap()).sum() };
+        let edges = 2.0 * windows.len() as f64;
         let lit = pebble.lit_fraction[k] * period;
         assert!(
-            (total("duration_s") - lit).abs() < 1e-6 * period,
+            (total("duration_s") - lit).abs() <= edges * step,
             "facet {k}: {w}"
         );
         let energy = pebble.mean_w_m2[k] * period;
         assert!(
-            (total("energy_j_m2") - energy).abs() <= 1e-9 * energy,
+            (total("energy_j_m2") - energy).abs() <= edges * pebble.max_w_m2[k] * step,
             "facet {k}: {w}"
         );
     }
