@@ -8,7 +8,7 @@ bench_init() {
   OUT=$(realpath -m "${2:-$1}")
   rm -rf "$OUT" && mkdir -p "$OUT"
   DATA=$(realpath data)
-  B=target/release/slim
+  B=${CARGO_TARGET_DIR:-target}/release/slim
   export SLIM_CACHE_DIR="$OUT/cache"
   ABSOLUTE=(-e "s|\"kernels/|\"$DATA/kernels/|" -e "s|\"shapes/|\"$DATA/shapes/|")
 }

@@ -7,11 +7,14 @@
 //! the steps' epochs (TDB seconds past J2000). A target with a height or a panel also
 //! gets the panel's series ([`crate::panel`]): irradiance on the panel under the horizon
 //! seen from that height, with the scene's point or disk Sun, its power and the share of
-//! the Sun seen. The values are those `slim run` computes
-//! for the same facets (same shadow predicate, same guards); the shadow structures are the
-//! grid tracer's, which needs no per-step set-up.
+//! the Sun seen. The values are those `slim run` computes with shadow rays
+//! for the same facets (same shadow predicate, same guards), bit for bit. The rays go
+//! through each body's tree ([`Bvh`], no per-step set-up; the panels' horizons search the
+//! same tree), and a facet's own ray is spared whenever the Sun stands above the upper
+//! bound of that facet's horizon map ([`HorizonMap::of_facet`], built once per facet asked
+//! for), where no exact tracer would find a blocker. Steps are computed in parallel.
 //!
-//! Each scene's meshes, ephemeris and grids are built once and kept by an engine thread
+//! Each scene's meshes, ephemeris and trees are built once and kept by an engine thread
 //! that owns them and answers requests through a channel; the service keeps engines
 //! across requests within a byte budget, the least recently asked leaving first.
 
@@ -24,19 +27,20 @@ use super::scene_input::{bad_scene, check_files, SceneText};
 use crate::budget::{Budget, GEOMETRY_BYTES_PER_FACET};
 use crate::ephemeris::{Ephemeris, EpochState};
 use crate::horizon::disk::SolarDisk;
-use crate::horizon::map::PointHorizon;
+use crate::horizon::map::{HorizonMap, PointHorizon};
 use crate::horizon::SunShape;
 use crate::illum::Direct;
-use crate::panel::{Battery, Charge, Orientation, Panel, Site};
+use crate::panel::{Battery, Charge, Orientation, Panel, PanelLight, Site};
 use crate::prepare::assemble;
 use crate::progress::Timings;
 use crate::sight::{windows_above, Sighting};
 use crate::trace::bvh::Bvh;
-use crate::trace::TracerKind;
+use crate::trace::Tracer;
 use crate::world::World;
 use glam::DVec3;
+use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
-use std::cell::{OnceCell, RefCell};
+use std::cell::RefCell;
 use std::collections::HashMap;
 use std::ops::Range;
 use std::path::{Path, PathBuf};
@@ -384,9 +388,9 @@ struct Engine<'w> {
     world: &'w World,
     ephemeris: &'w dyn Ephemeris,
     direct: Direct<'w>,
-    /// Each body's tree over its shadow mesh (with its surroundings) for panels'
-    /// horizons, built when first asked for.
-    bvhs: Vec<OnceCell<Bvh>>,
+    /// Each body's tree over its shadow mesh (with its surroundings): the facets' shadow
+    /// rays, and the horizons of panels and facets.
+    bvhs: &'w [Bvh],
     /// The scene's Sun: a disk (with its limb darkening) or a point.
     disk: Option<SolarDisk>,
     /// Each step's geometry once computed: the ephemeris is the costliest part of a
@@ -395,6 +399,9 @@ struct Engine<'w> {
     /// Horizons of the places asked for (body, surface point and height bits), at most
     /// [`KEPT_HORIZONS`] (16 kB each), so that asking again skips the search.
     horizons: RefCell<HashMap<HorizonKey, PointHorizon>>,
+    /// Horizon maps of the facets asked for (body, facet), at most [`KEPT_HORIZONS`]
+    /// (4 kB each).
+    facet_horizons: RefCell<HashMap<(usize, usize), HorizonMap>>,
 }
 
 /// A place's horizon: its body, surface point (bits of x, y, z) and height (bits).
@@ -407,14 +414,16 @@ const KEPT_HORIZONS: usize = 256;
 /// step's own fields).
 const STATE_BYTES_PER_BODY: usize = 192;
 
-/// Memory of the kept horizons at most (two f64 per wedge), bytes.
-const KEPT_HORIZON_BYTES: f64 = KEPT_HORIZONS as f64 * crate::panel::PANEL_AZIMUTHS as f64 * 16.0;
+/// Memory of the kept horizons at most: places' (two f64 per wedge) and facets' (two u16
+/// per wedge), bytes.
+const KEPT_HORIZON_BYTES: f64 = KEPT_HORIZONS as f64 * crate::panel::PANEL_AZIMUTHS as f64 * 20.0;
 
 /// The engine thread: builds the scene once, then answers until its sender is dropped.
 fn engine(dir: &Path, scene: &SceneText, budget: &Budget, asks: mpsc::Receiver<Ask>) {
     match build(dir, scene, budget) {
         Ok((world, ephemeris, disk)) => {
-            let engine = Engine::new(&world, ephemeris.as_ref(), disk);
+            let bvhs = body_trees(&world);
+            let engine = Engine::new(&world, &bvhs, ephemeris.as_ref(), disk);
             for ask in asks {
                 let answer = engine.answer(&ask.request, ask.max_values);
                 let _ = ask.reply.send(answer);
@@ -426,6 +435,15 @@ fn engine(dir: &Path, scene: &SceneText, budget: &Budget, asks: mpsc::Receiver<A
             }
         }
     }
+}
+
+/// Each body's tree over its shadow mesh, in scene order.
+fn body_trees(world: &World) -> Vec<Bvh> {
+    world
+        .bodies
+        .iter()
+        .map(|b| Bvh::build(b.shadow_mesh()))
+        .collect()
 }
 
 /// The scene's world, ephemeris and, for a disk Sun, the disk.
@@ -448,21 +466,32 @@ pub fn answer_scene_file(scene: &Path, request: &PointsRequest) -> crate::Result
     let shadows = scene.shadows();
     let disk = (shadows.sun == SunShape::Disk).then_some(shadows.disk);
     let assembly = assemble(&scene, &Budget::machine(), &mut Timings::default())?;
-    let engine = Engine::new(&assembly.world, assembly.ephemeris.as_ref(), disk);
+    let bvhs = body_trees(&assembly.world);
+    let engine = Engine::new(&assembly.world, &bvhs, assembly.ephemeris.as_ref(), disk);
     let answer = engine.answer(request, usize::MAX);
     answer.map_err(|e| crate::Error::Usage(format!("{} ({})", e.message, e.code)))
 }
 
 impl<'w> Engine<'w> {
-    fn new(world: &'w World, ephemeris: &'w dyn Ephemeris, disk: Option<SolarDisk>) -> Engine<'w> {
+    fn new(
+        world: &'w World,
+        bvhs: &'w [Bvh],
+        ephemeris: &'w dyn Ephemeris,
+        disk: Option<SolarDisk>,
+    ) -> Engine<'w> {
+        let tracers = bvhs
+            .iter()
+            .map(|t| Box::new(t) as Box<dyn Tracer + 'w>)
+            .collect();
         Engine {
             world,
             ephemeris,
-            direct: Direct::new(world, TracerKind::Grid),
-            bvhs: world.bodies.iter().map(|_| OnceCell::new()).collect(),
+            direct: Direct::with_tracers(world, tracers),
+            bvhs,
             disk,
             states: RefCell::new(vec![None; ephemeris.steps()]),
             horizons: RefCell::new(HashMap::new()),
+            facet_horizons: RefCell::new(HashMap::new()),
         }
     }
 
@@ -522,36 +551,31 @@ impl<'w> Engine<'w> {
                 })
                 .collect(),
         };
-        for k in steps {
-            let state = self.state(k)?;
-            let values = self
-                .direct
-                .compute_facets(&state, &facets)
-                .map_err(|e| ApiError::unprocessable("bad_scene", e.to_string()))?;
-            out.et_tdb_s.push(state.epoch.to_tdb_seconds());
-            for (((series, e), site), r) in
-                out.series.iter_mut().zip(values).zip(&sites).zip(&targets)
-            {
-                series.irradiance_w_m2.push(e);
-                if let Some((site, _)) = site {
-                    for (sight, &t) in series.sight.iter_mut().zip(&r.sight_of) {
-                        let at = Sighting::of(site, &state, r.body, t);
-                        sight.elevation_deg.push(at.elevation.to_degrees());
-                        sight.horizon_deg.push(at.horizon.to_degrees());
-                        sight.seen.push(at.seen());
-                    }
-                }
-                if let (Some((site, panel)), Some(p)) = (site, series.panel.as_mut()) {
-                    let sun = &state.bodies[r.body];
-                    let disk = self
-                        .disk
-                        .as_ref()
-                        .map(|d| (d, SolarDisk::angular_radius(sun.sun_distance_m)));
-                    let light = site.sunlight(panel, sun.sun_dir, sun.flux_w_m2, disk);
-                    p.irradiance_w_m2.push(light.irradiance_w_m2);
-                    p.power_w.push(light.power_w);
-                    p.sun_visible.push(light.sun_visible);
-                }
+        let horizons: Vec<Option<HorizonMap>> =
+            targets.iter().map(|r| self.facet_horizon(r)).collect();
+        let work = StepWork {
+            direct: &self.direct,
+            disk: self.disk.as_ref(),
+            facets,
+            horizons: horizons.iter().map(Option::as_ref).collect(),
+            sites: &sites,
+            targets: &targets,
+        };
+        self.fill_states(steps.clone())?;
+        let kept = self.states.borrow();
+        let states = steps
+            .map(|k| kept[k].as_ref())
+            .collect::<Option<Vec<&EpochState>>>()
+            .ok_or_else(|| ApiError::internal("a step's geometry was not kept"))?;
+        // Steps are independent: computed in parallel, gathered in order.
+        let per_step = states
+            .into_par_iter()
+            .map(|state| work.at(state))
+            .collect::<ApiResult<Vec<StepValues>>>()?;
+        for (epoch, values) in per_step {
+            out.et_tdb_s.push(epoch);
+            for (series, value) in out.series.iter_mut().zip(values) {
+                series.push(value);
             }
         }
         let durations = step_durations(&out.et_tdb_s);
@@ -566,17 +590,42 @@ impl<'w> Engine<'w> {
         Ok(out)
     }
 
-    /// The geometry of step `k`, computed once.
-    fn state(&self, k: usize) -> ApiResult<EpochState> {
-        if let Some(state) = &self.states.borrow()[k] {
-            return Ok(state.clone());
+    /// Computes the geometry of the steps in `steps` not yet kept.
+    fn fill_states(&self, steps: Range<usize>) -> ApiResult<()> {
+        let mut states = self.states.borrow_mut();
+        for k in steps {
+            if states[k].is_some() {
+                continue;
+            }
+            let state = self
+                .ephemeris
+                .state(k)
+                .map_err(|e| ApiError::unprocessable("bad_scene", e.to_string()))?;
+            states[k] = Some(state);
         }
-        let state = self
-            .ephemeris
-            .state(k)
-            .map_err(|e| ApiError::unprocessable("bad_scene", e.to_string()))?;
-        self.states.borrow_mut()[k] = Some(state.clone());
-        Ok(state)
+        Ok(())
+    }
+
+    /// The horizon map of a target's facet alone, kept across queries, when its body can
+    /// shadow itself: it spares the facet's own shadow ray whenever the Sun clears it.
+    fn facet_horizon(&self, r: &Resolved) -> Option<HorizonMap> {
+        let body = &self.world.bodies[r.body];
+        if body.convex {
+            return None;
+        }
+        let key = (r.body, r.facet);
+        if let Some(map) = self.facet_horizons.borrow().get(&key) {
+            return Some(map.clone());
+        }
+        let mesh = body.shadow_mesh();
+        let bvh = &self.bvhs[r.body];
+        let map = HorizonMap::of_facet(mesh, r.facet, bvh, crate::panel::PANEL_AZIMUTHS);
+        let mut kept = self.facet_horizons.borrow_mut();
+        if kept.len() >= KEPT_HORIZONS {
+            kept.clear();
+        }
+        kept.insert(key, map.clone());
+        Some(map)
     }
 
     /// The site of a target that has a height, a panel or a sight, with its panel.
@@ -601,7 +650,7 @@ impl<'w> Engine<'w> {
         let height_m = r.height_m;
         // The panel sees the body's surroundings too, where it has them.
         let mesh = self.world.bodies[r.body].shadow_mesh();
-        let bvh = self.bvhs[r.body].get_or_init(|| Bvh::build(mesh));
+        let bvh = &self.bvhs[r.body];
         let key = (
             r.body,
             r.surface_m.to_array().map(f64::to_bits),
@@ -618,6 +667,86 @@ impl<'w> Engine<'w> {
             horizons.insert(key, site.horizon().clone());
         }
         Ok(Some((site, panel)))
+    }
+}
+
+/// What every step of a query needs, shared by the threads that compute the steps.
+struct StepWork<'a> {
+    direct: &'a Direct<'a>,
+    disk: Option<&'a SolarDisk>,
+    facets: Vec<(usize, usize)>,
+    horizons: Vec<Option<&'a HorizonMap>>,
+    sites: &'a [Option<(Site<'a>, Panel)>],
+    targets: &'a [Resolved],
+}
+
+/// One step's epoch (TDB s) and what each target gets at it.
+type StepValues = (f64, Vec<TargetStep>);
+
+/// What one target gets at one step.
+struct TargetStep {
+    /// On the facet, W/m².
+    facet_w_m2: f64,
+    panel: Option<PanelLight>,
+    sightings: Vec<Sighting>,
+}
+
+impl StepWork<'_> {
+    /// Every target's values at `state`.
+    fn at(&self, state: &EpochState) -> ApiResult<StepValues> {
+        let values = self
+            .direct
+            .compute_facets_with(state, &self.facets, &self.horizons)
+            .map_err(|e| ApiError::unprocessable("bad_scene", e.to_string()))?;
+        let targets = values
+            .into_iter()
+            .zip(self.sites)
+            .zip(self.targets)
+            .map(|((facet_w_m2, site), r)| {
+                let Some((site, panel)) = site else {
+                    return TargetStep {
+                        facet_w_m2,
+                        panel: None,
+                        sightings: Vec::new(),
+                    };
+                };
+                let sightings = r
+                    .sight_of
+                    .iter()
+                    .map(|&t| Sighting::of(site, state, r.body, t))
+                    .collect();
+                let sun = &state.bodies[r.body];
+                let disk = self
+                    .disk
+                    .map(|d| (d, SolarDisk::angular_radius(sun.sun_distance_m)));
+                let light = r
+                    .panel
+                    .then(|| site.sunlight(panel, sun.sun_dir, sun.flux_w_m2, disk));
+                TargetStep {
+                    facet_w_m2,
+                    panel: light,
+                    sightings,
+                }
+            })
+            .collect();
+        Ok((state.epoch.to_tdb_seconds(), targets))
+    }
+}
+
+impl Series {
+    /// Appends one step's values.
+    fn push(&mut self, step: TargetStep) {
+        self.irradiance_w_m2.push(step.facet_w_m2);
+        for (sight, at) in self.sight.iter_mut().zip(step.sightings) {
+            sight.elevation_deg.push(at.elevation.to_degrees());
+            sight.horizon_deg.push(at.horizon.to_degrees());
+            sight.seen.push(at.seen());
+        }
+        if let (Some(p), Some(light)) = (self.panel.as_mut(), step.panel) {
+            p.irradiance_w_m2.push(light.irradiance_w_m2);
+            p.power_w.push(light.power_w);
+            p.sun_visible.push(light.sun_visible);
+        }
     }
 }
 
@@ -830,10 +959,13 @@ fn first_step_at(ephemeris: &dyn Ephemeris, range: Range<usize>, tdb_s: f64) -> 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::trace::TracerKind;
     use std::path::Path;
 
-    /// Facets computed one by one with the grid tracer get the same values, bit for bit,
-    /// as the whole mesh computed by a run with the sunview tracer.
+    /// Facets computed one by one get the same values, bit for bit, as the whole mesh
+    /// computed by a run with the sunview tracer: with the grid tracer, and as the engine
+    /// computes them (rays through the body's tree, spared where the facet's own horizon
+    /// map clears the Sun; Itokawa is not convex, so both kinds of step occur).
     #[test]
     fn facets_alone_match_the_whole_mesh() {
         let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("data");
@@ -856,15 +988,53 @@ spin_period_h = 12.0
         let (world, ephemeris, _) = build(&dir, &text, &Budget::machine()).unwrap();
         let grid = Direct::new(&world, TracerKind::Grid);
         let sunview = Direct::new(&world, TracerKind::Sunview);
+        let bvhs = body_trees(&world);
+        let engine = Engine::new(&world, &bvhs, ephemeris.as_ref(), None);
         let facets: Vec<(usize, usize)> = (0..world.facet_count()).map(|i| (0, i)).collect();
+        let maps: Vec<Option<HorizonMap>> = facets
+            .iter()
+            .map(|&(body, facet)| {
+                engine.facet_horizon(&Resolved {
+                    body,
+                    facet,
+                    surface_m: DVec3::ZERO,
+                    panel: false,
+                    height_m: 1.0,
+                    sight_of: Vec::new(),
+                })
+            })
+            .collect();
+        assert!(maps.iter().all(Option::is_some));
+        let maps: Vec<Option<&HorizonMap>> = maps.iter().map(Option::as_ref).collect();
         let mut all = vec![0.0; world.facet_count()];
+        let mut spared = 0;
         for k in 0..ephemeris.steps() {
             let state = ephemeris.state(k).unwrap();
             sunview.compute(&state, &mut all).unwrap();
             let alone = grid.compute_facets(&state, &facets).unwrap();
-            for (i, (a, b)) in all.iter().zip(&alone).enumerate() {
+            let mapped = engine
+                .direct
+                .compute_facets_with(&state, &facets, &maps)
+                .unwrap();
+            for (i, ((a, b), c)) in all.iter().zip(&alone).zip(&mapped).enumerate() {
                 assert_eq!(a.to_bits(), b.to_bits(), "step {k} facet {i}: {a} vs {b}");
+                assert_eq!(a.to_bits(), c.to_bits(), "step {k} facet {i}: {a} vs {c}");
             }
+            spared += facets
+                .iter()
+                .zip(&maps)
+                .filter(|&(&(_, i), map)| {
+                    let (n, sun) = (world.bodies[0].mesh.normals[i], state.bodies[0].sun_dir);
+                    let map = map.unwrap();
+                    n.dot(sun) > 0.0 && map.clears(0, &map.position(n, sun, n.dot(sun)))
+                })
+                .count();
         }
+        // Most lit facet-steps need no ray; some (near their horizon) still do.
+        let facing = ephemeris.steps() * world.facet_count() / 2;
+        assert!(
+            spared > facing / 2 && spared < facing,
+            "{spared} of ~{facing}"
+        );
     }
 }

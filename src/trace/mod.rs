@@ -44,6 +44,13 @@ pub trait Tracer: Send + Sync {
     fn toward(&self, dir: DVec3) -> Box<dyn ShadowQuery + '_>;
 }
 
+/// A borrowed tracer serves as the tracer itself (one tree shared by several users).
+impl<T: Tracer + ?Sized> Tracer for &T {
+    fn toward(&self, dir: DVec3) -> Box<dyn ShadowQuery + '_> {
+        (**self).toward(dir)
+    }
+}
+
 /// Which tracer a run uses.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
 #[serde(rename_all = "lowercase")]
