@@ -381,6 +381,9 @@ struct ReportArgs {
     /// Colour map: viridis or cividis.
     #[arg(long, default_value = "viridis")]
     colormap: Colormap,
+    /// Draw this rover route (a `slim route` answer) on its body's maps (repeatable).
+    #[arg(long = "route", value_name = "ROUTE.json")]
+    routes: Vec<PathBuf>,
 }
 
 #[cfg(feature = "report")]
@@ -391,6 +394,7 @@ impl ReportArgs {
             near: self.near,
             threshold_w_m2: self.threshold,
             colormap: self.colormap,
+            routes: self.routes,
         }
     }
 }

@@ -314,6 +314,7 @@ fn requested_facets_are_plotted_and_bad_requests_are_refused() {
         near: vec!["30,-45".parse::<LatLon>().unwrap()],
         threshold_w_m2: 1e9,
         colormap: "cividis".parse().unwrap(),
+        routes: Vec::new(),
     };
     write_report(run, Some(&out), &options).expect("report");
     let rows = plotted_cdf(&out);
@@ -345,6 +346,60 @@ fn requested_facets_are_plotted_and_bad_requests_are_refused() {
     let err = write_report(run, Some(&out), &bad).unwrap_err().to_string();
     assert!(err.contains("1280 facets"), "{err}");
     assert!("ball".parse::<FacetRef>().is_err() && "95,0".parse::<LatLon>().is_err());
+    let _ = std::fs::remove_dir_all(&out);
+}
+
+/// A route file (as `slim route` writes it) along the equator from 80° W to 80° E is
+/// drawn white over the map there and nowhere near the poles; a route on a body the run
+/// does not have is an error naming the file.
+#[test]
+fn routes_are_drawn_on_their_bodys_map() {
+    let (run, _) = shared();
+    let out = fresh_dir("route");
+    let data = slim::output::read::RunData::read(run).unwrap();
+    let centroids = &data.bodies[0].facets.centroid_m;
+    let mut equator: Vec<(f64, usize)> = centroids
+        .iter()
+        .enumerate()
+        .filter_map(|(i, c)| {
+            let (lat, lon) = slim::output::read::lat_lon_deg(*c);
+            (lat.abs() < 4.0 && lon.abs() < 80.0).then_some((lon, i))
+        })
+        .collect();
+    equator.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let facets: Vec<usize> = equator.iter().map(|e| e.1).collect();
+    let route = out.join("route.json");
+    let write_route = |body: &str| {
+        let json = serde_json::json!({"type": "Feature",
+            "properties": {"body": body, "facets": facets}});
+        std::fs::write(&route, json.to_string()).unwrap();
+    };
+    write_route("ball");
+    let options = ReportOptions {
+        routes: vec![route.clone()],
+        ..ReportOptions::default()
+    };
+    write_report(run, Some(&out), &options).expect("report");
+    let image = Image::read(&out.join("map_mean.png"));
+    let json = read_json(&out.join("map_mean.json"));
+    let rect = &json["bodies"][0]["map"]["rect"];
+    let get = |k: &str| rect[k].as_u64().unwrap() as usize;
+    let (left, top, width, height) = (get("left"), get("top"), get("width"), get("height"));
+    let white_near = |lat: f64, lon: f64| {
+        let x = left + ((lon + 180.0) / 360.0 * width as f64) as usize;
+        let y = top + ((90.0 - lat) / 180.0 * height as f64) as usize;
+        (y - 5..=y + 5).any(|y| image.pixel(x, y) == [255, 255, 255])
+    };
+    assert!(white_near(0.0, -40.0) && white_near(0.0, 0.0) && white_near(0.0, 40.0));
+    assert!(!white_near(60.0, 0.0) && !white_near(0.0, 120.0));
+    write_route("eros");
+    let err = write_report(run, Some(&out), &options)
+        .unwrap_err()
+        .to_string();
+    assert!(
+        err.contains("route.json") && err.contains("'eros' is not in this run"),
+        "{err}"
+    );
     let _ = std::fs::remove_dir_all(&out);
 }
 

@@ -16,6 +16,7 @@ use super::figure::{rgb, short_number, text, write_png, DrawResult, Figure};
 use super::raster::{
     equirectangular, is_patch, orthographic, overhead_view, Framing, IdRaster, VIEWS,
 };
+use super::route_line::RouteLine;
 use crate::atomic::write_atomic;
 use crate::error::{Error, Result};
 use crate::mesh::Mesh;
@@ -270,6 +271,8 @@ pub struct MapFigure<'a> {
     pub quantity: &'a Quantity,
     pub bodies: &'a [BodyRasters],
     pub colormap: Colormap,
+    /// Rover routes drawn over their bodies' maps.
+    pub routes: &'a [RouteLine],
 }
 
 impl MapFigure<'_> {
@@ -335,6 +338,9 @@ impl MapFigure<'_> {
             centre,
         ))?;
         self.paint(root, &rasters.map, m, values)?;
+        for route in self.routes.iter().filter(|r| r.body == b) {
+            draw_route(root, route, &rasters.map, m)?;
+        }
         match rasters.overhead {
             Some(framing) => scale_bar(root, m, framing)?,
             None => map_axes(root, m)?,
@@ -394,6 +400,33 @@ fn frame<DB: DrawingBackend>(root: &DrawingArea<DB, Shift>, r: Rect) -> DrawResu
         (r.left + r.width, r.top + r.height),
     ];
     root.draw(&Rectangle::new(corners, BLACK.stroke_width(1)))?;
+    Ok(())
+}
+
+/// `route` over the map raster `raster` drawn in `m`: a white line with a dark edge, the
+/// start a green dot, the end a red one.
+fn draw_route<DB: DrawingBackend>(
+    root: &DrawingArea<DB, Shift>,
+    route: &RouteLine,
+    raster: &IdRaster,
+    m: Rect,
+) -> DrawResult {
+    let pieces = route.pieces(raster);
+    let at = |(x, y): (f64, f64)| (m.left + x.round() as i32, m.top + y.round() as i32);
+    for piece in &pieces {
+        let points: Vec<(i32, i32)> = piece.iter().map(|&p| at(p)).collect();
+        root.draw(&PathElement::new(points.clone(), BLACK.stroke_width(4)))?;
+        root.draw(&PathElement::new(points, WHITE.stroke_width(2)))?;
+    }
+    let ends = [
+        pieces.first().and_then(|p| p.first()),
+        pieces.last().and_then(|p| p.last()),
+    ];
+    for (end, colour) in ends.into_iter().zip([GREEN, RED]) {
+        if let Some(&p) = end {
+            root.draw(&Circle::new(at(p), 4, colour.filled()))?;
+        }
+    }
     Ok(())
 }
 
@@ -546,6 +579,7 @@ pub fn write_maps(
     dir: &Path,
     colormap: Colormap,
     threshold_w_m2: f64,
+    routes: &[RouteLine],
 ) -> Result<Vec<PathBuf>> {
     let bodies = rasterise(run);
     let thresholds = run
@@ -560,6 +594,7 @@ pub fn write_maps(
             quantity: &q,
             bodies: &bodies,
             colormap,
+            routes,
         };
         let name = format!("map_{}", q.key);
         files.push(write_png(&fig, dir, &name)?);

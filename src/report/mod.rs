@@ -20,6 +20,7 @@ pub mod html;
 pub mod maps;
 pub mod minmaxmean;
 pub mod raster;
+pub mod route_line;
 pub mod select;
 pub mod summary;
 
@@ -41,6 +42,8 @@ pub struct ReportOptions {
     /// Threshold of the "time above" map, W/m².
     pub threshold_w_m2: f64,
     pub colormap: Colormap,
+    /// Route files (from `slim route`) drawn on their bodies' maps.
+    pub routes: Vec<PathBuf>,
 }
 
 impl Default for ReportOptions {
@@ -50,6 +53,7 @@ impl Default for ReportOptions {
             near: Vec::new(),
             threshold_w_m2: 100.0,
             colormap: Colormap::Viridis,
+            routes: Vec::new(),
         }
     }
 }
@@ -197,12 +201,26 @@ fn map_figures(run: &RunData, options: &ReportOptions, out: &mut Written) -> Res
                 .push(format!("body '{}' is not mapped: {why}", body.name));
         }
     }
-    let written = maps::write_maps(run, &out.dir, options.colormap, options.threshold_w_m2)?;
-    let caption = format!(
+    let routes = options
+        .routes
+        .iter()
+        .map(|path| route_line::RouteLine::read(path, run))
+        .collect::<Result<Vec<_>>>()?;
+    let written = maps::write_maps(
+        run,
+        &out.dir,
+        options.colormap,
+        options.threshold_w_m2,
+        &routes,
+    )?;
+    let mut caption = format!(
         "Per-facet values on a latitude–longitude map (unshaded, exact colours) and seen from \
          ±x, ±y, ±z (shaded for relief); colour map {}.",
         options.colormap.name()
     );
+    if !routes.is_empty() {
+        caption.push_str(" White lines: rover routes, from the green dot to the red one.");
+    }
     for png in written
         .iter()
         .filter(|p| p.extension().is_some_and(|e| e == "png"))
