@@ -134,8 +134,8 @@ pub fn plan(
         if taken.len() >= limits.max_labels {
             return Err(format!(
                 "the search took {} labels without reaching the goal: allow an optimality \
-                 gap (0.3 finds long routes in a few thousand labels), raise max_labels, or \
-                 use fewer substeps",
+                 gap (0.3 or more takes orders of magnitude fewer labels on long routes), \
+                 raise max_labels, or use fewer substeps",
                 limits.max_labels
             ));
         }

@@ -24,6 +24,7 @@ use crate::route::{
 use crate::scene::Scene;
 use serde::{Deserialize, Serialize};
 use std::path::Path;
+use std::time::Instant;
 
 /// The request body.
 #[derive(Debug, Clone, Deserialize)]
@@ -194,6 +195,10 @@ pub struct RouteProperties {
     pub steps: usize,
     /// Labels the planner took (0 when evaluating).
     pub labels: usize,
+    /// Wall time computing the light (the scene's step loop) and searching or walking
+    /// the route, s.
+    pub light_s: f64,
+    pub search_s: f64,
 }
 
 /// Limits the service puts on a route query.
@@ -244,8 +249,11 @@ pub fn answer(
     if request.to.is_some() {
         check_ends(&terrain, &rover, &facets)?;
     }
+    let clock = Instant::now();
     let light = Light::compute(scene, prepared, b, first_step, &limits.budget, progress)
         .map_err(|e| bad_scene(dir, &e))?;
+    let light_s = clock.elapsed().as_secs_f64();
+    let clock = Instant::now();
     let w = &request.weights;
     let weights = Weights {
         illumination: w.illumination,
@@ -272,14 +280,10 @@ pub fn answer(
             (route, 0)
         }
     };
-    Ok(feature(
-        &name,
-        &terrain,
-        &light,
-        route,
-        labels,
-        request.to.is_some(),
-    ))
+    let mut answer = feature(&name, &terrain, &light, route, labels, request.to.is_some());
+    answer.properties.light_s = light_s;
+    answer.properties.search_s = clock.elapsed().as_secs_f64();
+    Ok(answer)
 }
 
 /// The stops of a plan (from, to) or an evaluation (the waypoints), checked for shape.
@@ -466,6 +470,8 @@ fn feature(
             first_step: light.first_step,
             steps: light.steps(),
             labels,
+            light_s: 0.0,
+            search_s: 0.0,
         },
     }
 }
