@@ -73,12 +73,12 @@ impl Route {
         model: &Model,
         from: u32,
         depart: u32,
-        actions: &[Action],
+        actions: impl IntoIterator<Item = Action>,
     ) -> Result<Route, String> {
         let mut state = model.start(from, depart);
         let mut route = Route::starting(model, &state);
         let (mut dark_run, mut longest) = (0.0f64, 0.0f64);
-        for &action in actions {
+        for action in actions {
             if let Action::Move(g) = action {
                 if !model.terrain.neighbours[state.facet as usize].contains(&g) {
                     return Err(format!("facet {g} is not a neighbour of {}", state.facet));
@@ -184,14 +184,13 @@ pub fn evaluate(model: &Model, waypoints: &[Waypoint], depart: u32) -> Result<Ro
     if rest.is_empty() {
         return Err("give at least two waypoints".into());
     }
-    let mut actions = Vec::new();
+    // Runs of one action: a long wait is one entry, not one per quantum.
+    let mut runs: Vec<(Action, u32)> = Vec::new();
     let mut quantum = depart;
     let mut at = first.facet;
     let mut hold = first.depart_quantum;
     for (i, w) in rest.iter().enumerate() {
-        for _ in quantum..hold.unwrap_or(0) {
-            actions.push(Action::Wait);
-        }
+        runs.push((Action::Wait, hold.unwrap_or(0).saturating_sub(quantum)));
         quantum = quantum.max(hold.unwrap_or(0));
         let chain = shortest_chain(model, at, w.facet).ok_or_else(|| {
             format!(
@@ -202,12 +201,15 @@ pub fn evaluate(model: &Model, waypoints: &[Waypoint], depart: u32) -> Result<Ro
         })?;
         for pair in chain.windows(2) {
             quantum = quantum.saturating_add(model.move_quanta(pair[0], pair[1]));
-            actions.push(Action::Move(pair[1]));
+            runs.push((Action::Move(pair[1]), 1));
         }
         at = w.facet;
         hold = w.depart_quantum;
     }
-    Route::walk(model, first.facet, depart, &actions)
+    let actions = runs
+        .into_iter()
+        .flat_map(|(action, n)| std::iter::repeat_n(action, n as usize));
+    Route::walk(model, first.facet, depart, actions)
 }
 
 /// The shortest chain of neighbouring facets from `a` to `b` by centroid distance,

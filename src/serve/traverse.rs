@@ -405,7 +405,7 @@ fn walk_plan(model: &Model, facets: &[u32], limits: SearchLimits) -> ApiResult<(
     let (from, to) = (facets[0], facets[1]);
     let found = route::plan(model, from, to, 0, limits)
         .map_err(|why| ApiError::unprocessable("no_route", why))?;
-    let route = Route::walk(model, from, 0, &found.actions)
+    let route = Route::walk(model, from, 0, found.actions.iter().copied())
         .map_err(|why| ApiError::internal(format!("the planned route does not walk: {why}")))?;
     Ok((route, found.labels))
 }
