@@ -7,8 +7,9 @@
 # 2 m Sun-tracking panel. Out: the first query's time (builds the ephemeris' steps and the
 # place's horizon), then the median, minimum and maximum of the others (s), the machine
 # and the date. The year job is submitted first and computes on one thread meanwhile, as
-# the target asks; on 2 cores that job shares the machine with the queries.
-#   bench/place_year.sh [QUERIES] [OUT_DIR]    (default 20, target/place-year)
+# the target asks; on 2 cores that job shares the machine with the queries. With ALBEDO
+# the scene gets `[scatter] albedo = ALBEDO`, and the panel the light its terrain scatters.
+#   bench/place_year.sh [QUERIES] [OUT_DIR] [ALBEDO]    (default 20, target/place-year)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 source bench/common.sh
@@ -17,8 +18,10 @@ bench_init target/place-year "${2:-}"
 mkdir -p "$OUT/data/scenes" "$OUT/data/shapes"
 cp -r "$DATA/kernels" "$OUT/data/"
 cp -r "$DATA/shapes/moon" "$OUT/data/shapes/"
-sed -e 's|"kernels/|"../kernels/|' -e 's|"shapes/|"../shapes/|' data/moon-haworth-year.toml \
-  > "$OUT/data/scenes/year.toml"
+SCATTER=()
+[ -n "${3:-}" ] && SCATTER=(-e "s|^\[ephemeris\]|[scatter]\nalbedo = $3\n\n[ephemeris]|")
+sed -e 's|"kernels/|"../kernels/|' -e 's|"shapes/|"../shapes/|' "${SCATTER[@]}" \
+  data/moon-haworth-year.toml > "$OUT/data/scenes/year.toml"
 $B serve --data "$OUT/data" --listen 127.0.0.1:0 --job-threads 1 2> "$OUT/serve.log" &
 SERVER=$!
 trap 'kill $SERVER 2>/dev/null || true' EXIT
@@ -48,6 +51,11 @@ print(f"{len(times)} queries after it: median {st.median(times):.4f} s, "
       f"min {min(times):.4f} s, max {max(times):.4f} s")
 print(f"{len(panel['irradiance_w_m2'])} steps; panel lit {100 * panel['lit_fraction']:.1f} % "
       f"of the year; the year job was {os.environ['STATE']} at the end")
+if "scattered" in panel:
+    s = panel["scattered"]
+    w = s["irradiance_w_m2"]
+    print(f"terrain light: {s['facets']} facets, mean {sum(w) / len(w):.3f} W/m², "
+          f"largest {max(w):.2f} W/m²")
 PY
 lscpu | sed -n 's/^Model name: *//p'
 echo "cores: $(nproc); $(date -u +%Y-%m-%dT%H:%MZ)"

@@ -16,9 +16,10 @@
 //! disk above a straight horizon line ([`SolarDisk::above`]) and `s̄` the direction of
 //! that part's flux centroid, for a point Sun 1 or 0 decided exactly (above the wedge's
 //! upper bound: lit; otherwise a ray from the panel through the body's own mesh) and
-//! `s̄ = s`. `n` is the panel's normal; tracking panels turn toward `s̄`. Left out: light
-//! scattered by the terrain onto the panel, other bodies' shadows, and the panel's own
-//! plane cutting the disk (second order in the disk's radius, 0.27° at 1 AU).
+//! `s̄ = s`. `n` is the panel's normal; tracking panels turn toward `s̄`. Light scattered
+//! by the terrain onto the panel is added by the point queries when the scene scatters
+//! light ([`crate::scatter::to_panel`]). Left out: other bodies' shadows, and the panel's
+//! own plane cutting the disk (second order in the disk's radius, 0.27° at 1 AU).
 
 use crate::horizon::disk::SolarDisk;
 use crate::horizon::map::PointHorizon;
@@ -60,6 +61,8 @@ pub struct PanelLight {
     pub power_w: f64,
     /// Share of the Sun's flux seen above the horizon, 0 to 1.
     pub sun_visible: f64,
+    /// The panel's unit normal at this step (body frame).
+    pub normal: DVec3,
 }
 
 /// A place above the surface with its horizon.
@@ -199,6 +202,7 @@ impl<'a> Site<'a> {
             irradiance_w_m2: irradiance,
             power_w: irradiance * panel.area_m2 * panel.efficiency,
             sun_visible: visible,
+            normal: n,
         }
     }
 }

@@ -715,3 +715,73 @@ fn route_plans_on_a_scene_file_with_the_runs_own_light() {
     let out = slim(&["route", "s.toml", "r.json"], &dir.0);
     assert_one_line_error(&out, &["either from and to", "bad_route"]);
 }
+
+/// With scattering on, a panel over a sunlit plain gets the light the plain scatters:
+/// under a Sun at elevation e every facet has radiosity B = ρ·S·sin e, and a panel h
+/// above an infinite plain, tilted β from facing up, receives B·(1 − cos β)/2 from it.
+/// The panels here face away from the Sun (no direct light): vertical (1/2), tilted 60°
+/// (1/4) and facing down (1). The plain, 2 km wide, misses at most 2h/L of form factor
+/// beyond its inscribed disk (L = 1 km), and the facets the answer leaves out at most
+/// its `left_out`.
+#[cfg(feature = "serve")]
+#[test]
+fn place_adds_the_light_a_sunlit_plain_scatters_onto_a_panel() {
+    let dir = TempDir::new("place-terrain");
+    // The plain at x = 1,000 km facing +x, 40 × 40 squares of 50 m; from the place, up
+    // is +x, north +z and east +y.
+    let (n, side, radius) = (40, 50.0, 1.0e6);
+    let mut obj = String::new();
+    for j in 0..=n {
+        for i in 0..=n {
+            let (y, z) = (-1000.0 + side * i as f64, -1000.0 + side * j as f64);
+            obj += &format!("v {radius} {y} {z}\n");
+        }
+    }
+    let at = |i: usize, j: usize| j * (n + 1) + i + 1;
+    for j in 0..n {
+        for i in 0..n {
+            obj += &format!("f {} {} {}\n", at(i, j), at(i + 1, j), at(i + 1, j + 1));
+            obj += &format!("f {} {} {}\n", at(i, j), at(i + 1, j + 1), at(i, j + 1));
+        }
+    }
+    std::fs::write(dir.join("plain.obj"), obj).unwrap();
+    let (e, flux, albedo, h) = (30f64.to_radians(), 1000.0, 0.1, 1.0);
+    // The Sun at elevation e toward the east.
+    let scene = format!(
+        "[ephemeris]\nmode = \"fixed\"\n[[ephemeris.sun]]\ndirection = [{}, {}, 0]\n\
+         flux_w_m2 = {flux}\n\n[scatter]\nalbedo = {albedo}\n\n[[body]]\nname = \"plain\"\n\
+         mesh = \"plain.obj\"\nunits = \"m\"\n",
+        e.sin(),
+        e.cos()
+    );
+    std::fs::write(dir.join("s.toml"), scene).unwrap();
+    let target = |tilt: f64| {
+        serde_json::json!({"point_m": [radius, 3.7, -11.2], "height_m": h,
+            "panel": {"mount": "fixed", "tilt_deg": tilt, "azimuth_deg": 270}})
+    };
+    let tilts = [90.0, 60.0, 180.0];
+    let query = serde_json::json!({"targets": tilts.map(target)});
+    std::fs::write(dir.join("q.json"), query.to_string()).unwrap();
+    let out = slim(&["place", "s.toml", "q.json", "-o", "a.json"], &dir.0);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let answer: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("a.json")).unwrap()).unwrap();
+    let b = albedo * flux * e.sin();
+    for (k, tilt) in tilts.into_iter().enumerate() {
+        let panel = &answer["series"][k]["panel"];
+        let terrain = &panel["scattered"];
+        let got = terrain["irradiance_w_m2"][0].as_f64().unwrap();
+        assert_eq!(
+            panel["irradiance_w_m2"][0].as_f64().unwrap(),
+            got,
+            "no direct light"
+        );
+        let want = b * (1.0 - tilt.to_radians().cos()) / 2.0;
+        let bound = b * (2.0 * h / 1000.0 + terrain["left_out"].as_f64().unwrap());
+        assert!(bound < 0.02 * b, "{terrain}");
+        assert!(
+            got <= want && want - got <= bound,
+            "tilt {tilt}: {got} vs {want}"
+        );
+    }
+}

@@ -292,6 +292,17 @@ pub fn lambert_polygon(x: DVec3, n: DVec3, poly: &[DVec3]) -> f64 {
     (sum / (2.0 * PI)).abs()
 }
 
+/// The form factor from a differential area at `x` (unit normal `n`) to the triangle
+/// `tri`: Lambert's formula over the part of it in front of the area's plane (what lies
+/// behind sends it nothing).
+pub fn point_to_triangle(x: DVec3, n: DVec3, tri: &[DVec3; 3]) -> f64 {
+    let mut front = [DVec3::ZERO; 4];
+    match clip_in_front(tri, x, n, &mut front) {
+        count @ 3.. => lambert_polygon(x, n, &front[..count]),
+        _ => 0.0,
+    }
+}
+
 /// The angle in [0, π] whose sine and cosine are proportional to `sin` (> 0) and `cos`:
 /// `sin.atan2(cos)` to within 1e-12 rad, without a call into libm (the near field
 /// evaluates it about 10⁸ times for a 50,000-facet body). The argument is reduced to [0, tan π/8], where

@@ -33,6 +33,7 @@ pub mod photometric;
 pub mod planet;
 pub mod solve;
 pub mod stored;
+pub mod to_panel;
 pub mod visibility;
 
 use crate::cache::Lookup;

@@ -30,9 +30,10 @@ use crate::horizon::disk::SolarDisk;
 use crate::horizon::map::{HorizonMap, PointHorizon};
 use crate::horizon::SunShape;
 use crate::illum::Direct;
-use crate::panel::{Battery, Charge, Orientation, Panel, PanelLight, Site};
+use crate::panel::{Battery, Charge, Orientation, Panel, PanelLight, Site, PANEL_AZIMUTHS};
 use crate::prepare::assemble;
 use crate::progress::Timings;
+use crate::scatter::to_panel::{self, TerrainView};
 use crate::sight::{windows_above, Sighting};
 use crate::trace::bvh::Bvh;
 use crate::trace::Tracer;
@@ -294,6 +295,22 @@ pub struct PanelSeries {
     /// With a battery: its charge along the steps.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub battery: Option<Charge>,
+    /// When the scene scatters light: the terrain's part of `irradiance_w_m2`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub scattered: Option<TerrainLight>,
+}
+
+/// Light scattered by the terrain onto a panel ([`crate::scatter::to_panel`]): first order,
+/// from the facets the panel sees.
+#[derive(Debug, Clone, Serialize)]
+pub struct TerrainLight {
+    /// Irradiance from the terrain, W/m², per step (counted in the panel's irradiance,
+    /// power and energy).
+    pub irradiance_w_m2: Vec<f64>,
+    /// The facets counted.
+    pub facets: usize,
+    /// The most form factor the visible facets left out could hold (Σ Ω/π).
+    pub left_out: f64,
 }
 
 /// The answer.
@@ -393,6 +410,11 @@ struct Engine<'w> {
     bvhs: &'w [Bvh],
     /// The scene's Sun: a disk (with its limb darkening) or a point.
     disk: Option<SolarDisk>,
+    /// Every facet's albedo when the scene scatters light ([`Light::albedo`]).
+    albedo: Option<Vec<f64>>,
+    /// What the panels asked for see of the terrain (same keys as `horizons`), when the
+    /// scene scatters light.
+    views: RefCell<HashMap<HorizonKey, TerrainView>>,
     /// Each step's geometry once computed: the ephemeris is the costliest part of a
     /// query, and later queries on the same job ask for the same steps.
     states: RefCell<Vec<Option<EpochState>>>,
@@ -410,20 +432,26 @@ type HorizonKey = (usize, [u64; 3], u64);
 /// Horizons an engine keeps; beyond this they are dropped and built again when asked.
 const KEPT_HORIZONS: usize = 256;
 
+/// Facets' horizon maps an engine keeps: the facets asked for, and those a panel sees of
+/// the terrain when the scene scatters light (up to [`to_panel::MOST_FACETS`] each).
+const KEPT_FACET_HORIZONS: usize = 4096;
+
 /// Memory of one body's geometry at one step, kept by an engine (bytes, with room for the
 /// step's own fields).
 const STATE_BYTES_PER_BODY: usize = 192;
 
 /// Memory of the kept horizons at most: places' (two f64 per wedge) and facets' (two u16
-/// per wedge), bytes.
-const KEPT_HORIZON_BYTES: f64 = KEPT_HORIZONS as f64 * crate::panel::PANEL_AZIMUTHS as f64 * 20.0;
+/// per wedge), bytes, and the terrain views (up to 128 facets of 80 bytes each).
+const KEPT_HORIZON_BYTES: f64 = (KEPT_HORIZONS * PANEL_AZIMUTHS as usize * 16
+    + KEPT_FACET_HORIZONS * PANEL_AZIMUTHS as usize * 4
+    + KEPT_HORIZONS * to_panel::MOST_FACETS * 80) as f64;
 
 /// The engine thread: builds the scene once, then answers until its sender is dropped.
 fn engine(dir: &Path, scene: &SceneText, budget: &Budget, asks: mpsc::Receiver<Ask>) {
     match build(dir, scene, budget) {
-        Ok((world, ephemeris, disk)) => {
+        Ok((world, ephemeris, light)) => {
             let bvhs = body_trees(&world);
-            let engine = Engine::new(&world, &bvhs, ephemeris.as_ref(), disk);
+            let engine = Engine::new(&world, &bvhs, ephemeris.as_ref(), light);
             for ask in asks {
                 let answer = engine.answer(&ask.request, ask.max_values);
                 let _ = ask.reply.send(answer);
@@ -446,28 +474,45 @@ fn body_trees(world: &World) -> Vec<Bvh> {
         .collect()
 }
 
-/// The scene's world, ephemeris and, for a disk Sun, the disk.
-type Built = (World, Box<dyn Ephemeris>, Option<SolarDisk>);
+/// The scene's world, ephemeris and light.
+type Built = (World, Box<dyn Ephemeris>, Light);
+
+/// What a scene says of its light beyond the geometry.
+struct Light {
+    /// The Sun as a disk (with its limb darkening), or `None` for a point.
+    disk: Option<SolarDisk>,
+    /// Every facet's albedo (global ids) when the scene scatters light: the terrain then
+    /// lights panels too.
+    albedo: Option<Vec<f64>>,
+}
+
+impl Light {
+    fn of(scene: &crate::scene::Scene, world: &World) -> crate::Result<Light> {
+        let shadows = scene.shadows();
+        Ok(Light {
+            disk: (shadows.sun == SunShape::Disk).then_some(shadows.disk),
+            albedo: crate::scatter::albedo::facet_albedo(scene, world)?,
+        })
+    }
+}
 
 fn build(dir: &Path, text: &SceneText, budget: &Budget) -> ApiResult<Built> {
     let scene = text.parse(dir)?;
     check_files(dir, &scene)?;
-    let shadows = scene.shadows();
-    let disk = (shadows.sun == SunShape::Disk).then_some(shadows.disk);
     let assembly =
         assemble(&scene, budget, &mut Timings::default()).map_err(|e| bad_scene(dir, &e))?;
-    Ok((assembly.world, assembly.ephemeris, disk))
+    let light = Light::of(&scene, &assembly.world).map_err(|e| bad_scene(dir, &e))?;
+    Ok((assembly.world, assembly.ephemeris, light))
 }
 
 /// Answers one query on a scene file without the service (`slim place`): the scene is
 /// read as `slim run` reads it (paths beside it), within the machine's memory.
 pub fn answer_scene_file(scene: &Path, request: &PointsRequest) -> crate::Result<PointsAnswer> {
     let scene = crate::scene::Scene::load(scene)?;
-    let shadows = scene.shadows();
-    let disk = (shadows.sun == SunShape::Disk).then_some(shadows.disk);
     let assembly = assemble(&scene, &Budget::machine(), &mut Timings::default())?;
+    let light = Light::of(&scene, &assembly.world)?;
     let bvhs = body_trees(&assembly.world);
-    let engine = Engine::new(&assembly.world, &bvhs, assembly.ephemeris.as_ref(), disk);
+    let engine = Engine::new(&assembly.world, &bvhs, assembly.ephemeris.as_ref(), light);
     let answer = engine.answer(request, usize::MAX);
     answer.map_err(|e| crate::Error::Usage(format!("{} ({})", e.message, e.code)))
 }
@@ -477,7 +522,7 @@ impl<'w> Engine<'w> {
         world: &'w World,
         bvhs: &'w [Bvh],
         ephemeris: &'w dyn Ephemeris,
-        disk: Option<SolarDisk>,
+        light: Light,
     ) -> Engine<'w> {
         let tracers = bvhs
             .iter()
@@ -488,10 +533,12 @@ impl<'w> Engine<'w> {
             ephemeris,
             direct: Direct::with_tracers(world, tracers),
             bvhs,
-            disk,
+            disk: light.disk,
+            albedo: light.albedo,
             states: RefCell::new(vec![None; ephemeris.steps()]),
             horizons: RefCell::new(HashMap::new()),
             facet_horizons: RefCell::new(HashMap::new()),
+            views: RefCell::new(HashMap::new()),
         }
     }
 
@@ -503,10 +550,12 @@ impl<'w> Engine<'w> {
             .map(|t| resolve(world, t))
             .collect::<ApiResult<Vec<_>>>()?;
         let steps = step_range(request, ephemeris)?;
-        // Each target's series, its panel's and each sight's count against the limit.
+        // Each target's series, its panel's (twice when the terrain lights it) and each
+        // sight's count against the limit.
+        let panel_series = 1 + self.albedo.is_some() as usize;
         let series: usize = targets
             .iter()
-            .map(|t| 1 + t.panel as usize + t.sight_of.len())
+            .map(|t| 1 + t.panel as usize * panel_series + t.sight_of.len())
             .sum();
         let values = series.saturating_mul(steps.len());
         if targets.is_empty() || values > max_values {
@@ -551,8 +600,24 @@ impl<'w> Engine<'w> {
                 })
                 .collect(),
         };
-        let horizons: Vec<Option<HorizonMap>> =
-            targets.iter().map(|r| self.facet_horizon(r)).collect();
+        let horizons: Vec<Option<HorizonMap>> = targets
+            .iter()
+            .map(|r| self.facet_horizon(r.body, r.facet))
+            .collect();
+        let terrains: Vec<Option<Terrain>> = targets
+            .iter()
+            .zip(&sites)
+            .map(|(r, site)| self.terrain(r, site.as_ref().map(|(site, _)| site)))
+            .collect();
+        for (series, terrain) in out.series.iter_mut().zip(&terrains) {
+            if let (Some(p), Some(t)) = (series.panel.as_mut(), terrain) {
+                p.scattered = Some(TerrainLight {
+                    irradiance_w_m2: Vec::with_capacity(steps.len()),
+                    facets: t.facets.len(),
+                    left_out: t.view.left_out(),
+                });
+            }
+        }
         let work = StepWork {
             direct: &self.direct,
             disk: self.disk.as_ref(),
@@ -560,6 +625,7 @@ impl<'w> Engine<'w> {
             horizons: horizons.iter().map(Option::as_ref).collect(),
             sites: &sites,
             targets: &targets,
+            terrains: &terrains,
         };
         self.fill_states(steps.clone())?;
         let kept = self.states.borrow();
@@ -606,25 +672,20 @@ impl<'w> Engine<'w> {
         Ok(())
     }
 
-    /// The horizon map of a target's facet alone, kept across queries, when its body can
-    /// shadow itself: it spares the facet's own shadow ray whenever the Sun clears it.
-    fn facet_horizon(&self, r: &Resolved) -> Option<HorizonMap> {
-        let body = &self.world.bodies[r.body];
-        if body.convex {
+    /// The horizon map of facet `facet` of body `body` alone, kept across queries, when
+    /// the body can shadow itself: it spares the facet's own shadow ray whenever the Sun
+    /// clears it.
+    fn facet_horizon(&self, body: usize, facet: usize) -> Option<HorizonMap> {
+        let b = &self.world.bodies[body];
+        if b.convex {
             return None;
         }
-        let key = (r.body, r.facet);
+        let key = (body, facet);
         if let Some(map) = self.facet_horizons.borrow().get(&key) {
             return Some(map.clone());
         }
-        let mesh = body.shadow_mesh();
-        let bvh = &self.bvhs[r.body];
-        let map = HorizonMap::of_facet(mesh, r.facet, bvh, crate::panel::PANEL_AZIMUTHS);
-        let mut kept = self.facet_horizons.borrow_mut();
-        if kept.len() >= KEPT_HORIZONS {
-            kept.clear();
-        }
-        kept.insert(key, map.clone());
+        let map = HorizonMap::of_facet(b.shadow_mesh(), facet, &self.bvhs[body], PANEL_AZIMUTHS);
+        keep(&self.facet_horizons, key, map.clone(), KEPT_FACET_HORIZONS);
         Some(map)
     }
 
@@ -647,26 +708,85 @@ impl<'w> Engine<'w> {
                 efficiency: 1.0,
             },
         };
-        let height_m = r.height_m;
         // The panel sees the body's surroundings too, where it has them.
         let mesh = self.world.bodies[r.body].shadow_mesh();
-        let bvh = &self.bvhs[r.body];
-        let key = (
-            r.body,
-            r.surface_m.to_array().map(f64::to_bits),
-            height_m.to_bits(),
-        );
+        let key = r.place_key();
         let kept = self.horizons.borrow().get(&key).cloned();
-        let site = Site::with_horizon(mesh, bvh, r.surface_m, height_m, kept)
+        let site = Site::with_horizon(mesh, &self.bvhs[r.body], r.surface_m, r.height_m, kept)
             .map_err(|why| ApiError::bad_request("bad_target", why))?;
-        let mut horizons = self.horizons.borrow_mut();
-        if !horizons.contains_key(&key) {
-            if horizons.len() >= KEPT_HORIZONS {
-                horizons.clear();
-            }
-            horizons.insert(key, site.horizon().clone());
+        if !self.horizons.borrow().contains_key(&key) {
+            keep(&self.horizons, key, site.horizon().clone(), KEPT_HORIZONS);
         }
         Ok(Some((site, panel)))
+    }
+
+    /// What the panel of a target sees of its body's terrain, with each facet kept's
+    /// albedo and horizon map, when the scene scatters light and the target has a panel.
+    fn terrain(&self, r: &Resolved, site: Option<&Site<'_>>) -> Option<Terrain> {
+        let (albedo, site) = (self.albedo.as_ref()?, site.filter(|_| r.panel)?);
+        let key = r.place_key();
+        let body = &self.world.bodies[r.body];
+        let kept = self.views.borrow().get(&key).cloned();
+        let view = kept.unwrap_or_else(|| {
+            let view = TerrainView::new(
+                body.shadow_mesh(),
+                body.mesh.len(),
+                &self.bvhs[r.body],
+                site.point(),
+            );
+            keep(&self.views, key, view.clone(), KEPT_HORIZONS);
+            view
+        });
+        let offset = self.world.offsets()[r.body];
+        let facets: Vec<(usize, usize)> = view
+            .facets()
+            .iter()
+            .map(|&j| (r.body, j as usize))
+            .collect();
+        Some(Terrain {
+            albedo: facets.iter().map(|&(_, j)| albedo[offset + j]).collect(),
+            maps: facets
+                .iter()
+                .map(|&(b, j)| self.facet_horizon(b, j))
+                .collect(),
+            facets,
+            view,
+        })
+    }
+}
+
+/// Keeps `value` under `key` in `cache`, emptying it first when it holds `most`.
+fn keep<K: std::hash::Hash + Eq, V>(cache: &RefCell<HashMap<K, V>>, key: K, value: V, most: usize) {
+    let mut kept = cache.borrow_mut();
+    if kept.len() >= most {
+        kept.clear();
+    }
+    kept.insert(key, value);
+}
+
+/// A panel's terrain: what it sees, and what each facet seen needs to give its light.
+struct Terrain {
+    view: TerrainView,
+    /// The facets of the view as (body, facet), each facet's albedo and horizon map.
+    facets: Vec<(usize, usize)>,
+    albedo: Vec<f64>,
+    maps: Vec<Option<HorizonMap>>,
+}
+
+impl Terrain {
+    /// The irradiance (W/m²) the terrain sends at `state` onto a panel of unit normal
+    /// `normal`: each facet's first-order radiosity ρ·E from its direct irradiance.
+    fn light(&self, direct: &Direct<'_>, state: &EpochState, normal: DVec3) -> ApiResult<f64> {
+        let maps: Vec<Option<&HorizonMap>> = self.maps.iter().map(Option::as_ref).collect();
+        let direct = direct
+            .compute_facets_with(state, &self.facets, &maps)
+            .map_err(|e| ApiError::unprocessable("bad_scene", e.to_string()))?;
+        let radiosity: Vec<f64> = direct
+            .iter()
+            .zip(&self.albedo)
+            .map(|(e, a)| e * a)
+            .collect();
+        Ok(self.view.irradiance(normal, &radiosity))
     }
 }
 
@@ -678,6 +798,7 @@ struct StepWork<'a> {
     horizons: Vec<Option<&'a HorizonMap>>,
     sites: &'a [Option<(Site<'a>, Panel)>],
     targets: &'a [Resolved],
+    terrains: &'a [Option<Terrain>],
 }
 
 /// One step's epoch (TDB s) and what each target gets at it.
@@ -687,7 +808,8 @@ type StepValues = (f64, Vec<TargetStep>);
 struct TargetStep {
     /// On the facet, W/m².
     facet_w_m2: f64,
-    panel: Option<PanelLight>,
+    /// The panel's light, terrain's included, and the terrain's part (W/m²).
+    panel: Option<(PanelLight, Option<f64>)>,
     sightings: Vec<Sighting>,
 }
 
@@ -698,38 +820,57 @@ impl StepWork<'_> {
             .direct
             .compute_facets_with(state, &self.facets, &self.horizons)
             .map_err(|e| ApiError::unprocessable("bad_scene", e.to_string()))?;
-        let targets = values
+        let mut targets = Vec::with_capacity(values.len());
+        for (((facet_w_m2, site), r), terrain) in values
             .into_iter()
             .zip(self.sites)
             .zip(self.targets)
-            .map(|((facet_w_m2, site), r)| {
-                let Some((site, panel)) = site else {
-                    return TargetStep {
-                        facet_w_m2,
-                        panel: None,
-                        sightings: Vec::new(),
-                    };
-                };
-                let sightings = r
-                    .sight_of
-                    .iter()
-                    .map(|&t| Sighting::of(site, state, r.body, t))
-                    .collect();
-                let sun = &state.bodies[r.body];
-                let disk = self
-                    .disk
-                    .map(|d| (d, SolarDisk::angular_radius(sun.sun_distance_m)));
-                let light = r
-                    .panel
-                    .then(|| site.sunlight(panel, sun.sun_dir, sun.flux_w_m2, disk));
-                TargetStep {
+            .zip(self.terrains)
+        {
+            let Some((site, panel)) = site else {
+                targets.push(TargetStep {
                     facet_w_m2,
-                    panel: light,
-                    sightings,
-                }
-            })
-            .collect();
+                    panel: None,
+                    sightings: Vec::new(),
+                });
+                continue;
+            };
+            let sightings = r
+                .sight_of
+                .iter()
+                .map(|&t| Sighting::of(site, state, r.body, t))
+                .collect();
+            let sun = &state.bodies[r.body];
+            let disk = self
+                .disk
+                .map(|d| (d, SolarDisk::angular_radius(sun.sun_distance_m)));
+            let light = r
+                .panel
+                .then(|| site.sunlight(panel, sun.sun_dir, sun.flux_w_m2, disk))
+                .map(|light| match terrain {
+                    Some(t) => t
+                        .light(self.direct, state, light.normal)
+                        .map(|w| (with_terrain(light, panel, w), Some(w))),
+                    None => Ok((light, None)),
+                })
+                .transpose()?;
+            targets.push(TargetStep {
+                facet_w_m2,
+                panel: light,
+                sightings,
+            });
+        }
         Ok((state.epoch.to_tdb_seconds(), targets))
+    }
+}
+
+/// `light` with `terrain_w_m2` more irradiance from the terrain, and its power on `panel`.
+fn with_terrain(light: PanelLight, panel: &Panel, terrain_w_m2: f64) -> PanelLight {
+    let irradiance_w_m2 = light.irradiance_w_m2 + terrain_w_m2;
+    PanelLight {
+        irradiance_w_m2,
+        power_w: irradiance_w_m2 * panel.area_m2 * panel.efficiency,
+        ..light
     }
 }
 
@@ -742,10 +883,13 @@ impl Series {
             sight.horizon_deg.push(at.horizon.to_degrees());
             sight.seen.push(at.seen());
         }
-        if let (Some(p), Some(light)) = (self.panel.as_mut(), step.panel) {
+        if let (Some(p), Some((light, terrain))) = (self.panel.as_mut(), step.panel) {
             p.irradiance_w_m2.push(light.irradiance_w_m2);
             p.power_w.push(light.power_w);
             p.sun_visible.push(light.sun_visible);
+            if let (Some(s), Some(w)) = (p.scattered.as_mut(), terrain) {
+                s.irradiance_w_m2.push(w);
+            }
         }
     }
 }
@@ -771,6 +915,7 @@ fn empty_series(world: &World, r: &Resolved, panel_point: Option<DVec3>, steps: 
             lit_fraction: 0.0,
             longest_dark_s: 0.0,
             battery: None,
+            scattered: None,
         }),
         sight: r
             .sight_of
@@ -889,6 +1034,17 @@ fn resolve(world: &World, t: &Target) -> ApiResult<Resolved> {
     })
 }
 
+impl Resolved {
+    /// The key of its place in the engine's caches.
+    fn place_key(&self) -> HorizonKey {
+        (
+            self.body,
+            self.surface_m.to_array().map(f64::to_bits),
+            self.height_m.to_bits(),
+        )
+    }
+}
+
 /// The index of the body named `name`, or a 404 listing the names.
 pub(super) fn body_index(world: &World, name: &str) -> ApiResult<usize> {
     world
@@ -989,20 +1145,15 @@ spin_period_h = 12.0
         let grid = Direct::new(&world, TracerKind::Grid);
         let sunview = Direct::new(&world, TracerKind::Sunview);
         let bvhs = body_trees(&world);
-        let engine = Engine::new(&world, &bvhs, ephemeris.as_ref(), None);
+        let light = Light {
+            disk: None,
+            albedo: None,
+        };
+        let engine = Engine::new(&world, &bvhs, ephemeris.as_ref(), light);
         let facets: Vec<(usize, usize)> = (0..world.facet_count()).map(|i| (0, i)).collect();
         let maps: Vec<Option<HorizonMap>> = facets
             .iter()
-            .map(|&(body, facet)| {
-                engine.facet_horizon(&Resolved {
-                    body,
-                    facet,
-                    surface_m: DVec3::ZERO,
-                    panel: false,
-                    height_m: 1.0,
-                    sight_of: Vec::new(),
-                })
-            })
+            .map(|&(body, facet)| engine.facet_horizon(body, facet))
             .collect();
         assert!(maps.iter().all(Option::is_some));
         let maps: Vec<Option<&HorizonMap>> = maps.iter().map(Option::as_ref).collect();
