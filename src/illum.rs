@@ -223,14 +223,18 @@ impl<'w> Direct<'w> {
         horizons: &[Option<&HorizonMap>],
     ) -> Result<Vec<f64>> {
         let mut counts = StepCounts::default();
-        facets
-            .iter()
-            .zip(horizons)
-            .map(|(&(b, i), horizon)| {
-                let queries = self.sunlight(b, state)?;
-                Ok(self.facet_irradiance(b, i, &queries, *horizon, &mut counts))
-            })
-            .collect()
+        // Each body's Sun and shadow queries, set up once for all its facets asked for.
+        let mut lights: Vec<Option<Sunlight<'_>>> =
+            self.world.bodies.iter().map(|_| None).collect();
+        let mut values = Vec::with_capacity(facets.len());
+        for (&(b, i), horizon) in facets.iter().zip(horizons) {
+            let light = match &mut lights[b] {
+                Some(light) => light,
+                empty => empty.insert(self.sunlight(b, state)?),
+            };
+            values.push(self.facet_irradiance(b, i, light, *horizon, &mut counts));
+        }
+        Ok(values)
     }
 
     /// Body `b`'s Sun, flux and shadow queries at this step (also used by the renderer
