@@ -432,19 +432,14 @@ type HorizonKey = (usize, [u64; 3], u64);
 /// Horizons an engine keeps; beyond this they are dropped and built again when asked.
 const KEPT_HORIZONS: usize = 256;
 
-/// Facets' horizon maps an engine keeps: the facets asked for, and those a panel sees of
-/// the terrain when the scene scatters light (up to [`to_panel::MOST_FACETS`] each).
-const KEPT_FACET_HORIZONS: usize = 4096;
-
 /// Memory of one body's geometry at one step, kept by an engine (bytes, with room for the
 /// step's own fields).
 const STATE_BYTES_PER_BODY: usize = 192;
 
 /// Memory of the kept horizons at most: places' (two f64 per wedge) and facets' (two u16
 /// per wedge), bytes, and the terrain views (up to 128 facets of 80 bytes each).
-const KEPT_HORIZON_BYTES: f64 = (KEPT_HORIZONS * PANEL_AZIMUTHS as usize * 16
-    + KEPT_FACET_HORIZONS * PANEL_AZIMUTHS as usize * 4
-    + KEPT_HORIZONS * to_panel::MOST_FACETS * 80) as f64;
+const KEPT_HORIZON_BYTES: f64 =
+    (KEPT_HORIZONS * (PANEL_AZIMUTHS as usize * 20 + to_panel::MOST_FACETS * 80)) as f64;
 
 /// The engine thread: builds the scene once, then answers until its sender is dropped.
 fn engine(dir: &Path, scene: &SceneText, budget: &Budget, asks: mpsc::Receiver<Ask>) {
@@ -685,7 +680,7 @@ impl<'w> Engine<'w> {
             return Some(map.clone());
         }
         let map = HorizonMap::of_facet(b.shadow_mesh(), facet, &self.bvhs[body], PANEL_AZIMUTHS);
-        keep(&self.facet_horizons, key, map.clone(), KEPT_FACET_HORIZONS);
+        keep(&self.facet_horizons, key, map.clone(), KEPT_HORIZONS);
         Some(map)
     }
 
@@ -721,7 +716,7 @@ impl<'w> Engine<'w> {
     }
 
     /// What the panel of a target sees of its body's terrain, with each facet kept's
-    /// albedo and horizon map, when the scene scatters light and the target has a panel.
+    /// albedo, when the scene scatters light and the target has a panel.
     fn terrain(&self, r: &Resolved, site: Option<&Site<'_>>) -> Option<Terrain> {
         let (albedo, site) = (self.albedo.as_ref()?, site.filter(|_| r.panel)?);
         let key = r.place_key();
@@ -745,10 +740,6 @@ impl<'w> Engine<'w> {
             .collect();
         Some(Terrain {
             albedo: facets.iter().map(|&(_, j)| albedo[offset + j]).collect(),
-            maps: facets
-                .iter()
-                .map(|&(b, j)| self.facet_horizon(b, j))
-                .collect(),
             facets,
             view,
         })
@@ -767,19 +758,19 @@ fn keep<K: std::hash::Hash + Eq, V>(cache: &RefCell<HashMap<K, V>>, key: K, valu
 /// A panel's terrain: what it sees, and what each facet seen needs to give its light.
 struct Terrain {
     view: TerrainView,
-    /// The facets of the view as (body, facet), each facet's albedo and horizon map.
+    /// The facets of the view as (body, facet), and each facet's albedo.
     facets: Vec<(usize, usize)>,
     albedo: Vec<f64>,
-    maps: Vec<Option<HorizonMap>>,
 }
 
 impl Terrain {
     /// The irradiance (W/m²) the terrain sends at `state` onto a panel of unit normal
-    /// `normal`: each facet's first-order radiosity ρ·E from its direct irradiance.
+    /// `normal`: each facet's first-order radiosity ρ·E from its direct irradiance. The
+    /// facets' rays are traced without their horizon maps: building 128 maps costs more
+    /// than the rays they would spare over a year of steps.
     fn light(&self, direct: &Direct<'_>, state: &EpochState, normal: DVec3) -> ApiResult<f64> {
-        let maps: Vec<Option<&HorizonMap>> = self.maps.iter().map(Option::as_ref).collect();
         let direct = direct
-            .compute_facets_with(state, &self.facets, &maps)
+            .compute_facets(state, &self.facets)
             .map_err(|e| ApiError::unprocessable("bad_scene", e.to_string()))?;
         let radiosity: Vec<f64> = direct
             .iter()
