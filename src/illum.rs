@@ -237,6 +237,26 @@ impl<'w> Direct<'w> {
         Ok(values)
     }
 
+    /// The share of the Sun's flux that no other body hides from `point` (body `b`'s
+    /// frame, metres; a point off the surface such as a panel): 0 or 1 for a point Sun
+    /// (the ray toward its centre), the visible share of the disk for a disk Sun (closed
+    /// form behind an ellipsoid, the disk's samples behind a mesh).
+    pub fn share_past_others(&self, b: usize, state: &EpochState, point: DVec3) -> Result<f64> {
+        let light = self.sunlight(b, state)?;
+        let mut counts = StepCounts::default();
+        Ok(match self.sun {
+            SunShape::Point => {
+                let blocked = light.blocked_by_others(point, 0.0, &mut counts);
+                if blocked {
+                    0.0
+                } else {
+                    1.0
+                }
+            }
+            SunShape::Disk => light.visible_past_others(point, 0.0, &mut counts),
+        })
+    }
+
     /// Body `b`'s Sun, flux and shadow queries at this step (also used by the renderer
     /// for points that are not centroids).
     pub(crate) fn sunlight(&self, b: usize, state: &EpochState) -> Result<Sunlight<'_>> {
