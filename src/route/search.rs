@@ -124,6 +124,7 @@ pub fn plan(
     // The most charge taken at each (facet, quantum).
     let mut best: HashMap<u64, f64> = HashMap::new();
     let mut taken: Vec<Taken> = Vec::new();
+    let mut dropped = Dropped::default();
     while let Some(label) = queue.pop() {
         let s = label.state;
         let slot = best.entry(state_key(&s)).or_insert(f64::NEG_INFINITY);
@@ -156,9 +157,11 @@ pub fn plan(
             .map(|&g| Action::Move(g));
         for action in std::iter::once(Action::Wait).chain(moves) {
             let Some(outcome) = model.apply(&s, action) else {
+                dropped.past_window += 1;
                 continue;
             };
             if !model.keeps_charge(&outcome) {
+                dropped.low_charge += 1;
                 continue;
             }
             let next = outcome.state;
@@ -179,7 +182,16 @@ pub fn plan(
             });
         }
     }
-    Err(no_route_message(model))
+    Err(no_route_message(model, &dropped))
+}
+
+/// Actions the search could not take, for the message when no route is found.
+#[derive(Debug, Default)]
+struct Dropped {
+    /// Would have ended after the window's last step.
+    past_window: u64,
+    /// Would have taken the charge below the minimum.
+    low_charge: u64,
 }
 
 /// Per facet, the least cost from it to `goal` with every move at its least cost over
@@ -215,13 +227,14 @@ fn actions_to(taken: &[Taken], last: u32) -> Vec<Action> {
     actions
 }
 
-fn no_route_message(model: &Model) -> String {
+fn no_route_message(model: &Model, dropped: &Dropped) -> String {
     let r = &model.rover;
     format!(
         "no route reaches the goal by the window's end that enters no facet steeper than \
-         {}° and keeps the charge at or above {} Wh: depart earlier, allow steeper \
+         {}° and keeps the charge at or above {} Wh ({} actions would have taken the charge \
+         below it, {} would have ended after the window): depart earlier, allow steeper \
          slopes, or give the rover more battery, panel or speed",
-        r.max_slope_deg, r.min_charge_wh
+        r.max_slope_deg, r.min_charge_wh, dropped.low_charge, dropped.past_window
     )
 }
 
