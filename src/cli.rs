@@ -316,7 +316,7 @@ struct ServeArgs {
     /// irradiance query.
     #[arg(long, default_value_t = Limits::default().max_query_values)]
     max_query_values: usize,
-    /// Most labels a route plan may take (about 96 bytes each).
+    /// Most labels a route plan may take (at most 240 bytes each).
     #[arg(long, default_value_t = Limits::default().max_route_labels)]
     max_route_labels: usize,
 }
