@@ -208,31 +208,17 @@ impl<'w> Direct<'w> {
         state: &EpochState,
         facets: &[(usize, usize)],
     ) -> Result<Vec<f64>> {
-        let none: Vec<Option<&HorizonMap>> = vec![None; facets.len()];
-        self.compute_facets_with(state, facets, &none)
-    }
-
-    /// [`Direct::compute_facets`] with, per facet, its own horizon map if the caller has
-    /// one ([`HorizonMap::of_facet`]: that facet's row at index 0). A point Sun above the
-    /// map's upper bound needs no ray through the facet's own body, where the exact
-    /// tracers would find nothing: the values are the same, bit for bit, with fewer rays.
-    pub fn compute_facets_with(
-        &self,
-        state: &EpochState,
-        facets: &[(usize, usize)],
-        horizons: &[Option<&HorizonMap>],
-    ) -> Result<Vec<f64>> {
         let mut counts = StepCounts::default();
         // Each body's Sun and shadow queries, set up once for all its facets asked for.
         let mut lights: Vec<Option<Sunlight<'_>>> =
             self.world.bodies.iter().map(|_| None).collect();
         let mut values = Vec::with_capacity(facets.len());
-        for (&(b, i), horizon) in facets.iter().zip(horizons) {
+        for &(b, i) in facets {
             let light = match &mut lights[b] {
                 Some(light) => light,
                 empty => empty.insert(self.sunlight(b, state)?),
             };
-            values.push(self.facet_irradiance(b, i, light, *horizon, &mut counts));
+            values.push(self.facet_irradiance(b, i, light, &mut counts));
         }
         Ok(values)
     }
@@ -480,33 +466,21 @@ impl<'w> Direct<'w> {
     }
 
     /// Irradiance of facet `i` of body `b`: zero when it faces away from the Sun or the
-    /// ray from its centroid is blocked by its own body or another; the own body's ray
-    /// is spared where the facet's `horizon` (its row at index 0) clears the Sun.
+    /// ray from its centroid is blocked by its own body or another.
     fn facet_irradiance(
         &self,
         b: usize,
         i: usize,
         light: &Sunlight<'_>,
-        horizon: Option<&HorizonMap>,
         counts: &mut StepCounts,
     ) -> f64 {
         let mesh = &self.world.bodies[b].mesh;
-        let normal = mesh.normals[i];
-        let cos = normal.dot(light.sun);
+        let cos = mesh.normals[i].dot(light.sun);
         if cos <= 0.0 {
             counts.night += 1;
             return 0.0;
         }
-        let t_min = self.t_min(b, i, cos);
-        // The ray here goes toward the Sun's centre whatever its shape, as the map's test.
-        let cleared =
-            horizon.is_some_and(|map| map.clears(0, &map.position(normal, light.sun, cos)));
-        counts.above_horizon += cleared as u64;
-        let blocked = if cleared {
-            light.blocked_by_others(mesh.centroids[i], t_min, counts)
-        } else {
-            light.blocked(mesh.centroids[i], t_min, i, counts)
-        };
+        let blocked = light.blocked(mesh.centroids[i], self.t_min(b, i, cos), i, counts);
         counts.shadowed += blocked as u64;
         if blocked {
             0.0

@@ -125,16 +125,6 @@ impl HorizonMap {
         Some(HorizonMap { azimuths, cells })
     }
 
-    /// The map of facet `i` of `mesh` alone, its row at index 0, as [`HorizonMap::build`]
-    /// makes it: for callers that ask about a few facets (point queries), where a whole
-    /// map would cost a search per facet of the mesh.
-    pub fn of_facet(mesh: &Mesh, i: usize, bvh: &Bvh, azimuths: u32) -> HorizonMap {
-        let azimuths = azimuths.clamp(AZIMUTHS_MIN, AZIMUTHS_MAX);
-        let wedges = Wedges::new(azimuths as usize);
-        let (cells, _) = facet_horizon(mesh, bvh, i, &wedges, rounding_widening(mesh), &[]);
-        HorizonMap { azimuths, cells }
-    }
-
     /// A map from stored cells (the cache); `None` when their number does not fit.
     pub(super) fn from_cells(azimuths: u32, facets: usize, cells: Vec<[u16; 2]>) -> Option<Self> {
         ((AZIMUTHS_MIN..=AZIMUTHS_MAX).contains(&azimuths)

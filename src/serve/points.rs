@@ -10,9 +10,7 @@
 //! the Sun seen. The values are those `slim run` computes with shadow rays
 //! for the same facets (same shadow predicate, same guards), bit for bit. The rays go
 //! through each body's tree ([`Bvh`], no per-step set-up; the panels' horizons search the
-//! same tree), and a facet's own ray is spared whenever the Sun stands above the upper
-//! bound of that facet's horizon map ([`HorizonMap::of_facet`], built once per facet asked
-//! for), where no exact tracer would find a blocker. Steps are computed in parallel.
+//! same tree). Steps are computed in parallel.
 //!
 //! Each scene's meshes, ephemeris and trees are built once and kept by an engine thread
 //! that owns them and answers requests through a channel; the service keeps engines
@@ -27,7 +25,7 @@ use super::scene_input::{bad_scene, check_files, SceneText};
 use crate::budget::{Budget, GEOMETRY_BYTES_PER_FACET};
 use crate::ephemeris::{Ephemeris, EpochState};
 use crate::horizon::disk::SolarDisk;
-use crate::horizon::map::{HorizonMap, PointHorizon};
+use crate::horizon::map::PointHorizon;
 use crate::horizon::SunShape;
 use crate::illum::Direct;
 use crate::panel::{Battery, Charge, Orientation, Panel, PanelLight, Site, PANEL_AZIMUTHS};
@@ -421,9 +419,6 @@ struct Engine<'w> {
     /// Horizons of the places asked for (body, surface point and height bits), at most
     /// [`KEPT_HORIZONS`] (16 kB each), so that asking again skips the search.
     horizons: RefCell<HashMap<HorizonKey, PointHorizon>>,
-    /// Horizon maps of the facets asked for (body, facet), at most [`KEPT_HORIZONS`]
-    /// (4 kB each).
-    facet_horizons: RefCell<HashMap<(usize, usize), HorizonMap>>,
 }
 
 /// A place's horizon: its body, surface point (bits of x, y, z) and height (bits).
@@ -436,10 +431,10 @@ const KEPT_HORIZONS: usize = 256;
 /// step's own fields).
 const STATE_BYTES_PER_BODY: usize = 192;
 
-/// Memory of the kept horizons at most: places' (two f64 per wedge) and facets' (two u16
-/// per wedge), bytes, and the terrain views (up to 128 facets of 80 bytes each).
+/// Memory of the kept horizons (two f64 per wedge) and terrain views (up to 128 facets of
+/// 80 bytes each) at most, bytes.
 const KEPT_HORIZON_BYTES: f64 =
-    (KEPT_HORIZONS * (PANEL_AZIMUTHS as usize * 20 + to_panel::MOST_FACETS * 80)) as f64;
+    (KEPT_HORIZONS * (PANEL_AZIMUTHS as usize * 16 + to_panel::MOST_FACETS * 80)) as f64;
 
 /// The engine thread: builds the scene once, then answers until its sender is dropped.
 fn engine(dir: &Path, scene: &SceneText, budget: &Budget, asks: mpsc::Receiver<Ask>) {
@@ -532,7 +527,6 @@ impl<'w> Engine<'w> {
             albedo: light.albedo,
             states: RefCell::new(vec![None; ephemeris.steps()]),
             horizons: RefCell::new(HashMap::new()),
-            facet_horizons: RefCell::new(HashMap::new()),
             views: RefCell::new(HashMap::new()),
         }
     }
@@ -595,10 +589,6 @@ impl<'w> Engine<'w> {
                 })
                 .collect(),
         };
-        let horizons: Vec<Option<HorizonMap>> = targets
-            .iter()
-            .map(|r| self.facet_horizon(r.body, r.facet))
-            .collect();
         let terrains: Vec<Option<Terrain>> = targets
             .iter()
             .zip(&sites)
@@ -617,7 +607,6 @@ impl<'w> Engine<'w> {
             direct: &self.direct,
             disk: self.disk.as_ref(),
             facets,
-            horizons: horizons.iter().map(Option::as_ref).collect(),
             sites: &sites,
             targets: &targets,
             terrains: &terrains,
@@ -665,23 +654,6 @@ impl<'w> Engine<'w> {
             states[k] = Some(state);
         }
         Ok(())
-    }
-
-    /// The horizon map of facet `facet` of body `body` alone, kept across queries, when
-    /// the body can shadow itself: it spares the facet's own shadow ray whenever the Sun
-    /// clears it.
-    fn facet_horizon(&self, body: usize, facet: usize) -> Option<HorizonMap> {
-        let b = &self.world.bodies[body];
-        if b.convex {
-            return None;
-        }
-        let key = (body, facet);
-        if let Some(map) = self.facet_horizons.borrow().get(&key) {
-            return Some(map.clone());
-        }
-        let map = HorizonMap::of_facet(b.shadow_mesh(), facet, &self.bvhs[body], PANEL_AZIMUTHS);
-        keep(&self.facet_horizons, key, map.clone(), KEPT_HORIZONS);
-        Some(map)
     }
 
     /// The site of a target that has a height, a panel or a sight, with its panel.
@@ -765,9 +737,7 @@ struct Terrain {
 
 impl Terrain {
     /// The irradiance (W/m²) the terrain sends at `state` onto a panel of unit normal
-    /// `normal`: each facet's first-order radiosity ρ·E from its direct irradiance. The
-    /// facets' rays are traced without their horizon maps: building 128 maps costs more
-    /// than the rays they would spare over a year of steps.
+    /// `normal`: each facet's first-order radiosity ρ·E from its direct irradiance.
     fn light(&self, direct: &Direct<'_>, state: &EpochState, normal: DVec3) -> ApiResult<f64> {
         let direct = direct
             .compute_facets(state, &self.facets)
@@ -786,7 +756,6 @@ struct StepWork<'a> {
     direct: &'a Direct<'a>,
     disk: Option<&'a SolarDisk>,
     facets: Vec<(usize, usize)>,
-    horizons: Vec<Option<&'a HorizonMap>>,
     sites: &'a [Option<(Site<'a>, Panel)>],
     targets: &'a [Resolved],
     terrains: &'a [Option<Terrain>],
@@ -809,7 +778,7 @@ impl StepWork<'_> {
     fn at(&self, state: &EpochState) -> ApiResult<StepValues> {
         let values = self
             .direct
-            .compute_facets_with(state, &self.facets, &self.horizons)
+            .compute_facets(state, &self.facets)
             .map_err(|e| ApiError::unprocessable("bad_scene", e.to_string()))?;
         let mut targets = Vec::with_capacity(values.len());
         for (((facet_w_m2, site), r), terrain) in values
@@ -1111,8 +1080,7 @@ mod tests {
 
     /// Facets computed one by one get the same values, bit for bit, as the whole mesh
     /// computed by a run with the sunview tracer: with the grid tracer, and as the engine
-    /// computes them (rays through the body's tree, spared where the facet's own horizon
-    /// map clears the Sun; Itokawa is not convex, so both kinds of step occur).
+    /// computes them (rays through the body's tree).
     #[test]
     fn facets_alone_match_the_whole_mesh() {
         let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("data");
@@ -1142,41 +1110,16 @@ spin_period_h = 12.0
         };
         let engine = Engine::new(&world, &bvhs, ephemeris.as_ref(), light);
         let facets: Vec<(usize, usize)> = (0..world.facet_count()).map(|i| (0, i)).collect();
-        let maps: Vec<Option<HorizonMap>> = facets
-            .iter()
-            .map(|&(body, facet)| engine.facet_horizon(body, facet))
-            .collect();
-        assert!(maps.iter().all(Option::is_some));
-        let maps: Vec<Option<&HorizonMap>> = maps.iter().map(Option::as_ref).collect();
         let mut all = vec![0.0; world.facet_count()];
-        let mut spared = 0;
         for k in 0..ephemeris.steps() {
             let state = ephemeris.state(k).unwrap();
             sunview.compute(&state, &mut all).unwrap();
             let alone = grid.compute_facets(&state, &facets).unwrap();
-            let mapped = engine
-                .direct
-                .compute_facets_with(&state, &facets, &maps)
-                .unwrap();
-            for (i, ((a, b), c)) in all.iter().zip(&alone).zip(&mapped).enumerate() {
+            let engines = engine.direct.compute_facets(&state, &facets).unwrap();
+            for (i, ((a, b), c)) in all.iter().zip(&alone).zip(&engines).enumerate() {
                 assert_eq!(a.to_bits(), b.to_bits(), "step {k} facet {i}: {a} vs {b}");
                 assert_eq!(a.to_bits(), c.to_bits(), "step {k} facet {i}: {a} vs {c}");
             }
-            spared += facets
-                .iter()
-                .zip(&maps)
-                .filter(|&(&(_, i), map)| {
-                    let (n, sun) = (world.bodies[0].mesh.normals[i], state.bodies[0].sun_dir);
-                    let map = map.unwrap();
-                    n.dot(sun) > 0.0 && map.clears(0, &map.position(n, sun, n.dot(sun)))
-                })
-                .count();
         }
-        // Most lit facet-steps need no ray; some (near their horizon) still do.
-        let facing = ephemeris.steps() * world.facet_count() / 2;
-        assert!(
-            spared > facing / 2 && spared < facing,
-            "{spared} of ~{facing}"
-        );
     }
 }
