@@ -149,11 +149,16 @@ impl<'w> Direct<'w> {
         Direct::assemble(world, tracers, horizons, shadows)
     }
 
-    /// For a point Sun and shadow rays through the given tracers, one per body (scene
-    /// order): built by the caller, who may share them (the point queries' trees).
-    pub fn with_tracers(world: &'w World, tracers: Vec<Box<dyn Tracer + 'w>>) -> Direct<'w> {
+    /// For shadow rays through the given tracers, one per body (scene order): built by
+    /// the caller, who may share them (the point queries' trees); the Sun shaped as
+    /// `shadows` says (horizon maps are not used).
+    pub fn with_tracers(
+        world: &'w World,
+        tracers: Vec<Box<dyn Tracer + 'w>>,
+        shadows: &Shadows,
+    ) -> Direct<'w> {
         let horizons = tracers.iter().map(|_| OwnHorizon::None).collect();
-        Direct::assemble(world, tracers, horizons, &Shadows::default())
+        Direct::assemble(world, tracers, horizons, shadows)
     }
 
     fn assemble(

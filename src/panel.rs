@@ -18,8 +18,10 @@
 //! upper bound: lit; otherwise a ray from the panel through the body's own mesh) and
 //! `s̄ = s`. `n` is the panel's normal; tracking panels turn toward `s̄`. Light scattered
 //! by the terrain onto the panel is added by the point queries when the scene scatters
-//! light ([`crate::scatter::to_panel`]). Left out: other bodies' shadows, and the panel's
-//! own plane cutting the disk (second order in the disk's radius, 0.27° at 1 AU).
+//! light ([`crate::scatter::to_panel`]), and other bodies' shadows by
+//! [`PanelLight::dimmed`] with the share they leave ([`crate::illum::Direct::share_past_others`]).
+//! Left out: the panel's own plane cutting the disk (second order in the disk's radius,
+//! 0.27° at 1 AU).
 
 use crate::horizon::disk::SolarDisk;
 use crate::horizon::map::PointHorizon;
@@ -63,6 +65,20 @@ pub struct PanelLight {
     pub sun_visible: f64,
     /// The panel's unit normal at this step (body frame).
     pub normal: DVec3,
+}
+
+impl PanelLight {
+    /// The light with only `share` (0 to 1) of the Sun left, e.g. past other bodies:
+    /// irradiance, power and visible share scale with it (the two causes are taken as
+    /// independent, which is exact for a point Sun).
+    pub fn dimmed(self, share: f64) -> PanelLight {
+        PanelLight {
+            irradiance_w_m2: self.irradiance_w_m2 * share,
+            power_w: self.power_w * share,
+            sun_visible: self.sun_visible * share,
+            ..self
+        }
+    }
 }
 
 /// A place above the surface with its horizon.

@@ -785,3 +785,43 @@ fn place_adds_the_light_a_sunlit_plain_scatters_onto_a_panel() {
         );
     }
 }
+
+/// Another body's shadow falls on a panel: a 300 m moon 2 km beyond the panel, right on
+/// its line to the Sun, hides the Sun at the first step (the ray runs through the moon's
+/// centre); at the second the Sun stands 45° up and the ray passes 2 km from it. The
+/// same with the Sun as a disk (0.53° wide at 1 AU, the moon 17° wide from the panel).
+#[cfg(feature = "serve")]
+#[test]
+fn other_bodies_shadow_panels() {
+    let dir = TempDir::new("panel-eclipse");
+    for sun in ["point", "disk"] {
+        let scene = format!(
+            "[run]\nsun = \"{sun}\"\n\n[output]\nhistory = false\n\n\
+             [ephemeris]\nmode = \"fixed\"\n\n\
+             [[ephemeris.sun]]\ndirection = [1.0, 0.0, 0.0]\ndistance_au = 1.0\n\n\
+             [[ephemeris.sun]]\ndirection = [1.0, 0.0, 1.0]\ndistance_au = 1.0\n\n\
+             [[body]]\nname = \"ground\"\nellipsoid = {{ radii_km = [1.0, 1.0, 1.0], levels = 4 }}\n\n\
+             [[body]]\nname = \"moon\"\nellipsoid = {{ radii_km = [0.3, 0.3, 0.3], levels = 3 }}\n\
+             position_km = [3.0, 0.0, 0.0]\noutputs = false\n"
+        );
+        std::fs::write(dir.join("s.toml"), scene).unwrap();
+        std::fs::write(
+            dir.join("q.json"),
+            r#"{"targets": [{"lat_deg": 0, "lon_deg": 0, "height_m": 2,
+                "panel": {"mount": "sun_tracking"}}]}"#,
+        )
+        .unwrap();
+        let out = slim(&["place", "s.toml", "q.json", "-o", "a.json"], &dir.0);
+        assert!(out.status.success(), "{sun}: {}", text(&out.stderr));
+        let answer: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(dir.join("a.json")).unwrap()).unwrap();
+        let panel = &answer["series"][0]["panel"];
+        let visible: Vec<f64> = serde_json::from_value(panel["sun_visible"].clone()).unwrap();
+        let irradiance: Vec<f64> =
+            serde_json::from_value(panel["irradiance_w_m2"].clone()).unwrap();
+        assert_eq!(visible[0], 0.0, "{sun}: {panel}");
+        assert_eq!(irradiance[0], 0.0, "{sun}: {panel}");
+        assert!(visible[1] > 0.999, "{sun}: {panel}");
+        assert!((irradiance[1] - 1361.0).abs() < 1.5, "{sun}: {panel}");
+    }
+}

@@ -999,3 +999,13 @@ fn every_shipped_scene_loads() {
     }
     assert!(scenes >= 5, "{scenes} scenes");
 }
+
+/// A disk Sun's angular size comes from its distance: a fixed Sun given only by its flux
+/// has none, and is refused with the key to give instead.
+#[test]
+fn a_disk_sun_needs_the_distance_of_fixed_suns() {
+    let disk = format!("[run]\nsun = \"disk\"\n\n{FIXED}");
+    assert_rejected(&disk, &["ephemeris.sun[0].flux_w_m2", "distance_au"]);
+    let point = format!("[run]\nsun = \"point\"\n\n{FIXED}");
+    parse(&point).expect("a point Sun needs no distance");
+}

@@ -6,6 +6,7 @@
 use super::schema::*;
 use super::Scene;
 use crate::error::Result;
+use crate::horizon::SunShape;
 
 /// The most steps a scene may ask for: a century of one-minute steps fits, a run that
 /// could not finish in a lifetime does not.
@@ -445,6 +446,13 @@ impl Scene {
             }
             match (s.distance_au, s.flux_w_m2) {
                 (Some(d), None) => positive(self, &key("distance_au"), d)?,
+                (None, Some(_)) if self.run.sun == SunShape::Disk => {
+                    return Err(self.err(
+                        key("flux_w_m2"),
+                        "a disk Sun's size comes from its distance: give distance_au instead \
+                         (or sun = \"point\" in [run])",
+                    ))
+                }
                 (None, Some(w)) if w.is_finite() && w >= 0.0 => {}
                 (None, Some(_)) => {
                     return Err(self.err(key("flux_w_m2"), "must be a finite number ≥ 0"))

@@ -26,7 +26,7 @@ use crate::budget::{Budget, GEOMETRY_BYTES_PER_FACET};
 use crate::ephemeris::{Ephemeris, EpochState};
 use crate::horizon::disk::SolarDisk;
 use crate::horizon::map::PointHorizon;
-use crate::horizon::SunShape;
+use crate::horizon::{Shadows, SunShape};
 use crate::illum::Direct;
 use crate::panel::{Battery, Charge, Orientation, Panel, PanelLight, Site, PANEL_AZIMUTHS};
 use crate::prepare::assemble;
@@ -403,6 +403,9 @@ struct Engine<'w> {
     world: &'w World,
     ephemeris: &'w dyn Ephemeris,
     direct: Direct<'w>,
+    /// The same trees with the scene's Sun (point or disk): other bodies' shadows on
+    /// panels (an eclipse by the Earth seen from the Moon).
+    beyond: Direct<'w>,
     /// Each body's tree over its shadow mesh (with its surroundings): the facets' shadow
     /// rays, and the horizons of panels and facets.
     bvhs: &'w [Bvh],
@@ -471,6 +474,9 @@ type Built = (World, Box<dyn Ephemeris>, Light);
 struct Light {
     /// The Sun as a disk (with its limb darkening), or `None` for a point.
     disk: Option<SolarDisk>,
+    /// The scene's shadow settings: its Sun's shape and samples, for other bodies'
+    /// shadows on panels.
+    shadows: Shadows,
     /// Every facet's albedo (global ids) when the scene scatters light: the terrain then
     /// lights panels too.
     albedo: Option<Vec<f64>>,
@@ -481,6 +487,7 @@ impl Light {
         let shadows = scene.shadows();
         Ok(Light {
             disk: (shadows.sun == SunShape::Disk).then_some(shadows.disk),
+            shadows: shadows.clone(),
             albedo: crate::scatter::albedo::facet_albedo(scene, world)?,
         })
     }
@@ -514,14 +521,16 @@ impl<'w> Engine<'w> {
         ephemeris: &'w dyn Ephemeris,
         light: Light,
     ) -> Engine<'w> {
-        let tracers = bvhs
-            .iter()
-            .map(|t| Box::new(t) as Box<dyn Tracer + 'w>)
-            .collect();
+        let tracers = || {
+            bvhs.iter()
+                .map(|t| Box::new(t) as Box<dyn Tracer + 'w>)
+                .collect()
+        };
         Engine {
             world,
             ephemeris,
-            direct: Direct::with_tracers(world, tracers),
+            direct: Direct::with_tracers(world, tracers(), &Shadows::default()),
+            beyond: Direct::with_tracers(world, tracers(), &light.shadows),
             bvhs,
             disk: light.disk,
             albedo: light.albedo,
@@ -605,6 +614,7 @@ impl<'w> Engine<'w> {
         }
         let work = StepWork {
             direct: &self.direct,
+            beyond: &self.beyond,
             disk: self.disk.as_ref(),
             facets,
             sites: &sites,
@@ -754,6 +764,7 @@ impl Terrain {
 /// What every step of a query needs, shared by the threads that compute the steps.
 struct StepWork<'a> {
     direct: &'a Direct<'a>,
+    beyond: &'a Direct<'a>,
     disk: Option<&'a SolarDisk>,
     facets: Vec<(usize, usize)>,
     sites: &'a [Option<(Site<'a>, Panel)>],
@@ -806,7 +817,15 @@ impl StepWork<'_> {
                 .map(|d| (d, SolarDisk::angular_radius(sun.sun_distance_m)));
             let light = r
                 .panel
-                .then(|| site.sunlight(panel, sun.sun_dir, sun.flux_w_m2, disk))
+                .then(|| -> ApiResult<PanelLight> {
+                    let light = site.sunlight(panel, sun.sun_dir, sun.flux_w_m2, disk);
+                    let share = self
+                        .beyond
+                        .share_past_others(r.body, state, site.point())
+                        .map_err(|e| ApiError::unprocessable("bad_scene", e.to_string()))?;
+                    Ok(light.dimmed(share))
+                })
+                .transpose()?
                 .map(|light| match terrain {
                     Some(t) => t
                         .light(self.direct, state, light.normal)
@@ -1106,6 +1125,7 @@ spin_period_h = 12.0
         let bvhs = body_trees(&world);
         let light = Light {
             disk: None,
+            shadows: Shadows::default(),
             albedo: None,
         };
         let engine = Engine::new(&world, &bvhs, ephemeris.as_ref(), light);
