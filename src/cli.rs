@@ -502,14 +502,8 @@ fn route(
         max_labels: serve::limits::Limits::default().max_route_labels,
         max_waypoints: usize::MAX,
     };
-    let answer = serve::traverse::answer(
-        std::path::Path::new(""),
-        &scene,
-        &request,
-        &limits,
-        progress,
-    )
-    .map_err(|e| Error::Usage(format!("{} ({})", e.message, e.code)))?;
+    let answer = serve::traverse::answer(None, &scene, &request, &limits, progress)
+        .map_err(|e| Error::Usage(format!("{} ({})", e.message, e.code)))?;
     write_json(&answer, output)
 }
 

@@ -825,3 +825,37 @@ fn other_bodies_shadow_panels() {
         assert!((irradiance[1] - 1361.0).abs() < 1.5, "{sun}: {panel}");
     }
 }
+
+/// A route on a scene whose mesh is missing is one line naming the mesh's whole path; a
+/// bad rover is refused before the scene is read.
+#[cfg(feature = "serve")]
+#[test]
+fn route_errors_name_the_mesh_and_the_bad_field() {
+    let dir = TempDir::new("route-errors");
+    let missing = dir.join("sub/missing.obj");
+    std::fs::write(
+        dir.join("s.toml"),
+        format!(
+            "[ephemeris]\nmode = \"spin\"\ndistance_au = 1.0\nsteps_per_period = 4\n\n\
+             [[body]]\nname = \"b\"\nmesh = {:?}\nunits = \"km\"\nspin_period_h = 1.0\n",
+            missing.display().to_string()
+        ),
+    )
+    .unwrap();
+    let rover = r#""rover": {"speed_m_s": 0.1, "battery": {"capacity_wh": 10}}"#;
+    std::fs::write(
+        dir.join("r.json"),
+        format!(r#"{{"from": {{"facet": 1}}, "to": {{"facet": 2}}, {rover}}}"#),
+    )
+    .unwrap();
+    let out = slim(&["route", "s.toml", "r.json"], &dir.0);
+    assert_one_line_error(&out, &[&missing.display().to_string(), "bad_scene"]);
+    std::fs::write(
+        dir.join("r.json"),
+        r#"{"from": {"facet": 1}, "to": {"facet": 2},
+            "rover": {"speed_m_s": 0, "battery": {"capacity_wh": 10}}}"#,
+    )
+    .unwrap();
+    let out = slim(&["route", "s.toml", "r.json"], &dir.0);
+    assert_one_line_error(&out, &["rover.speed_m_s", "bad_route"]);
+}

@@ -144,8 +144,8 @@ impl<'a> Model<'a> {
         weights: Weights,
         substeps: Option<u32>,
     ) -> Result<Model<'a>, String> {
-        check_rover(&rover)?;
-        check_weights(&weights)?;
+        rover.check()?;
+        weights.check()?;
         let substeps = match substeps {
             Some(m) if (1..=MAX_SUBSTEPS).contains(&m) => m,
             Some(m) => return Err(format!("substeps {m}: give 1 to {MAX_SUBSTEPS}")),
@@ -313,37 +313,45 @@ fn default_substeps(edge_m: f64, speed_m_s: f64, step_s: f64) -> u32 {
     m.clamp(1.0, f64::from(MAX_SUBSTEPS)) as u32
 }
 
-fn check_rover(r: &Rover) -> Result<(), String> {
-    let positive = |v: f64| v.is_finite() && v > 0.0;
-    let at_least_0 = |v: f64| v.is_finite() && v >= 0.0;
-    if !positive(r.speed_m_s) {
-        return Err("speed_m_s must be above 0".into());
+impl Rover {
+    /// `Ok`, or the first bad field and why.
+    pub fn check(&self) -> Result<(), String> {
+        let r = self;
+        let positive = |v: f64| v.is_finite() && v > 0.0;
+        let at_least_0 = |v: f64| v.is_finite() && v >= 0.0;
+        if !positive(r.speed_m_s) {
+            return Err("speed_m_s must be above 0".into());
+        }
+        if !(r.max_slope_deg > 0.0 && r.max_slope_deg <= 90.0) {
+            return Err("max_slope_deg must be above 0 and at most 90".into());
+        }
+        if !positive(r.panel_area_m2) {
+            return Err("panel.area_m2 must be above 0".into());
+        }
+        if !(0.0..=1.0).contains(&r.panel_efficiency) {
+            return Err("panel.efficiency must be 0 to 1".into());
+        }
+        if !(at_least_0(r.min_charge_wh) && r.min_charge_wh <= r.battery.capacity_wh) {
+            return Err("battery.min_charge_wh must be 0 to capacity_wh".into());
+        }
+        if r.battery.initial_wh < r.min_charge_wh {
+            return Err("battery.initial_wh must be at least min_charge_wh".into());
+        }
+        if !(at_least_0(r.idle_load_w) && at_least_0(r.drive_load_w)) {
+            return Err("idle_load_w and drive_load_w must be finite and ≥ 0".into());
+        }
+        Ok(())
     }
-    if !(r.max_slope_deg > 0.0 && r.max_slope_deg <= 90.0) {
-        return Err("max_slope_deg must be above 0 and at most 90".into());
-    }
-    if !positive(r.panel_area_m2) {
-        return Err("panel.area_m2 must be above 0".into());
-    }
-    if !(0.0..=1.0).contains(&r.panel_efficiency) {
-        return Err("panel.efficiency must be 0 to 1".into());
-    }
-    if !(at_least_0(r.min_charge_wh) && r.min_charge_wh <= r.battery.capacity_wh) {
-        return Err("battery.min_charge_wh must be 0 to capacity_wh".into());
-    }
-    if r.battery.initial_wh < r.min_charge_wh {
-        return Err("battery.initial_wh must be at least min_charge_wh".into());
-    }
-    if !(at_least_0(r.idle_load_w) && at_least_0(r.drive_load_w)) {
-        return Err("idle_load_w and drive_load_w must be finite and ≥ 0".into());
-    }
-    Ok(())
 }
 
-fn check_weights(w: &Weights) -> Result<(), String> {
-    let all = [w.illumination, w.slope, w.roughness, w.waiting];
-    if all.iter().any(|v| !(v.is_finite() && *v >= 0.0)) {
-        return Err("weights must be finite and ≥ 0".into());
+impl Weights {
+    /// `Ok`, or why not: every weight finite and ≥ 0.
+    pub fn check(&self) -> Result<(), String> {
+        let w = self;
+        let all = [w.illumination, w.slope, w.roughness, w.waiting];
+        if all.iter().any(|v| !(v.is_finite() && *v >= 0.0)) {
+            return Err("weights must be finite and ≥ 0".into());
+        }
+        Ok(())
     }
-    Ok(())
 }

@@ -372,7 +372,13 @@ async fn rover_route(
     let work = blocking(move || {
         let parsed = scene.parse(&dir)?;
         check_files(&dir, &parsed)?;
-        traverse::answer(&dir, &parsed, &request, &limits, &crate::progress::Silent)
+        traverse::answer(
+            Some(&dir),
+            &parsed,
+            &request,
+            &limits,
+            &crate::progress::Silent,
+        )
     });
     Ok(json(&heavy(&app, work).await?))
 }

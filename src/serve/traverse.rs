@@ -212,71 +212,54 @@ pub struct RouteLimits {
 }
 
 /// Answers `request` on `scene`, within `limits`; `progress` sees the scene's step loop.
-/// Errors about the scene show its paths relative to `dir`.
+/// Errors about the scene show its paths relative to `dir` when one is given (the
+/// service's data folder). The request itself is checked before anything is built.
 pub fn answer(
-    dir: &Path,
+    dir: Option<&Path>,
     scene: &Scene,
     request: &RouteRequest,
     limits: &RouteLimits,
     progress: &dyn Progress,
 ) -> ApiResult<RouteAnswer> {
-    let bad_route = |why: String| ApiError::bad_request("bad_route", why);
+    let scene_error = |e: &crate::Error| match dir {
+        Some(dir) => bad_scene(dir, e),
+        None => ApiError::unprocessable("bad_scene", e.to_string()),
+    };
+    let stops = stops(request, limits)?;
+    let rover = rover(&request.rover)?;
+    let weights = weights(&request.weights)?;
+    let search = search_limits(request, limits)?;
     let prepared =
-        prepare(scene, &limits.budget, &mut Timings::default()).map_err(|e| bad_scene(dir, &e))?;
+        prepare(scene, &limits.budget, &mut Timings::default()).map_err(|e| scene_error(&e))?;
     let world = &prepared.assembly.world;
     let b = match &request.body {
         None => 0,
         Some(name) => body_index(world, name)?,
     };
     let body = &world.bodies[b];
-    let stops = stops(request, limits)?;
     let facets = stops
         .iter()
         .map(|s| Ok(locate(body, s.facet, s.point_m, s.lat_deg, s.lon_deg)?.0 as u32))
         .collect::<ApiResult<Vec<u32>>>()?;
     let first_step = departure_step(request, &prepared.states)?;
-    let max_labels = request.max_labels.unwrap_or(limits.max_labels);
-    if max_labels > limits.max_labels {
-        return Err(bad_route(format!(
-            "max_labels {max_labels}: at most {}",
-            limits.max_labels
-        )));
-    }
-    check_search_memory(&limits.budget, max_labels, request.to.is_some())?;
     let terrain = Terrain::new(&body.mesh);
     let name = body.name.clone();
-    let rover = rover(&request.rover)?;
     if request.to.is_some() {
         check_ends(&terrain, &rover, &facets)?;
     }
     let clock = Instant::now();
     let light = Light::compute(scene, prepared, b, first_step, &limits.budget, progress)
-        .map_err(|e| bad_scene(dir, &e))?;
+        .map_err(|e| scene_error(&e))?;
     let light_s = clock.elapsed().as_secs_f64();
     let clock = Instant::now();
-    let w = &request.weights;
-    let weights = Weights {
-        illumination: w.illumination,
-        slope: w.slope,
-        roughness: w.roughness,
-        waiting: w.waiting,
-    };
-    let model =
-        Model::new(&terrain, &light, rover, weights, request.substeps).map_err(bad_route)?;
+    let model = Model::new(&terrain, &light, rover, weights, request.substeps)
+        .map_err(|why| ApiError::bad_request("bad_route", why))?;
     let (route, labels) = match request.to {
-        Some(_) => {
-            if !(request.optimality_gap.is_finite() && request.optimality_gap >= 0.0) {
-                return Err(bad_route("optimality_gap must be finite and ≥ 0".into()));
-            }
-            let limits = SearchLimits {
-                max_labels,
-                gap: request.optimality_gap,
-            };
-            walk_plan(&model, &facets, limits)?
-        }
+        Some(_) => walk_plan(&model, &facets, search)?,
         None => {
             let waypoints = waypoints(&model, &stops, &facets)?;
-            let route = evaluate(&model, &waypoints, 0).map_err(bad_route)?;
+            let route = evaluate(&model, &waypoints, 0)
+                .map_err(|why| ApiError::bad_request("bad_route", why))?;
             (route, 0)
         }
     };
@@ -284,6 +267,39 @@ pub fn answer(
     answer.properties.light_s = light_s;
     answer.properties.search_s = clock.elapsed().as_secs_f64();
     Ok(answer)
+}
+
+/// The search's limits a request asks for, within the service's; a plan's search is
+/// refused here when its labels could outgrow the memory budget.
+fn search_limits(request: &RouteRequest, limits: &RouteLimits) -> ApiResult<SearchLimits> {
+    let bad = |why: String| ApiError::bad_request("bad_route", why);
+    let max_labels = request.max_labels.unwrap_or(limits.max_labels);
+    if max_labels > limits.max_labels {
+        return Err(bad(format!(
+            "max_labels {max_labels}: at most {}",
+            limits.max_labels
+        )));
+    }
+    let gap = request.optimality_gap;
+    if !(gap.is_finite() && gap >= 0.0) {
+        return Err(bad("optimality_gap must be finite and ≥ 0".into()));
+    }
+    check_search_memory(&limits.budget, max_labels, request.to.is_some())?;
+    Ok(SearchLimits { max_labels, gap })
+}
+
+/// The cost weights of a request, or a 400.
+fn weights(spec: &WeightsSpec) -> ApiResult<Weights> {
+    let weights = Weights {
+        illumination: spec.illumination,
+        slope: spec.slope,
+        roughness: spec.roughness,
+        waiting: spec.waiting,
+    };
+    weights
+        .check()
+        .map_err(|why| ApiError::bad_request("bad_route", why))?;
+    Ok(weights)
 }
 
 /// The stops of a plan (from, to) or an evaluation (the waypoints), checked for shape.
@@ -371,7 +387,7 @@ fn rover(spec: &RoverSpec) -> ApiResult<Rover> {
     .map_err(|(field, why)| {
         ApiError::bad_request("bad_route", format!("rover.battery.{field}: {why}"))
     })?;
-    Ok(Rover {
+    let rover = Rover {
         speed_m_s: spec.speed_m_s,
         max_slope_deg: spec.max_slope_deg,
         panel_area_m2: spec.panel.area_m2,
@@ -380,7 +396,11 @@ fn rover(spec: &RoverSpec) -> ApiResult<Rover> {
         min_charge_wh: b.min_charge_wh,
         idle_load_w: spec.idle_load_w,
         drive_load_w: spec.drive_load_w.unwrap_or(spec.idle_load_w),
-    })
+    };
+    rover
+        .check()
+        .map_err(|why| ApiError::bad_request("bad_route", format!("rover.{why}")))?;
+    Ok(rover)
 }
 
 /// A 422 unless the rover may stand on both ends of a plan (`facets`: from, to).
