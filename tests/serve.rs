@@ -1385,7 +1385,8 @@ fn routes_are_planned_and_evaluated_and_bad_ones_refused() {
     let (status, walked) = post_json(
         &server,
         &path,
-        &serde_json::json!({"waypoints": [{"facet": 10}, {"facet": 300}], "rover": rover}),
+        &serde_json::json!({"waypoints": [{"facet": 10}, {"facet": 300}], "rover": rover,
+                            "gravity": {"density_kg_m3": 1900}}),
     );
     assert_eq!(status, 200, "{walked}");
     assert_eq!(walked["properties"]["mode"], "evaluate");
@@ -1421,6 +1422,14 @@ fn routes_are_planned_and_evaluated_and_bad_ones_refused() {
         bad(serde_json::json!({"from": {"facet": 1}, "to": {"facet": 99999}, "rover": rover})),
         404,
         "unknown_facet",
+    );
+    assert_error(
+        bad(
+            serde_json::json!({"from": {"facet": 1}, "to": {"facet": 2}, "rover": rover,
+                               "gravity": {"density_kg_m3": -1}}),
+        ),
+        400,
+        "bad_route",
     );
     let mut slow = rover.clone();
     slow["speed_m_s"] = serde_json::json!(-1);

@@ -31,11 +31,14 @@
 //! - a wait costs `w_wait · v · τ`: an hour of waiting costs what an hour of driving
 //!   over flat, smooth, sunlit ground does, at the default weight 1.
 //!
-//! Slope is the angle between a facet's normal and the radial direction through its
-//! centroid (gravity on a round body; on an elongated one such as Eros this is an
-//! approximation). Roughness is the mean angle between a facet's normal and its
-//! neighbours'. A facet steeper than the limit is never entered.
+//! Slope is the angle between a facet's normal and the vertical: the radial direction
+//! through its centroid ([`Terrain::new`]), or the local vertical of the body's gravity
+//! and spin ([`gravity::up_vectors`], [`Terrain::with_up`]), which on an elongated body
+//! such as Eros differs from the radial by tens of degrees. Roughness is the mean angle
+//! between a facet's normal and its neighbours'. A facet steeper than the limit is never
+//! entered.
 
+pub mod gravity;
 mod light;
 mod model;
 mod search;
@@ -66,15 +69,25 @@ pub struct Terrain {
 }
 
 impl Terrain {
-    /// The terrain of `mesh`.
+    /// The terrain of `mesh`, its slopes measured from the radial direction.
     pub fn new(mesh: &Mesh) -> Terrain {
-        let neighbours = facet_neighbours(mesh);
-        let angle = |a: DVec3, b: DVec3| a.dot(b).clamp(-1.0, 1.0).acos().to_degrees();
-        let slope_deg = mesh
+        let radial: Vec<DVec3> = mesh
             .centroids
             .iter()
+            .map(|c| c.normalize_or_zero())
+            .collect();
+        Terrain::with_up(mesh, &radial)
+    }
+
+    /// The terrain of `mesh`, its slopes measured from `up` (one unit vector per facet,
+    /// e.g. [`gravity::up_vectors`]).
+    pub fn with_up(mesh: &Mesh, up: &[DVec3]) -> Terrain {
+        let neighbours = facet_neighbours(mesh);
+        let angle = |a: DVec3, b: DVec3| a.dot(b).clamp(-1.0, 1.0).acos().to_degrees();
+        let slope_deg = up
+            .iter()
             .zip(&mesh.normals)
-            .map(|(c, n)| angle(c.normalize_or_zero(), *n))
+            .map(|(u, n)| angle(*u, *n))
             .collect();
         let roughness_deg = neighbours
             .iter()

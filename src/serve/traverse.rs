@@ -16,12 +16,15 @@ use super::reply::{ApiError, ApiResult};
 use super::scene_input::bad_scene;
 use crate::budget::{Budget, Estimate, Item};
 use crate::ephemeris::utc_text;
+use crate::ephemeris::EpochState;
 use crate::prepare::prepare;
 use crate::progress::{Progress, Timings};
+use crate::route::gravity::up_vectors;
 use crate::route::{
     self, evaluate, Light, Model, Route, Rover, SearchLimits, Terrain, Waypoint, Weights,
 };
 use crate::scene::Scene;
+use glam::DVec3;
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 use std::time::Instant;
@@ -49,10 +52,20 @@ pub struct RouteRequest {
     pub substeps: Option<u32>,
     /// Most labels the planner takes (default and upper bound: the service's limit).
     pub max_labels: Option<usize>,
+    /// Slopes from the local vertical of the body's gravity and spin instead of the
+    /// radial direction.
+    pub gravity: Option<GravitySpec>,
     /// The plan may cost up to `1 + optimality_gap` times the cheapest route (default 0:
     /// the cheapest); a gap of 0.2 to 0.5 makes long routes much faster to find.
     #[serde(default)]
     pub optimality_gap: f64,
+}
+
+/// The body's gravity: a uniform density; the spin comes from the scene.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct GravitySpec {
+    pub density_kg_m3: f64,
 }
 
 /// A place on the route: a facet, a point or a latitude and longitude; on a waypoint,
@@ -226,6 +239,14 @@ pub fn answer(
         None => ApiError::unprocessable("bad_scene", e.to_string()),
     };
     let stops = stops(request, limits)?;
+    if let Some(g) = &request.gravity {
+        if !(g.density_kg_m3.is_finite() && g.density_kg_m3 > 0.0) {
+            return Err(ApiError::bad_request(
+                "bad_route",
+                "gravity.density_kg_m3 must be above 0",
+            ));
+        }
+    }
     let rover = rover(&request.rover)?;
     let weights = weights(&request.weights)?;
     let search = search_limits(request, limits)?;
@@ -242,7 +263,13 @@ pub fn answer(
         .map(|s| Ok(locate(body, s.facet, s.point_m, s.lat_deg, s.lon_deg)?.0 as u32))
         .collect::<ApiResult<Vec<u32>>>()?;
     let first_step = departure_step(request, &prepared.states)?;
-    let terrain = Terrain::new(&body.mesh);
+    let terrain = match &request.gravity {
+        None => Terrain::new(&body.mesh),
+        Some(g) => {
+            let spin = spin_rad_s(&prepared.states, b, first_step)?;
+            Terrain::with_up(&body.mesh, &up_vectors(&body.mesh, g.density_kg_m3, spin))
+        }
+    };
     let name = body.name.clone();
     if request.to.is_some() {
         check_ends(&terrain, &rover, &facets)?;
@@ -267,6 +294,36 @@ pub fn answer(
     answer.properties.light_s = light_s;
     answer.properties.search_s = clock.elapsed().as_secs_f64();
     Ok(answer)
+}
+
+/// Body `b`'s angular velocity (rad/s, body frame) from its poses at `step` and the
+/// next: the rotation between them over their interval. Refused when the body turns so
+/// far in a step that the turn is ambiguous.
+fn spin_rad_s(states: &[EpochState], b: usize, step: usize) -> ApiResult<DVec3> {
+    let (s0, s1) = (&states[step], &states[step + 1]);
+    let dt = s1.epoch.to_tdb_seconds() - s0.epoch.to_tdb_seconds();
+    let q = s0.bodies[b].pose.body_to_scene.transpose() * s1.bodies[b].pose.body_to_scene;
+    let cos = ((q.x_axis.x + q.y_axis.y + q.z_axis.z - 1.0) / 2.0).clamp(-1.0, 1.0);
+    let angle = cos.acos();
+    if angle > 150f64.to_radians() || !(dt > 0.0) {
+        return Err(ApiError::bad_request(
+            "bad_route",
+            format!(
+                "the body turns {:.0}° between steps {step} and {}: too far to tell its spin \
+                 for gravity; use a scene with shorter steps",
+                angle.to_degrees(),
+                step + 1
+            ),
+        ));
+    }
+    // The axis from the antisymmetric part: (Q − Qᵀ)/2 = sin θ [axis]×.
+    let axis = DVec3::new(
+        q.y_axis.z - q.z_axis.y,
+        q.z_axis.x - q.x_axis.z,
+        q.x_axis.y - q.y_axis.x,
+    )
+    .normalize_or_zero();
+    Ok(axis * (angle / dt))
 }
 
 /// The search's limits a request asks for, within the service's; a plan's search is
@@ -331,10 +388,7 @@ fn stops(request: &RouteRequest, limits: &RouteLimits) -> ApiResult<Vec<Stop>> {
 }
 
 /// The scene step the route departs at.
-fn departure_step(
-    request: &RouteRequest,
-    states: &[crate::ephemeris::EpochState],
-) -> ApiResult<usize> {
+fn departure_step(request: &RouteRequest, states: &[EpochState]) -> ApiResult<usize> {
     let step = match request.depart_tdb_s {
         Some(t) if t.is_finite() => states.partition_point(|s| s.epoch.to_tdb_seconds() < t),
         Some(_) => {
@@ -493,5 +547,44 @@ fn feature(
             light_s: 0.0,
             search_s: 0.0,
         },
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::ephemeris::BodyState;
+    use crate::world::Pose;
+    use glam::DMat3;
+    use hifitime::Epoch;
+
+    /// A body turning about an inclined axis at a known rate: the spin read from two of
+    /// its poses is that rate about that axis; a turn of more than 150° in a step is
+    /// refused.
+    #[test]
+    fn the_spin_comes_from_two_poses() {
+        let axis = DVec3::new(0.3, -0.2, 0.9).normalize();
+        let rate = 2.0 * std::f64::consts::PI / (5.27 * 3600.0);
+        let state = |t: f64| EpochState {
+            step: 0,
+            epoch: Epoch::from_tdb_seconds(t),
+            bodies: vec![BodyState {
+                sun_dir: DVec3::X,
+                sun_distance_m: 1e11,
+                flux_w_m2: 1000.0,
+                pose: Pose {
+                    body_to_scene: DMat3::from_rotation_x(0.4)
+                        * DMat3::from_axis_angle(axis, rate * t),
+                    position_m: DVec3::ZERO,
+                },
+            }],
+        };
+        let spin = spin_rad_s(&[state(100.0), state(3894.0)], 0, 0).unwrap();
+        assert!(
+            (spin - axis * rate).length() < 1e-12 * rate.max(1.0),
+            "{spin}"
+        );
+        let err = spin_rad_s(&[state(0.0), state(2.5 * 3600.0)], 0, 0).unwrap_err();
+        assert!(err.message.contains("too far"), "{}", err.message);
     }
 }
