@@ -305,7 +305,7 @@ fn spin_rad_s(states: &[EpochState], b: usize, step: usize) -> ApiResult<DVec3> 
     let q = s0.bodies[b].pose.body_to_scene.transpose() * s1.bodies[b].pose.body_to_scene;
     let cos = ((q.x_axis.x + q.y_axis.y + q.z_axis.z - 1.0) / 2.0).clamp(-1.0, 1.0);
     let angle = cos.acos();
-    if angle > 150f64.to_radians() || !(dt > 0.0) {
+    if angle > 150f64.to_radians() || dt.is_nan() || dt <= 0.0 {
         return Err(ApiError::bad_request(
             "bad_route",
             format!(
