@@ -300,13 +300,12 @@ impl Battery {
             unmet_wh: 0.0,
         };
         for ((&p, &load), &dt) in power_w.iter().zip(load_w).zip(duration_s) {
-            let rate = self.rate_wh_s(p, load);
-            out.below_low_s += time_below(held, rate, dt, low_wh);
-            let free = held + rate * dt;
+            out.below_low_s += time_below(held, self.rate_wh_s(p, load), dt, low_wh);
+            let (free, kept) = self.after(held, p, load, dt);
             if free < 0.0 {
                 out.unmet_wh += -free * self.discharge_efficiency;
             }
-            held = free.clamp(0.0, self.capacity_wh);
+            held = kept;
             out.min_wh = out.min_wh.min(held);
             out.charge_wh.push(held);
         }

@@ -178,12 +178,9 @@ impl Route {
 /// two of them the shortest chain of neighbouring facets, whatever their slope; then a
 /// wait until the next one's departure quantum, when it has one.
 pub fn evaluate(model: &Model, waypoints: &[Waypoint], depart: u32) -> Result<Route, String> {
-    let [first, rest @ ..] = waypoints else {
+    let Some((first, rest)) = waypoints.split_first().filter(|(_, rest)| !rest.is_empty()) else {
         return Err("give at least two waypoints".into());
     };
-    if rest.is_empty() {
-        return Err("give at least two waypoints".into());
-    }
     // Runs of one action: a long wait is one entry, not one per quantum.
     let mut runs: Vec<(Action, u32)> = Vec::new();
     let mut quantum = depart;

@@ -472,10 +472,8 @@ type Built = (World, Box<dyn Ephemeris>, Light);
 
 /// What a scene says of its light beyond the geometry.
 struct Light {
-    /// The Sun as a disk (with its limb darkening), or `None` for a point.
-    disk: Option<SolarDisk>,
-    /// The scene's shadow settings: its Sun's shape and samples, for other bodies'
-    /// shadows on panels.
+    /// The scene's shadow settings: its Sun's shape (and the disk's limb darkening) and
+    /// samples, for panels and other bodies' shadows on them.
     shadows: Shadows,
     /// Every facet's albedo (global ids) when the scene scatters light: the terrain then
     /// lights panels too.
@@ -484,10 +482,8 @@ struct Light {
 
 impl Light {
     fn of(scene: &crate::scene::Scene, world: &World) -> crate::Result<Light> {
-        let shadows = scene.shadows();
         Ok(Light {
-            disk: (shadows.sun == SunShape::Disk).then_some(shadows.disk),
-            shadows: shadows.clone(),
+            shadows: scene.shadows(),
             albedo: crate::scatter::albedo::facet_albedo(scene, world)?,
         })
     }
@@ -532,7 +528,7 @@ impl<'w> Engine<'w> {
             direct: Direct::with_tracers(world, tracers(), &Shadows::default()),
             beyond: Direct::with_tracers(world, tracers(), &light.shadows),
             bvhs,
-            disk: light.disk,
+            disk: (light.shadows.sun == SunShape::Disk).then_some(light.shadows.disk),
             albedo: light.albedo,
             states: RefCell::new(vec![None; ephemeris.steps()]),
             horizons: RefCell::new(HashMap::new()),
@@ -1124,7 +1120,6 @@ spin_period_h = 12.0
         let sunview = Direct::new(&world, TracerKind::Sunview);
         let bvhs = body_trees(&world);
         let light = Light {
-            disk: None,
             shadows: Shadows::default(),
             albedo: None,
         };

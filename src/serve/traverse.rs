@@ -290,10 +290,8 @@ pub fn answer(
             (route, 0)
         }
     };
-    let mut answer = feature(&name, &terrain, &light, route, labels, request.to.is_some());
-    answer.properties.light_s = light_s;
-    answer.properties.search_s = clock.elapsed().as_secs_f64();
-    Ok(answer)
+    let times_s = (light_s, clock.elapsed().as_secs_f64());
+    Ok(feature(&name, &terrain, &light, (route, labels), times_s))
 }
 
 /// Body `b`'s angular velocity (rad/s, body frame) from its poses at `step` and the
@@ -511,14 +509,15 @@ fn waypoints(model: &Model, stops: &[Stop], facets: &[u32]) -> ApiResult<Vec<Way
         .collect()
 }
 
-/// The route as a GeoJSON Feature.
+/// The route (with the labels its plan took: at least one; 0 for an evaluation) as a
+/// GeoJSON Feature,
+/// with the seconds spent on the light and on the search.
 fn feature(
     body: &str,
     terrain: &Terrain,
     light: &Light,
-    route: Route,
-    labels: usize,
-    planned: bool,
+    (route, labels): (Route, usize),
+    (light_s, search_s): (f64, f64),
 ) -> RouteAnswer {
     let coordinates = route
         .facets
@@ -537,15 +536,15 @@ fn feature(
         },
         properties: RouteProperties {
             body: body.to_string(),
-            mode: if planned { "plan" } else { "evaluate" },
+            mode: if labels > 0 { "plan" } else { "evaluate" },
             arrive_utc: route.arrive_tdb_s.iter().map(|&t| utc_text(t)).collect(),
             cost_total: route.cost.total(),
             route,
             first_step: light.first_step,
             steps: light.steps(),
             labels,
-            light_s: 0.0,
-            search_s: 0.0,
+            light_s,
+            search_s,
         },
     }
 }
