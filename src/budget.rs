@@ -162,9 +162,9 @@ const BASE_BYTES: f64 = 16.0 * 1024.0 * 1024.0;
 /// SPICE kernels are held in memory as read and once more as parsed.
 const KERNEL_COPIES: f64 = 2.0;
 
-/// Bytes per facet of one set of statistics besides its CDF counts (min, max, mean,
-/// second moment, lit steps), and per CDF count.
-const MOMENT_BYTES: f64 = 56.0;
+/// Bytes per facet of one set of statistics besides its CDF counts (min, max, exact
+/// sums, lit steps, darkness runs), and per CDF count.
+const MOMENT_BYTES: f64 = crate::stats::MOMENT_BYTES as f64;
 const CDF_COUNT_BYTES: f64 = 4.0;
 
 /// The rows the CDF table is written in at a time (see [`crate::output`]), and its bytes
@@ -340,7 +340,7 @@ mod tests {
             .items
             .into_iter()
             .find(|i| i.what == "statistics");
-        let expected = 63_000.0 * (56.0 + 4.0 * 14_001.0);
+        let expected = 63_000.0 * (MOMENT_BYTES + 4.0 * 14_001.0);
         assert_eq!(stats.unwrap().bytes, expected as u64);
     }
 

@@ -5,11 +5,25 @@
 //! (share of steps with E > 0) and the cumulative distribution F_k(x_b) = share of steps
 //! with E ≤ x_b at thresholds x_b = b·w, b = 0 … B (SLIM paper eq. 14).
 //!
-//! Memory is O(facets × bins), never O(facets × steps). Mean and variance use Welford's
-//! update; two partial results over disjoint time ranges merge with the pairwise formula
-//! of Chan, Golub & LeVeque (1979), so a run split in pieces and merged equals one run
-//! (min, max, counts exactly; mean and std to rounding). Each facet is updated in step
-//! order by one thread, so results do not depend on the number of threads.
+//! Memory is O(facets × bins), never O(facets × steps).
+//!
+//! **Exact merging.** Every statistic is kept as something whose merge is exact and
+//! associative, so that a run split into parts in time or by facet and merged in any
+//! order gives bit-identical results to one run (the shards of issue 20 rely on it):
+//! - min and max are f64 (min and max round nothing);
+//! - counts (lit steps, CDF counts, darkness runs) are integers;
+//! - mean and variance come from **exact integer sums** Σq and Σq² of each value in fixed
+//!   point, q = ⌊E / u⌋ (truncated toward zero) with the unit u = 2^k chosen from the
+//!   bins (the run's largest flux): values up to 256 times the last threshold fit in 63
+//!   bits, and u is about 10⁻¹⁶ of that flux (2⁻⁴³ W/m² at 1,361 W/m²). Σq is an `i128`
+//!   and Σq² a 192-bit integer, which cannot overflow before 2⁶⁴ steps. Mean and variance
+//!   are then computed once, from n, Σq and the exact integer n·Σq² − (Σq)². Their only
+//!   errors are the truncation (below u per value, far below any f64 rounding of a
+//!   running mean) and one final rounding, so they are more accurate than Welford's
+//!   running update, not less. Values beyond 256 times the last threshold saturate.
+//!
+//! Each facet is updated in step order by one thread, so results do not depend on the
+//! number of threads.
 
 use rayon::prelude::*;
 
@@ -46,13 +60,14 @@ impl Bins {
     }
 }
 
-/// Running moments of one facet.
+/// Running statistics of one facet.
 #[derive(Debug, Clone, Copy, PartialEq)]
 struct Moments {
     min: f64,
     max: f64,
-    mean: f64,
-    m2: f64,
+    /// Σq and Σq² of the values in fixed point (see the module doc).
+    sum: i128,
+    squares: Wide,
     lit: u64,
     /// Runs of dark steps (E ≤ 0): from the first step on, up to the last step, and the
     /// longest anywhere. Consecutive time ranges merge exactly: the longest run is the
@@ -65,13 +80,82 @@ struct Moments {
 const EMPTY: Moments = Moments {
     min: f64::INFINITY,
     max: f64::NEG_INFINITY,
-    mean: 0.0,
-    m2: 0.0,
+    sum: 0,
+    squares: Wide { low: 0, high: 0 },
     lit: 0,
     dark_leading: 0,
     dark_trailing: 0,
     dark_longest: 0,
 };
+
+/// Bytes of one facet's statistics besides its CDF counts (for memory estimates).
+pub const MOMENT_BYTES: usize = std::mem::size_of::<Moments>();
+
+/// A 192-bit unsigned integer, `high·2¹²⁸ + low`: a sum of squares of 63-bit values.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+struct Wide {
+    low: u128,
+    high: u64,
+}
+
+impl Wide {
+    fn add(&mut self, low: u128, high: u64) {
+        let (sum, carry) = self.low.overflowing_add(low);
+        self.low = sum;
+        self.high = self.high.wrapping_add(high).wrapping_add(carry as u64);
+    }
+
+    /// `self · n` as four 64-bit limbs, least significant first.
+    fn times(&self, n: u64) -> [u64; 4] {
+        let limbs = [self.low as u64, (self.low >> 64) as u64, self.high];
+        let mut out = [0u64; 4];
+        let mut carry = 0u128;
+        for (o, &l) in out.iter_mut().zip(&limbs) {
+            let p = l as u128 * n as u128 + carry;
+            *o = p as u64;
+            carry = p >> 64;
+        }
+        out[3] = carry as u64;
+        out
+    }
+}
+
+/// `a²` of a 128-bit magnitude as four 64-bit limbs, least significant first.
+fn square(a: u128) -> [u64; 4] {
+    let (lo, hi) = (a as u64 as u128, a >> 64);
+    let (ll, lh, hh) = (lo * lo, lo * hi, hi * hi);
+    // a² = hh·2¹²⁸ + 2·lh·2⁶⁴ + ll, added limb by limb with carries.
+    let mut out = [0u64; 4];
+    let terms: [(u128, usize); 4] = [(ll, 0), (lh, 1), (lh, 1), (hh, 2)];
+    for (value, at) in terms {
+        let mut carry = 0u128;
+        for (k, part) in [value as u64, (value >> 64) as u64, 0, 0]
+            .into_iter()
+            .enumerate()
+        {
+            let Some(o) = out.get_mut(at + k) else { break };
+            let s = *o as u128 + part as u128 + carry;
+            *o = s as u64;
+            carry = s >> 64;
+        }
+    }
+    out
+}
+
+/// `a − b` of two four-limb integers with `a ≥ b`, as an f64 (rounded).
+fn difference_as_f64(a: [u64; 4], b: [u64; 4]) -> f64 {
+    let mut borrow = 0u128;
+    let mut limbs = [0u64; 4];
+    for k in 0..4 {
+        let d = (a[k] as u128).wrapping_sub(b[k] as u128 + borrow);
+        limbs[k] = d as u64;
+        borrow = (d >> 127) & 1;
+    }
+    limbs
+        .iter()
+        .rev()
+        .fold(0.0, |acc, &l| acc * 18_446_744_073_709_551_616.0 + l as f64)
+}
 
 /// The facets whose statistics a run keeps (those of the bodies that get outputs), as
 /// ranges of global facet ids in order.
@@ -123,10 +207,26 @@ impl Selection {
 #[derive(Debug, Clone, PartialEq)]
 pub struct FacetStats {
     bins: Bins,
+    /// The fixed-point unit u of the exact sums, W/m² (a power of two; module doc).
+    unit: f64,
     steps: u64,
     moments: Vec<Moments>,
     /// `hist[i·bins + b]`: steps with x_{b−1} < E ≤ x_b (b = 0: E ≤ 0).
     hist: Vec<u32>,
+}
+
+/// The fixed-point unit for `bins`: the power of two with which 256 times the last
+/// threshold (or the width, when there is one threshold) fits in 63 bits.
+fn unit_for(bins: Bins) -> f64 {
+    let top = bins
+        .threshold(bins.count.saturating_sub(1))
+        .max(bins.width_w_m2);
+    let top = if top.is_finite() && top > 0.0 {
+        top
+    } else {
+        1.0
+    };
+    2f64.powi((256.0 * top).log2().ceil() as i32 - 63)
 }
 
 impl FacetStats {
@@ -134,6 +234,7 @@ impl FacetStats {
     pub fn new(facets: usize, bins: Bins) -> FacetStats {
         FacetStats {
             bins,
+            unit: unit_for(bins),
             steps: 0,
             moments: vec![EMPTY; facets],
             hist: vec![0; facets * bins.count],
@@ -145,8 +246,7 @@ impl FacetStats {
         assert_eq!(irradiance.len(), self.moments.len(), "one value per facet");
         let before = self.steps;
         self.steps += 1;
-        let n = self.steps as f64;
-        let bins = self.bins;
+        let (bins, per_unit) = (self.bins, 1.0 / self.unit);
         self.moments
             .par_iter_mut()
             .zip(self.hist.par_chunks_mut(bins.count))
@@ -154,9 +254,12 @@ impl FacetStats {
             .for_each(|((m, h), &e)| {
                 m.min = m.min.min(e);
                 m.max = m.max.max(e);
-                let delta = e - m.mean;
-                m.mean += delta / n;
-                m.m2 += delta * (e - m.mean);
+                // Truncation toward zero (and saturation) by `as`: a unit is ~1e-16 of
+                // the flux, so rounding to nearest would buy nothing but a libm call.
+                let q = (e * per_unit) as i64;
+                m.sum += q as i128;
+                m.squares
+                    .add(q.unsigned_abs() as u128 * q.unsigned_abs() as u128, 0);
                 if e > 0.0 {
                     m.lit += 1;
                     m.dark_trailing = 0;
@@ -172,7 +275,8 @@ impl FacetStats {
     }
 
     /// Merges statistics of the same facets and bins over the time range that follows
-    /// this one's (darkness runs need the order; every other statistic does not).
+    /// this one's (darkness runs need the order; every other statistic does not). Exact:
+    /// the result is bit-identical to one pass over both ranges.
     pub fn merge(&mut self, other: &FacetStats) {
         assert_eq!(self.bins, other.bins, "merging needs equal bins");
         assert_eq!(
@@ -180,17 +284,14 @@ impl FacetStats {
             other.moments.len(),
             "merging needs equal facets"
         );
-        let (na, nb) = (self.steps as f64, other.steps as f64);
-        let n = na + nb;
         if other.steps == 0 {
             return;
         }
         for (a, b) in self.moments.iter_mut().zip(&other.moments) {
-            let delta = b.mean - a.mean;
             a.min = a.min.min(b.min);
             a.max = a.max.max(b.max);
-            a.mean += delta * nb / n;
-            a.m2 += b.m2 + delta * delta * na * nb / n;
+            a.sum += b.sum;
+            a.squares.add(b.squares.low, b.squares.high);
             a.lit += b.lit;
             let a_dark_throughout = a.dark_leading as u64 == self.steps;
             let b_dark_throughout = b.dark_leading as u64 == other.steps;
@@ -211,6 +312,20 @@ impl FacetStats {
             *a += b;
         }
         self.steps += other.steps;
+    }
+
+    /// Appends the facets of `other`, statistics over the same steps and bins of the
+    /// facets that follow this one's (a run split by facet).
+    pub fn append(&mut self, other: FacetStats) -> Result<(), String> {
+        if self.bins != other.bins || self.steps != other.steps {
+            return Err(format!(
+                "facet parts differ: {} steps and {:?} against {} steps and {:?}",
+                self.steps, self.bins, other.steps, other.bins
+            ));
+        }
+        self.moments.extend(other.moments);
+        self.hist.extend(other.hist);
+        Ok(())
     }
 
     /// Number of facets.
@@ -240,12 +355,16 @@ impl FacetStats {
 
     /// Time-mean irradiance of facet i, W/m².
     pub fn mean(&self, i: usize) -> f64 {
-        self.moments[i].mean
+        self.moments[i].sum as f64 / self.steps as f64 * self.unit
     }
 
-    /// Standard deviation over time of facet i's irradiance, W/m².
+    /// Standard deviation over time of facet i's irradiance, W/m²: from the exact
+    /// integer n·Σq² − (Σq)² (module doc), rounded once.
     pub fn std(&self, i: usize) -> f64 {
-        (self.moments[i].m2.max(0.0) / self.steps as f64).sqrt()
+        let m = &self.moments[i];
+        let n = self.steps as f64;
+        let spread = difference_as_f64(m.squares.times(self.steps), square(m.sum.unsigned_abs()));
+        (spread / (n * n)).sqrt() * self.unit
     }
 
     /// Share of steps in which facet i was lit (E > 0).
@@ -302,16 +421,112 @@ mod tests {
         data[..40].iter().for_each(|e| first.add_step(e));
         data[40..].iter().for_each(|e| second.add_step(e));
         first.merge(&second);
-        assert_eq!(first.steps(), whole.steps());
-        for i in 0..17 {
-            assert_eq!(first.min(i), whole.min(i));
-            assert_eq!(first.max(i), whole.max(i));
-            assert_eq!(first.lit_fraction(i), whole.lit_fraction(i));
-            assert_eq!(first.longest_dark_steps(i), whole.longest_dark_steps(i));
-            assert_eq!(first.histogram(i), whole.histogram(i));
-            assert!((first.mean(i) - whole.mean(i)).abs() <= 1e-12 * whole.mean(i).abs().max(1.0));
-            assert!((first.std(i) - whole.std(i)).abs() <= 1e-12 * whole.std(i).abs().max(1.0));
+        assert_eq!(first, whole);
+    }
+
+    /// A small deterministic generator (xorshift), so the test needs no crate.
+    fn random(state: &mut u64) -> u64 {
+        *state ^= *state << 13;
+        *state ^= *state >> 7;
+        *state ^= *state << 17;
+        *state
+    }
+
+    #[test]
+    fn any_partition_merged_in_any_tree_is_bit_identical_to_one_pass() {
+        let bins = Bins::covering(25.0, 1400.0);
+        let mut seed = 0x9e37_79b9_7f4a_7c15;
+        // Values with every magnitude from 1e-9 to the flux, zeros and exact thresholds.
+        let data: Vec<Vec<f64>> = (0..257)
+            .map(|_| {
+                (0..9)
+                    .map(|_| match random(&mut seed) % 5 {
+                        0 => 0.0,
+                        1 => 25.0 * (random(&mut seed) % 57) as f64,
+                        _ => {
+                            1400.0 * (random(&mut seed) >> 11) as f64
+                                / (1u64 << 53) as f64
+                                / 10f64.powi((random(&mut seed) % 12) as i32)
+                        }
+                    })
+                    .collect()
+            })
+            .collect();
+        let mut whole = FacetStats::new(9, bins);
+        data.iter().for_each(|e| whole.add_step(e));
+        for trial in 0..40 {
+            // Cut the steps at random points into 1 to 20 parts.
+            let parts = 1 + random(&mut seed) as usize % 20;
+            let mut cuts: Vec<usize> = (1..parts)
+                .map(|_| random(&mut seed) as usize % data.len())
+                .collect();
+            cuts.extend([0, data.len()]);
+            cuts.sort_unstable();
+            let mut pieces: Vec<FacetStats> = cuts
+                .windows(2)
+                .map(|w| {
+                    let mut p = FacetStats::new(9, bins);
+                    data[w[0]..w[1]].iter().for_each(|e| p.add_step(e));
+                    p
+                })
+                .collect();
+            // Merge neighbours chosen at random until one is left: every tree shape.
+            while pieces.len() > 1 {
+                let k = random(&mut seed) as usize % (pieces.len() - 1);
+                let right = pieces.remove(k + 1);
+                pieces[k].merge(&right);
+            }
+            assert_eq!(pieces[0], whole, "trial {trial}, {parts} parts");
         }
+    }
+
+    #[test]
+    fn facet_parts_appended_equal_one_pass() {
+        let bins = Bins::covering(10.0, 200.0);
+        let data = series(17, 50);
+        let mut whole = FacetStats::new(17, bins);
+        data.iter().for_each(|e| whole.add_step(e));
+        let mut left = FacetStats::new(5, bins);
+        let mut right = FacetStats::new(12, bins);
+        for e in &data {
+            left.add_step(&e[..5]);
+            right.add_step(&e[5..]);
+        }
+        left.append(right).unwrap();
+        assert_eq!(left, whole);
+        let short = FacetStats::new(3, bins);
+        assert!(left.append(short).unwrap_err().contains("50 steps"));
+    }
+
+    #[test]
+    fn a_constant_flux_has_its_exact_mean_and_no_spread() {
+        // Welford's running mean of a constant is exact too, but its m2 need not be 0 on
+        // values that are not representable sums; the exact sums give 0 and the value.
+        let bins = Bins::covering(1.0, 1361.0);
+        let mut s = FacetStats::new(1, bins);
+        let e = 1361.0 / 3.0;
+        for _ in 0..10_007 {
+            s.add_step(&[e]);
+        }
+        assert_eq!(s.std(0), 0.0);
+        assert!((s.mean(0) - e).abs() <= 1e-13 * e, "{}", s.mean(0) - e);
+    }
+
+    #[test]
+    fn a_large_mean_with_a_tiny_spread_keeps_the_spread() {
+        // 1000 ± 1e-6 W/m²: the std is 1e-6 exactly (half the steps each way); a
+        // one-pass Σx² − (Σx)²/n in f64 would lose it to cancellation (ε·1000² ≫ 1e-12).
+        let bins = Bins::covering(1.0, 1361.0);
+        let mut s = FacetStats::new(1, bins);
+        for t in 0..1000 {
+            s.add_step(&[if t % 2 == 0 {
+                1000.0 + 1e-6
+            } else {
+                1000.0 - 1e-6
+            }]);
+        }
+        assert!((s.std(0) - 1e-6).abs() <= 1e-9, "{}", s.std(0));
+        assert!((s.mean(0) - 1000.0).abs() <= 1e-12);
     }
 
     /// The longest run of dark steps, counted by a plain scan.
