@@ -44,18 +44,19 @@ pub struct Bands {
 }
 
 impl Bands {
-    /// The scene's bands, or `None` when it has no `[[band]]`.
+    /// The scene's bands, or `None` when it has no `[[band]]`, keeping statistics of the
+    /// facets `kept`.
     pub fn from_scene(
         scene: &Scene,
         world: &World,
         scatter: Option<&Settings>,
         bins: Bins,
+        kept: Selection,
     ) -> Result<Option<Bands>> {
         if scene.bands.is_empty() {
             return Ok(None);
         }
         let n = world.facet_count();
-        let kept = Selection::new(world.output_ranges(), n);
         let total_flux = scene.solar_constant_w_m2();
         let bands = scene
             .bands

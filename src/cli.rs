@@ -35,10 +35,12 @@ use slim::report::colormap::Colormap;
 use slim::report::select::{FacetRef, LatLon};
 #[cfg(feature = "report")]
 use slim::report::{write_report, ReportOptions};
-use slim::run::run_scene;
+use slim::run::{run_scene, run_shard};
 use slim::scene::Scene;
 #[cfg(feature = "serve")]
 use slim::serve::{self, limits::Limits};
+use slim::shard::merge::merge;
+use slim::shard::Shard;
 #[cfg(feature = "imaging")]
 use std::fmt::Write as _;
 use std::io::Write as _;
@@ -79,6 +81,38 @@ enum Command {
         #[cfg(feature = "report")]
         #[arg(long)]
         report: bool,
+        /// Run only part K of N (e.g. 3/8) and write its partial state into the output
+        /// folder, for `slim merge` (docs/shards.md).
+        #[arg(long, value_name = "K/N")]
+        shard: Option<String>,
+        /// What the parts split: consecutive steps, or consecutive facets.
+        #[arg(
+            long,
+            value_name = "time|facets",
+            default_value = "time",
+            requires = "shard"
+        )]
+        by: slim::shard::By,
+    },
+    /// Merge the part folders of a run (`slim run --shard K/N`) into the files of one run,
+    /// byte-identical to a single `slim run` (docs/shards.md).
+    Merge {
+        /// The part folders, in any order.
+        #[arg(required = true)]
+        parts: Vec<PathBuf>,
+        /// Output folder.
+        #[arg(short, long)]
+        output: PathBuf,
+        /// The scene file, when it has moved since the parts ran (same content).
+        #[arg(long)]
+        scene: Option<PathBuf>,
+        /// Most memory the merge may hold (e.g. 8G; default: three quarters of this
+        /// machine's).
+        #[arg(long, value_name = "SIZE", value_parser = size)]
+        max_memory: Option<u64>,
+        /// Print nothing but errors.
+        #[arg(short, long)]
+        quiet: bool,
     },
     /// Draw a finished run's figures and its self-contained index.html.
     #[cfg(feature = "report")]
@@ -545,6 +579,15 @@ fn budget_of(max_memory: Option<u64>) -> Budget {
     }
 }
 
+/// `results/NAME`, or `results/NAME/parts/K` for part K.
+fn default_output(scene: &Scene, shard: Option<Shard>) -> PathBuf {
+    let run = PathBuf::from("results").join(&scene.name);
+    match shard {
+        Some(s) => run.join("parts").join(s.index.to_string()),
+        None => run,
+    }
+}
+
 fn execute(cli: Cli) -> Result<()> {
     match cli.command {
         Command::Run {
@@ -555,15 +598,24 @@ fn execute(cli: Cli) -> Result<()> {
             quiet,
             #[cfg(feature = "report")]
             report,
+            shard,
+            by,
         } => {
             if let Some(n) = threads {
                 set_threads(n)?;
             }
+            let shard = shard
+                .map(|text| Shard::parse(&text, by))
+                .transpose()
+                .map_err(|e| Error::Usage(format!("--shard: {e}")))?;
             let scene = Scene::load(&scene)?;
-            let out = output.unwrap_or_else(|| PathBuf::from("results").join(&scene.name));
+            let out = output.unwrap_or_else(|| default_output(&scene, shard));
             let progress = TerminalProgress::new(quiet);
             let budget = budget_of(max_memory);
-            let record = run_scene(&scene, &out, &budget, &progress)?;
+            let record = match shard {
+                Some(part) => run_shard(&scene, &out, &budget, part, &progress)?,
+                None => run_scene(&scene, &out, &budget, &progress)?,
+            };
             if !quiet {
                 eprintln!(
                     "wrote {} files to {} ({} facets, {} steps, {} shadow rays)",
@@ -575,11 +627,31 @@ fn execute(cli: Cli) -> Result<()> {
                 );
             }
             #[cfg(feature = "report")]
-            if report {
+            if report && shard.is_none() {
                 let written = write_report(&out, None, &ReportOptions::default())?;
                 if !quiet {
                     eprintln!("wrote the report to {}", written.index.display());
                 }
+            }
+            Ok(())
+        }
+        Command::Merge {
+            parts,
+            output,
+            scene,
+            max_memory,
+            quiet,
+        } => {
+            let progress = TerminalProgress::new(quiet);
+            let budget = budget_of(max_memory);
+            let record = merge(&parts, &output, scene.as_deref(), &budget, &progress)?;
+            if !quiet {
+                eprintln!(
+                    "merged {} parts into {} files in {}",
+                    parts.len(),
+                    record.outputs.len(),
+                    output.display()
+                );
             }
             Ok(())
         }

@@ -96,6 +96,7 @@ pub mod scatter;
 pub mod scene;
 #[cfg(feature = "serve")]
 pub mod serve;
+pub mod shard;
 pub mod sight;
 pub mod simulate;
 pub mod stats;

@@ -34,6 +34,26 @@ pub struct Options<'a> {
     pub scatter: Option<ScatterSettings>,
     /// Spectral bands, which accumulate their own statistics (none: one broad band).
     pub bands: Option<&'a mut Bands>,
+    /// The part of the run to compute (a shard's), everything by default.
+    pub slice: Slice,
+}
+
+/// The part of a run a shard computes: a range of the steps and a range of the facets
+/// that get statistics (counted in [`World::output_ranges`] order). Every facet is still
+/// lit and traced against the whole world; only statistics and history are kept for the
+/// range. `None`: all of them.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Slice {
+    pub steps: Option<std::ops::Range<usize>>,
+    pub facets: Option<std::ops::Range<usize>>,
+}
+
+impl Slice {
+    /// The facets statistics are kept for: the bodies that get outputs, within the
+    /// slice's facet range.
+    pub fn kept(&self, world: &World) -> Selection {
+        Selection::new(world.output_ranges(), world.facet_count()).within(self.facets.clone())
+    }
 }
 
 impl Options<'_> {
@@ -46,6 +66,7 @@ impl Options<'_> {
             horizon_maps: Vec::new(),
             scatter: None,
             bands: None,
+            slice: Slice::default(),
         }
     }
 }
@@ -100,7 +121,11 @@ pub fn simulate(
         horizon_maps,
         scatter,
         mut bands,
+        slice,
     } = options;
+    // A time shard starts where one run would stand after the steps before it.
+    let (earlier, states) = states.split_at(slice.steps.as_ref().map_or(0, |r| r.start));
+    let states = &states[..slice.steps.as_ref().map_or(states.len(), |r| r.len())];
     let (maps, records) = timings.time("horizon maps", || {
         obtain_maps(world, &shadows, &horizon_maps, progress)
     })?;
@@ -120,11 +145,13 @@ pub fn simulate(
     let mut scatter = scatter.map(|settings| {
         timings.time("form factors", || {
             let first = settings.first_bounce.scatterer();
-            Scatter::new(world, settings, first)
+            let mut stage = Scatter::new(world, settings, first);
+            stage.prime(earlier);
+            stage
         })
     });
     let n = world.facet_count();
-    let kept = Selection::new(world.output_ranges(), n);
+    let kept = slice.kept(world);
     let with_planets = scatter.as_ref().is_some_and(Scatter::has_planets);
     let mut acc = Accumulators::new(kept, bins, scatter.is_some(), with_planets);
     let mut shines: Vec<Vec<f64>> = Vec::new();

@@ -91,6 +91,9 @@ const EMPTY: Moments = Moments {
 /// Bytes of one facet's statistics besides its CDF counts (for memory estimates).
 pub const MOMENT_BYTES: usize = std::mem::size_of::<Moments>();
 
+/// Bytes of one facet's moments in [`FacetStats::write_to`].
+const ENCODED_MOMENT_BYTES: usize = 8 + 8 + 16 + 16 + 8 + 8 + 3 * 4;
+
 /// A 192-bit unsigned integer, `high·2¹²⁸ + low`: a sum of squares of 63-bit values.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 struct Wide {
@@ -157,13 +160,15 @@ fn difference_as_f64(a: [u64; 4], b: [u64; 4]) -> f64 {
         .fold(0.0, |acc, &l| acc * 18_446_744_073_709_551_616.0 + l as f64)
 }
 
-/// The facets whose statistics a run keeps (those of the bodies that get outputs), as
-/// ranges of global facet ids in order.
+/// The facets whose statistics a run keeps (those of the bodies that get outputs, or a
+/// shard's part of them), as ranges of global facet ids in order.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Selection {
     /// `None`: every facet.
     ranges: Option<Vec<std::ops::Range<usize>>>,
     count: usize,
+    /// Facets in all.
+    facets: usize,
 }
 
 impl Selection {
@@ -173,6 +178,7 @@ impl Selection {
         Selection {
             ranges: (count < facets).then_some(ranges),
             count,
+            facets,
         }
     }
 
@@ -181,7 +187,25 @@ impl Selection {
         Selection {
             ranges: None,
             count: facets,
+            facets,
         }
+    }
+
+    /// The selected facets numbered `range` among the selected (all for `None`).
+    pub fn within(self, range: Option<std::ops::Range<usize>>) -> Selection {
+        let Some(range) = range else { return self };
+        let ranges = self.ranges.unwrap_or_else(|| vec![0..self.facets]);
+        let mut before = 0;
+        let mut picked = Vec::new();
+        for r in ranges {
+            let from = range.start.saturating_sub(before).min(r.len());
+            let to = range.end.saturating_sub(before).min(r.len());
+            if from < to {
+                picked.push(r.start + from..r.start + to);
+            }
+            before += r.len();
+        }
+        Selection::new(picked, self.facets)
     }
 
     /// Number of selected facets.
@@ -326,6 +350,79 @@ impl FacetStats {
         self.moments.extend(other.moments);
         self.hist.extend(other.hist);
         Ok(())
+    }
+
+    /// Bytes [`FacetStats::write_to`] writes per facet with `bins`.
+    pub fn encoded_bytes_per_facet(bins: Bins) -> usize {
+        ENCODED_MOMENT_BYTES + 4 * bins.count
+    }
+
+    /// Writes the exact state, little-endian: per facet its moments (min, max: f64; Σq:
+    /// i128; Σq²: u128 low, u64 high; lit: u64; darkness leading, trailing, longest: u32),
+    /// then per facet its CDF counts (u32 each). Steps, bins and facets are the caller's
+    /// to record ([`FacetStats::read_from`] needs them).
+    pub fn write_to(&self, out: &mut impl std::io::Write) -> std::io::Result<()> {
+        for m in &self.moments {
+            out.write_all(&m.min.to_le_bytes())?;
+            out.write_all(&m.max.to_le_bytes())?;
+            out.write_all(&m.sum.to_le_bytes())?;
+            out.write_all(&m.squares.low.to_le_bytes())?;
+            out.write_all(&m.squares.high.to_le_bytes())?;
+            out.write_all(&m.lit.to_le_bytes())?;
+            for run in [m.dark_leading, m.dark_trailing, m.dark_longest] {
+                out.write_all(&run.to_le_bytes())?;
+            }
+        }
+        for count in &self.hist {
+            out.write_all(&count.to_le_bytes())?;
+        }
+        Ok(())
+    }
+
+    /// Reads what [`FacetStats::write_to`] wrote for `facets` facets over `steps` steps.
+    pub fn read_from(
+        input: &mut impl std::io::Read,
+        facets: usize,
+        steps: u64,
+        bins: Bins,
+    ) -> std::io::Result<FacetStats> {
+        let mut stats = FacetStats::new(0, bins);
+        stats.steps = steps;
+        stats.moments.reserve_exact(facets);
+        let mut record = [0u8; ENCODED_MOMENT_BYTES];
+        for _ in 0..facets {
+            input.read_exact(&mut record)?;
+            let mut at = 0;
+            let mut take = |n: usize| {
+                at += n;
+                &record[at - n..at]
+            };
+            let u32_at = |b: &[u8]| u32::from_le_bytes(b.try_into().expect("4 bytes"));
+            stats.moments.push(Moments {
+                min: f64::from_le_bytes(take(8).try_into().expect("8 bytes")),
+                max: f64::from_le_bytes(take(8).try_into().expect("8 bytes")),
+                sum: i128::from_le_bytes(take(16).try_into().expect("16 bytes")),
+                squares: Wide {
+                    low: u128::from_le_bytes(take(16).try_into().expect("16 bytes")),
+                    high: u64::from_le_bytes(take(8).try_into().expect("8 bytes")),
+                },
+                lit: u64::from_le_bytes(take(8).try_into().expect("8 bytes")),
+                dark_leading: u32_at(take(4)),
+                dark_trailing: u32_at(take(4)),
+                dark_longest: u32_at(take(4)),
+            });
+        }
+        let mut counts = vec![0u8; 4 * bins.count];
+        stats.hist.reserve_exact(facets * bins.count);
+        for _ in 0..facets {
+            input.read_exact(&mut counts)?;
+            stats.hist.extend(
+                counts
+                    .chunks_exact(4)
+                    .map(|c| u32::from_le_bytes(c.try_into().expect("4 bytes"))),
+            );
+        }
+        Ok(stats)
     }
 
     /// Number of facets.
@@ -478,6 +575,33 @@ mod tests {
             }
             assert_eq!(pieces[0], whole, "trial {trial}, {parts} parts");
         }
+    }
+
+    #[test]
+    fn the_state_reads_back_as_written() {
+        let bins = Bins::covering(10.0, 200.0);
+        let mut s = FacetStats::new(17, bins);
+        series(17, 33).iter().for_each(|e| s.add_step(e));
+        let mut bytes = Vec::new();
+        s.write_to(&mut bytes).unwrap();
+        assert_eq!(bytes.len(), 17 * FacetStats::encoded_bytes_per_facet(bins));
+        let back = FacetStats::read_from(&mut bytes.as_slice(), 17, 33, bins).unwrap();
+        assert_eq!(back, s);
+        assert!(FacetStats::read_from(&mut &bytes[..bytes.len() - 1], 17, 33, bins).is_err());
+    }
+
+    #[test]
+    fn a_selection_within_a_range_counts_among_the_selected() {
+        // Bodies of 4, 3 (no outputs) and 5 facets: kept ids 0..4 and 7..12.
+        let kept = Selection::new(vec![0..4, 7..12], 12);
+        let values: Vec<f64> = (0..12).map(f64::from).collect();
+        let mut buffer = Vec::new();
+        let part = kept.clone().within(Some(2..6));
+        assert_eq!(part.count(), 4);
+        assert_eq!(part.pick(&values, &mut buffer), &[2.0, 3.0, 7.0, 8.0]);
+        let all = Selection::all(12).within(Some(0..12));
+        assert_eq!(all.pick(&values, &mut buffer).len(), 12);
+        assert_eq!(kept.within(None).count(), 9);
     }
 
     #[test]

@@ -64,6 +64,12 @@ pub struct RunRecord {
     pub warnings: Vec<String>,
     /// Files written, by name, in the output folder (`run.json` last).
     pub outputs: Vec<String>,
+    /// In a part folder: which part of which run it holds (`slim run --shard`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub shard: Option<crate::shard::ShardRecord>,
+    /// In a merged folder: how many parts, split by what (`slim merge`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub merged_from: Option<crate::shard::merge::Merged>,
 }
 
 /// SHA-256 of a byte string, hex.

@@ -111,6 +111,7 @@ impl Light {
             horizon_maps,
             scatter,
             bands: None,
+            slice: Default::default(),
         };
         let mut timings = Timings::default();
         simulate(world, states, options, &mut timings, progress, |_, e| {

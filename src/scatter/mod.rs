@@ -320,18 +320,29 @@ impl Settings {
         a: usize,
         b: usize,
     ) -> usize {
+        self.block_anchors(world, needed, a, b).len()
+    }
+
+    /// The steps among `needed` at which the block between bodies a and b is computed.
+    fn block_anchors<'s>(
+        &self,
+        world: &World,
+        needed: &[&'s EpochState],
+        a: usize,
+        b: usize,
+    ) -> Vec<&'s EpochState> {
         let sizes = PairSizes::new(world, &self.albedo, &world.offsets(), a, b);
         let mut cached: Option<FrameTransform> = None;
-        let mut computed = 0;
-        for state in needed {
+        let mut anchors = Vec::new();
+        for &state in needed {
             let pose = relative_pose(state, a, b);
             let keep = cached.map_or(Keep::No, |c| sizes.keeps(&c, &pose, self.inter_body_reuse));
             if keep == Keep::No {
                 cached = Some(pose);
-                computed += 1;
+                anchors.push(state);
             }
         }
-        computed
+        anchors
     }
 
     /// The form-factor entries the run will store, estimated before they are computed: for
@@ -622,6 +633,26 @@ impl ScatterRecord {
                 self.not_converged, self.solves, self.method, self.residual_max
             )
         })
+    }
+
+    /// Adds the record of the steps that follow this one's (a later time part of the
+    /// same run): counts add up, maxima are the larger, the method is the later one's.
+    pub fn merge_later(&mut self, later: &ScatterRecord) {
+        self.solves += later.solves;
+        if later.solves > 0 {
+            self.method = later.method.clone();
+        }
+        self.iterations_total += later.iterations_total;
+        self.iterations_max = self.iterations_max.max(later.iterations_max);
+        self.residual_max = self.residual_max.max(later.residual_max);
+        self.not_converged += later.not_converged;
+        self.inter_body_computed += later.inter_body_computed;
+        self.inter_body_reused += later.inter_body_reused;
+        self.inter_body_skipped += later.inter_body_skipped;
+        self.inter_body_kept += later.inter_body_kept;
+        self.inter_body_kept_bound = self.inter_body_kept_bound.max(later.inter_body_kept_bound);
+        self.planet_weights_built += later.planet_weights_built;
+        self.planet_weights_reused += later.planet_weights_reused;
     }
 
     fn add(&mut self, report: &SolveReport) {
@@ -924,6 +955,41 @@ impl<'w> Scatter<'w> {
         }
         reports.iter().for_each(|report| self.record.add(report));
         (reports, shine)
+    }
+
+    /// Puts the stage where a run from the first step stands after `earlier` (the steps
+    /// before a time shard's first): every inter-body block and planet weight that run
+    /// would hold is built at the step it would have been built at. Only the poses of the
+    /// earlier steps are looked at. A time shard then computes bit-identical light and
+    /// counts to one run's.
+    pub fn prime(&mut self, earlier: &[EpochState]) {
+        let world = self.world;
+        let n = world.bodies.len();
+        for a in 0..n {
+            for b in a + 1..n {
+                if self.settings.is_planet(a) || self.settings.is_planet(b) {
+                    continue;
+                }
+                let needed = self.settings.needed_steps(world, earlier, a, b);
+                if let Some(&state) = self.settings.block_anchors(world, &needed, a, b).last() {
+                    let pose = relative_pose(state, a, b);
+                    self.cache[a * n + b] = Some(self.inter_block(state, a, b, pose));
+                }
+            }
+        }
+        for shine in &mut self.planets {
+            for (r, body) in world.bodies.iter().enumerate() {
+                if self.settings.is_planet(r) {
+                    continue;
+                }
+                let receiver = Receiver {
+                    mesh: &body.mesh,
+                    bvh: &self.bvhs[r],
+                    bound: self.bounds[r].as_ref(),
+                };
+                shine.prime(earlier, r, &receiver);
+            }
+        }
     }
 
     /// The irradiance (W/m², global ids; empty without planets) every planet sends to

@@ -142,6 +142,24 @@ impl PlanetShine {
             });
     }
 
+    /// Builds receiver `r`'s weights where a run through `earlier` would hold them: at
+    /// the last of those steps at which [`PlanetShine::add`] would have rebuilt them. The
+    /// counts are left alone (a time shard's counts add up to one run's).
+    pub fn prime(&mut self, earlier: &[EpochState], r: usize, receiver: &Receiver) {
+        let to_receiver =
+            |s: &EpochState| s.bodies[self.planet].pose.relative_to(&s.bodies[r].pose);
+        let mut anchor: Option<(DVec3, &EpochState)> = None;
+        for state in earlier {
+            let centre = to_receiver(state).offset_m;
+            if anchor.is_none_or(|(built, _)| !self.close_enough(built, centre)) {
+                anchor = Some((centre, state));
+            }
+        }
+        if let Some((_, state)) = anchor {
+            self.kernels[r] = Some(self.build(receiver, &to_receiver(state)));
+        }
+    }
+
     /// Whether weights built with the planet at `built` still serve it at `now`.
     fn close_enough(&self, built: DVec3, now: DVec3) -> bool {
         let turn = built.angle_between(now);

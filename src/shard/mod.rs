@@ -1,0 +1,205 @@
+//! Shard: one part of a run, by time or by facet, and the exact merge of the parts.
+//!
+//! In: a scene and `K/N` (`slim run SCENE --shard K/N --by time|facets`). Out: a part
+//! folder holding
+//! - `part.bin`: the exact partial state of every statistic ([`part`] has the layout);
+//! - `part-history.bin`: its steps' irradiance, when the scene asks for history;
+//! - `run.json`, whose `shard` ([`ShardRecord`]) says which part it is and of what.
+//!
+//! [`merge`] checks that the parts come from the same scene and inputs and cover the run
+//! exactly once, then writes the files one `slim run` writes. They are **byte-identical**
+//! to one run's for any N and any split, because every statistic merges exactly
+//! ([`crate::stats`]: min and max, integer counts, exact integer sums; time parts are
+//! merged in time order for the darkness runs, facet parts are concatenated), the
+//! scattered-light stage of a time part starts where one run would stand
+//! ([`crate::scatter::Scatter::prime`]), and the tables are written by the same code from
+//! the same values. `run.json` differs only in what describes the work rather than the
+//! result: `timings_s`, `threads` and `merged_from`.
+//!
+//! A time part computes steps ⌊(K−1)·S/N⌋ … ⌊K·S/N⌋ of S; a facet part keeps statistics
+//! for that share of the facets that get outputs (in output order) but lights and traces
+//! every facet, against the whole world, at every step.
+
+pub mod merge;
+pub mod part;
+pub mod slurm;
+
+use crate::simulate::Slice;
+use serde::{Deserialize, Serialize};
+use std::ops::Range;
+use std::path::PathBuf;
+
+/// What a run is split by.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "lowercase")]
+pub enum By {
+    /// Consecutive ranges of steps.
+    #[default]
+    Time,
+    /// Consecutive ranges of the facets that get outputs.
+    Facets,
+}
+
+impl std::str::FromStr for By {
+    type Err = String;
+    fn from_str(text: &str) -> Result<By, String> {
+        match text {
+            "time" => Ok(By::Time),
+            "facets" => Ok(By::Facets),
+            _ => Err(format!("'{text}': split by 'time' or 'facets'")),
+        }
+    }
+}
+
+impl std::fmt::Display for By {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            By::Time => "time",
+            By::Facets => "facets",
+        })
+    }
+}
+
+/// Part `index` (1-based) of `count`, split by `by`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Shard {
+    pub index: usize,
+    pub count: usize,
+    pub by: By,
+}
+
+impl Shard {
+    /// Reads `K/N` (1 ≤ K ≤ N).
+    pub fn parse(text: &str, by: By) -> Result<Shard, String> {
+        let bad = || format!("'{text}' is not a part K/N with 1 ≤ K ≤ N (e.g. 3/8)");
+        let (k, n) = text.split_once('/').ok_or_else(bad)?;
+        let (index, count) = (
+            k.trim().parse::<usize>().map_err(|_| bad())?,
+            n.trim().parse::<usize>().map_err(|_| bad())?,
+        );
+        if index == 0 || index > count {
+            return Err(bad());
+        }
+        Ok(Shard { index, count, by })
+    }
+
+    /// The part of a run of `steps` steps and `facets` facets that get outputs, or an
+    /// error when a part would be empty.
+    pub fn slice(&self, steps: usize, facets: usize) -> Result<Slice, String> {
+        let total = match self.by {
+            By::Time => steps,
+            By::Facets => facets,
+        };
+        if self.count > total {
+            return Err(format!(
+                "{} parts by {} of a run of {total} {}: at most {total} parts",
+                self.count,
+                self.by,
+                if self.by == By::Time {
+                    "steps"
+                } else {
+                    "facets that get outputs"
+                }
+            ));
+        }
+        let range = self.range(total);
+        Ok(match self.by {
+            By::Time => Slice {
+                steps: Some(range),
+                facets: None,
+            },
+            By::Facets => Slice {
+                steps: None,
+                facets: Some(range),
+            },
+        })
+    }
+
+    /// Items ⌊(K−1)·T/N⌋ … ⌊K·T/N⌋ of `total`.
+    fn range(&self, total: usize) -> Range<usize> {
+        let at = |k: usize| (k as u128 * total as u128 / self.count as u128) as usize;
+        at(self.index - 1)..at(self.index)
+    }
+}
+
+/// Which part of which run a part folder holds (`run.json`'s `shard`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ShardRecord {
+    /// Part K of N (1-based), and what the run is split by.
+    pub index: usize,
+    pub count: usize,
+    pub by: By,
+    /// The steps [start, end) and facets [start, end) (among those that get outputs)
+    /// this part holds statistics of.
+    pub steps: [usize; 2],
+    pub facets: [usize; 2],
+    /// The whole run's steps and facets that get outputs.
+    pub total_steps: usize,
+    pub total_facets: usize,
+    /// The scene file, as an absolute path, for the merge to read back.
+    pub scene_file: PathBuf,
+    /// SHA-256 of the geometry of this part's steps (epochs, Sun vectors, fluxes, poses):
+    /// the merge recomputes it from the scene to be sure the parts saw the same inputs.
+    pub geometry_sha256: String,
+    /// The statistics in `part.bin`, in order: `total`, then the named parts.
+    pub statistics: Vec<String>,
+    /// Whether `part-history.bin` holds the history and how many values per facet and
+    /// step it has (1, or 3 with scattered light).
+    pub history_values: usize,
+    /// The layout version of `part.bin`.
+    pub format_version: u32,
+}
+
+/// SHA-256 of the geometry of `states` (bit patterns, in order).
+pub fn geometry_sha256(states: &[crate::ephemeris::EpochState]) -> String {
+    use sha2::{Digest, Sha256};
+    let mut hash = Sha256::new();
+    for s in states {
+        hash.update((s.step as u64).to_le_bytes());
+        hash.update(s.epoch.to_tdb_seconds().to_le_bytes());
+        for b in &s.bodies {
+            let pose = &b.pose;
+            let numbers = [
+                b.sun_dir.x,
+                b.sun_dir.y,
+                b.sun_dir.z,
+                b.sun_distance_m,
+                b.flux_w_m2,
+                pose.position_m.x,
+                pose.position_m.y,
+                pose.position_m.z,
+            ];
+            numbers
+                .iter()
+                .chain(pose.body_to_scene.to_cols_array().iter())
+                .for_each(|x| hash.update(x.to_le_bytes()));
+        }
+    }
+    hash.finalize().iter().map(|b| format!("{b:02x}")).collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn parts_are_read_and_cover_the_run_exactly_once() {
+        assert!(Shard::parse("0/3", By::Time).is_err());
+        assert!(Shard::parse("4/3", By::Time).is_err());
+        assert!(Shard::parse("2-3", By::Time).is_err());
+        assert!(Shard::parse("x/3", By::Time).is_err());
+        for (total, n) in [(10, 1), (10, 3), (7, 7), (1000, 64)] {
+            let mut next = 0;
+            for k in 1..=n {
+                let s = Shard::parse(&format!("{k}/{n}"), By::Time).unwrap();
+                let r = s.slice(total, 5).unwrap().steps.unwrap();
+                assert_eq!(r.start, next);
+                assert!(!r.is_empty());
+                next = r.end;
+            }
+            assert_eq!(next, total);
+        }
+        let too_many = Shard::parse("1/8", By::Facets).unwrap().slice(100, 7);
+        assert!(too_many.unwrap_err().contains("at most 7 parts"));
+    }
+}

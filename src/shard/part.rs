@@ -1,0 +1,321 @@
+//! The files of a part folder besides `run.json`: the partial statistics and history.
+//!
+//! **`part.bin`**, layout version [`FORMAT_VERSION`], little-endian:
+//!
+//! | bytes | what |
+//! |---|---|
+//! | 8 | `SLIMPART` |
+//! | 4 | layout version (u32) |
+//! | 8 | header length H (u64) |
+//! | H | header, JSON: `steps`, `facets`, `bins` (`width_w_m2`, `count`), `statistics` (names) |
+//! | per statistic | [`FacetStats::write_to`]: facets × 76 bytes of moments, then facets × bins × 4 bytes of CDF counts |
+//! | 32 | SHA-256 of every byte before it |
+//!
+//! **`part-history.bin`** (when the scene asks for history): for each of the part's steps
+//! in order, `values` arrays of the part's facets as f64 (the total; with scattered light
+//! then the direct and the scattered part), nothing else. Its size is checked against
+//! `run.json` before it is read.
+//!
+//! Both are written under a temporary name and renamed when complete, before `run.json`.
+
+use crate::atomic::{commit, create_partial};
+use crate::error::{Error, Result};
+use crate::simulate::StepIrradiance;
+use crate::stats::{Bins, FacetStats};
+use serde::{Deserialize, Serialize};
+use sha2::{Digest, Sha256};
+use std::fs::File;
+use std::io::{BufReader, BufWriter, Read, Write};
+use std::path::{Path, PathBuf};
+
+/// The layout version of `part.bin`.
+pub const FORMAT_VERSION: u32 = 1;
+const MAGIC: &[u8; 8] = b"SLIMPART";
+/// The partial statistics' file name in a part folder.
+pub const PART_FILE: &str = "part.bin";
+/// The history's file name in a part folder.
+pub const HISTORY_FILE: &str = "part-history.bin";
+/// The largest header a part file may claim (it is a few hundred bytes).
+const MAX_HEADER: u64 = 1 << 20;
+
+/// What `part.bin` holds.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Header {
+    pub steps: u64,
+    pub facets: usize,
+    pub bins: Bins,
+    pub statistics: Vec<String>,
+}
+
+/// A writer that hashes what goes through it.
+struct Hashing<W> {
+    inner: W,
+    hash: Sha256,
+}
+
+impl<W: Write> Write for Hashing<W> {
+    fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
+        let n = self.inner.write(buf)?;
+        self.hash.update(&buf[..n]);
+        Ok(n)
+    }
+    fn flush(&mut self) -> std::io::Result<()> {
+        self.inner.flush()
+    }
+}
+
+/// A reader that hashes what comes through it.
+struct Hashed<R> {
+    inner: R,
+    hash: Sha256,
+}
+
+impl<R: Read> Read for Hashed<R> {
+    fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
+        let n = self.inner.read(buf)?;
+        self.hash.update(&buf[..n]);
+        Ok(n)
+    }
+}
+
+/// Writes `DIR/part.bin` with `statistics` (the total first), all of the same facets,
+/// steps and bins.
+pub fn write_part(dir: &Path, statistics: &[(String, &FacetStats)]) -> Result<PathBuf> {
+    let path = dir.join(PART_FILE);
+    let first = statistics.first().expect("the total is always there").1;
+    let header = Header {
+        steps: first.steps(),
+        facets: first.facets(),
+        bins: first.bins(),
+        statistics: statistics.iter().map(|(n, _)| n.clone()).collect(),
+    };
+    let json = serde_json::to_vec(&header).map_err(|e| Error::output(&path, e))?;
+    let (tmp, file) = create_partial(&path)?;
+    let mut out = Hashing {
+        inner: file,
+        hash: Sha256::new(),
+    };
+    let written: std::io::Result<()> = (|| {
+        out.write_all(MAGIC)?;
+        out.write_all(&FORMAT_VERSION.to_le_bytes())?;
+        out.write_all(&(json.len() as u64).to_le_bytes())?;
+        out.write_all(&json)?;
+        for (_, stats) in statistics {
+            stats.write_to(&mut out)?;
+        }
+        let digest = out.hash.clone().finalize();
+        out.inner.write_all(&digest)?;
+        out.inner.flush()
+    })();
+    written.map_err(|e| Error::io(&tmp, e))?;
+    commit(&tmp, &path)?;
+    Ok(path)
+}
+
+/// Reads `DIR/part.bin`: its header and statistics (the total first), after checking
+/// the magic, the version and the checksum.
+pub fn read_part(dir: &Path) -> Result<(Header, Vec<FacetStats>)> {
+    let path = dir.join(PART_FILE);
+    let file = File::open(&path).map_err(|e| Error::io(&path, e))?;
+    let size = file.metadata().map_err(|e| Error::io(&path, e))?.len();
+    let mut input = Hashed {
+        inner: BufReader::new(file),
+        hash: Sha256::new(),
+    };
+    let bad = |what: String| Error::file(&path, what);
+    let io = |e: std::io::Error| {
+        if e.kind() == std::io::ErrorKind::UnexpectedEof {
+            Error::file(
+                &path,
+                "is cut short (an interrupted copy?); run this part again",
+            )
+        } else {
+            Error::io(&path, e)
+        }
+    };
+    let mut start = [0u8; 20];
+    input.read_exact(&mut start).map_err(io)?;
+    if &start[..8] != MAGIC {
+        return Err(bad(
+            "is not a slim part file (no SLIMPART at its start)".into()
+        ));
+    }
+    let version = u32::from_le_bytes(start[8..12].try_into().expect("4 bytes"));
+    if version != FORMAT_VERSION {
+        return Err(bad(format!(
+            "has layout version {version}; this slim reads version {FORMAT_VERSION}: \
+             run the part again with this slim"
+        )));
+    }
+    let header_len = u64::from_le_bytes(start[12..20].try_into().expect("8 bytes"));
+    if header_len > MAX_HEADER || header_len > size {
+        return Err(bad(format!(
+            "claims a {header_len}-byte header; it is damaged"
+        )));
+    }
+    let mut json = vec![0u8; header_len as usize];
+    input.read_exact(&mut json).map_err(io)?;
+    let header: Header =
+        serde_json::from_slice(&json).map_err(|e| bad(format!("has a damaged header: {e}")))?;
+    let per_set =
+        (header.facets as u128) * FacetStats::encoded_bytes_per_facet(header.bins) as u128;
+    let expected = 20 + header_len as u128 + per_set * header.statistics.len() as u128 + 32;
+    if header.bins.count == 0 || expected != size as u128 {
+        return Err(bad(format!(
+            "is {size} bytes, but its header describes {expected}: it is cut short or \
+             damaged; run this part again"
+        )));
+    }
+    let statistics = header
+        .statistics
+        .iter()
+        .map(|_| FacetStats::read_from(&mut input, header.facets, header.steps, header.bins))
+        .collect::<std::io::Result<Vec<_>>>()
+        .map_err(io)?;
+    let digest = input.hash.clone().finalize();
+    let mut stored = [0u8; 32];
+    input.inner.read_exact(&mut stored).map_err(io)?;
+    if stored[..] != digest[..] {
+        return Err(bad(
+            "fails its checksum (damaged on disk or in a copy); run this part again".into(),
+        ));
+    }
+    Ok((header, statistics))
+}
+
+/// Streams a part's history into `part-history.bin`.
+pub struct HistoryPart {
+    path: PathBuf,
+    tmp: PathBuf,
+    out: BufWriter<File>,
+}
+
+impl HistoryPart {
+    /// A writer for `DIR/part-history.bin`.
+    pub fn create(dir: &Path) -> Result<HistoryPart> {
+        let path = dir.join(HISTORY_FILE);
+        let (tmp, out) = create_partial(&path)?;
+        Ok(HistoryPart { path, tmp, out })
+    }
+
+    /// Appends one step: the total, then the direct and scattered parts if any.
+    pub fn write_step(&mut self, step: StepIrradiance) -> Result<()> {
+        let arrays =
+            std::iter::once(step.total).chain(step.parts.into_iter().flat_map(|(d, s)| [d, s]));
+        for values in arrays {
+            for v in values {
+                self.out
+                    .write_all(&v.to_le_bytes())
+                    .map_err(|e| Error::io(&self.tmp, e))?;
+            }
+        }
+        Ok(())
+    }
+
+    /// Finishes the file (flushed and renamed into place).
+    pub fn finish(mut self) -> Result<Vec<PathBuf>> {
+        self.out.flush().map_err(|e| Error::io(&self.tmp, e))?;
+        commit(&self.tmp, &self.path)?;
+        Ok(vec![self.path])
+    }
+}
+
+/// Reads a part's history back, step by step.
+pub struct HistoryReader {
+    path: PathBuf,
+    input: BufReader<File>,
+    bytes: Vec<u8>,
+    /// Arrays per step and values per array.
+    arrays: usize,
+    facets: usize,
+}
+
+impl HistoryReader {
+    /// Opens `DIR/part-history.bin`, which must hold `steps` steps of `arrays` arrays of
+    /// `facets` values.
+    pub fn open(dir: &Path, steps: usize, arrays: usize, facets: usize) -> Result<HistoryReader> {
+        let path = dir.join(HISTORY_FILE);
+        let input = File::open(&path).map_err(|e| Error::io(&path, e))?;
+        let size = input.metadata().map_err(|e| Error::io(&path, e))?.len();
+        let expected = steps as u128 * arrays as u128 * facets as u128 * 8;
+        if size as u128 != expected {
+            return Err(Error::file(
+                &path,
+                format!(
+                    "is {size} bytes, but {steps} steps of {arrays} × {facets} values are \
+                     {expected}: it is cut short or damaged; run this part again"
+                ),
+            ));
+        }
+        Ok(HistoryReader {
+            path,
+            input: BufReader::new(input),
+            bytes: vec![0; facets * 8],
+            arrays,
+            facets,
+        })
+    }
+
+    /// Appends the next step's arrays to `into` (one vector per array).
+    pub fn next_step(&mut self, into: &mut [Vec<f64>]) -> Result<()> {
+        for array in into.iter_mut().take(self.arrays) {
+            self.input
+                .read_exact(&mut self.bytes)
+                .map_err(|e| Error::io(&self.path, e))?;
+            array.extend(
+                self.bytes
+                    .chunks_exact(8)
+                    .map(|b| f64::from_le_bytes(b.try_into().expect("8 bytes"))),
+            );
+        }
+        debug_assert!(into
+            .iter()
+            .take(self.arrays)
+            .all(|a| a.len() >= self.facets));
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn folder(name: &str) -> PathBuf {
+        let dir = std::env::temp_dir().join(format!("slim-part-{name}-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        dir
+    }
+
+    #[test]
+    fn a_part_file_reads_back_and_damage_is_named() {
+        let dir = folder("roundtrip");
+        let bins = Bins::covering(10.0, 50.0);
+        let mut total = FacetStats::new(3, bins);
+        let mut direct = FacetStats::new(3, bins);
+        for t in 0..5 {
+            total.add_step(&[t as f64, 2.0 * t as f64, 0.0]);
+            direct.add_step(&[0.5 * t as f64, 0.0, 0.0]);
+        }
+        let sets = [
+            ("total".to_string(), &total),
+            ("direct".to_string(), &direct),
+        ];
+        let path = write_part(&dir, &sets).unwrap();
+        let (header, back) = read_part(&dir).unwrap();
+        assert_eq!(header.statistics, ["total", "direct"]);
+        assert_eq!(back, vec![total, direct]);
+        let bytes = std::fs::read(&path).unwrap();
+        let mut flipped = bytes.clone();
+        flipped[60] ^= 1;
+        std::fs::write(&path, &flipped).unwrap();
+        let e = read_part(&dir).unwrap_err().to_string();
+        assert!(e.contains("part.bin") && e.contains("checksum"), "{e}");
+        std::fs::write(&path, &bytes[..bytes.len() - 7]).unwrap();
+        let e = read_part(&dir).unwrap_err().to_string();
+        assert!(e.contains("cut short"), "{e}");
+        std::fs::write(&path, b"PAR1 not ours").unwrap();
+        let e = read_part(&dir).unwrap_err().to_string();
+        assert!(e.contains("not a slim part file"), "{e}");
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+}

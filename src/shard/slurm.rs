@@ -1,0 +1,1 @@
+//! Slurm: the batch scripts that run a scene's parts as an array job and merge them.
