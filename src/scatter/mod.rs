@@ -816,6 +816,9 @@ impl<'w> Scatter<'w> {
         scattered: &mut [&mut [f64]],
     ) -> Vec<SolveReport> {
         self.last_shine.clear();
+        if band.is_none() {
+            self.planets.iter_mut().for_each(PlanetShine::begin_batch);
+        }
         let mut reports = Vec::with_capacity(states.len());
         let mut done = 0;
         while done < states.len() {
@@ -904,7 +907,7 @@ impl<'w> Scatter<'w> {
         let share = band.map_or(1.0, |b| b.flux_share);
         let shine: Vec<Vec<f64>> = states
             .iter()
-            .map(|state| self.planet_shine(state, &planet_albedos, share))
+            .map(|state| self.planet_shine(state, &planet_albedos, share, band.is_some()))
             .collect();
         let active = self.refresh_inter_blocks(&states[0]);
         let exchange = self.blocks(&active);
@@ -994,8 +997,15 @@ impl<'w> Scatter<'w> {
 
     /// The irradiance (W/m², global ids; empty without planets) every planet sends to
     /// the other bodies at `state`, the planets of albedos `albedos` (in the order of
-    /// `self.planets`) lit by a share `flux_share` of the solar flux.
-    fn planet_shine(&mut self, state: &EpochState, albedos: &[f64], flux_share: f64) -> Vec<f64> {
+    /// `self.planets`) lit by a share `flux_share` of the solar flux; with `replay` (a
+    /// band), with the weights the broadband light used at `state`.
+    fn planet_shine(
+        &mut self,
+        state: &EpochState,
+        albedos: &[f64],
+        flux_share: f64,
+        replay: bool,
+    ) -> Vec<f64> {
         if self.planets.is_empty() {
             return Vec::new();
         }
@@ -1018,6 +1028,7 @@ impl<'w> Scatter<'w> {
                     &receiver,
                     planet_albedo,
                     flux_share,
+                    replay,
                     &mut out[range],
                 );
             }

@@ -36,6 +36,7 @@ use crate::trace::bvh::Bvh;
 use glam::DVec3;
 use rayon::prelude::*;
 use std::f64::consts::PI;
+use std::sync::Arc;
 
 /// How planet-shine is computed.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -63,7 +64,11 @@ pub struct PlanetShine {
     radii_m: DVec3,
     settings: PlanetSettings,
     /// Per body (scene order): the weights it receives with, once built.
-    kernels: Vec<Option<Kernel>>,
+    kernels: Vec<Option<Arc<Kernel>>>,
+    /// The weights each (step, receiver) of the current batch of steps was lit with:
+    /// spectral bands replay the broadband light's steps with these, so that every band
+    /// sees the same weights and no result depends on how steps are batched.
+    used: Vec<(usize, usize, Arc<Kernel>)>,
     /// Weights built and reused, over the run.
     pub built: u64,
     pub reused: u64,
@@ -95,13 +100,22 @@ impl PlanetShine {
             radii_m,
             settings,
             kernels: (0..bodies).map(|_| None).collect(),
+            used: Vec::new(),
             built: 0,
             reused: 0,
         }
     }
 
+    /// Forgets the weights of the last batch of steps (a new batch begins).
+    pub fn begin_batch(&mut self) {
+        self.used.clear();
+    }
+
     /// Adds to `out` (receiver `r`'s facets) the irradiance the planet of albedo `albedo`
     /// sends at `state`, for a share `flux_share` of the solar flux (1 for broadband).
+    /// With `replay` (a spectral band going over steps the broadband light has seen in
+    /// this batch), the weights that light used at `state` serve again.
+    #[allow(clippy::too_many_arguments)]
     pub fn add(
         &mut self,
         state: &EpochState,
@@ -109,22 +123,39 @@ impl PlanetShine {
         receiver: &Receiver,
         albedo: f64,
         flux_share: f64,
+        replay: bool,
         out: &mut [f64],
     ) {
         let to_receiver = state.bodies[self.planet]
             .pose
             .relative_to(&state.bodies[r].pose);
         let centre = to_receiver.offset_m;
-        if self.kernels[r]
-            .as_ref()
-            .is_none_or(|k| !self.close_enough(k.centre_m, centre))
-        {
-            self.kernels[r] = Some(self.build(receiver, &to_receiver));
-            self.built += 1;
-        } else {
-            self.reused += 1;
-        }
-        let kernel = self.kernels[r].as_ref().expect("built");
+        let seen = replay
+            .then(|| {
+                self.used
+                    .iter()
+                    .find(|(step, at, _)| (*step, *at) == (state.step, r))
+            })
+            .flatten()
+            .map(|(_, _, k)| Arc::clone(k));
+        let kernel = match seen {
+            Some(kernel) => {
+                self.reused += 1;
+                kernel
+            }
+            None => {
+                let current = self.kernels[r].as_ref();
+                if current.is_none_or(|k| !self.close_enough(k.centre_m, centre)) {
+                    self.kernels[r] = Some(Arc::new(self.build(receiver, &to_receiver)));
+                    self.built += 1;
+                } else {
+                    self.reused += 1;
+                }
+                let kernel = Arc::clone(self.kernels[r].as_ref().expect("built"));
+                self.used.push((state.step, r, Arc::clone(&kernel)));
+                kernel
+            }
+        };
         let sun = state.bodies[r].sun_dir;
         let flux = state.bodies[self.planet].flux_w_m2 * flux_share;
         let scale = kernel.centre_m.length_squared() / centre.length_squared();
@@ -156,7 +187,7 @@ impl PlanetShine {
             }
         }
         if let Some((_, state)) = anchor {
-            self.kernels[r] = Some(self.build(receiver, &to_receiver(state)));
+            self.kernels[r] = Some(Arc::new(self.build(receiver, &to_receiver(state))));
         }
     }
 
@@ -306,7 +337,7 @@ mod tests {
             bvh: &bvh,
             bound,
         };
-        planet.add(&state(planet_at, sun), 0, &r, ALBEDO, 1.0, &mut out);
+        planet.add(&state(planet_at, sun), 0, &r, ALBEDO, 1.0, false, &mut out);
         out[0]
     }
 
@@ -449,8 +480,8 @@ mod tests {
         for (x, y) in [(9.4e6, 0.0), (9.45e6, 3e4), (9.6e6, 0.0)] {
             let at = state(DVec3::new(x, y, 0.0), sun);
             let (mut kept, mut rebuilt) = ([0.0], [0.0]);
-            planet.add(&at, 0, &receiver, ALBEDO, 1.0, &mut kept);
-            fresh.add(&at, 0, &receiver, ALBEDO, 1.0, &mut rebuilt);
+            planet.add(&at, 0, &receiver, ALBEDO, 1.0, false, &mut kept);
+            fresh.add(&at, 0, &receiver, ALBEDO, 1.0, false, &mut rebuilt);
             // Within 1 % of distance and 0.01 rad of direction, kept weights scaled by
             // distance stay within a few tenths of a percent of fresh ones.
             assert!(
