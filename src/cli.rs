@@ -38,8 +38,11 @@ use slim::report::{write_report, ReportOptions};
 use slim::run::{run_scene, run_shard};
 use slim::scene::Scene;
 #[cfg(feature = "serve")]
+use slim::serve::jobs::Executor;
+#[cfg(feature = "serve")]
 use slim::serve::{self, limits::Limits};
 use slim::shard::merge::merge;
+use slim::shard::slurm::{estimate, Batch, Estimate as SlurmEstimate, Resources};
 use slim::shard::Shard;
 #[cfg(feature = "imaging")]
 use std::fmt::Write as _;
@@ -93,6 +96,48 @@ enum Command {
             requires = "shard"
         )]
         by: slim::shard::By,
+    },
+    /// Write (and with --submit, submit) Slurm jobs that run a scene in parts as an array
+    /// job and merge them when every part is done (docs/shards.md).
+    Slurm {
+        /// The scene file (TOML).
+        scene: PathBuf,
+        /// Number of parts (array tasks).
+        #[arg(long, value_name = "N")]
+        shards: usize,
+        /// What the parts split: consecutive steps, or consecutive facets.
+        #[arg(long, value_name = "time|facets", default_value = "time")]
+        by: slim::shard::By,
+        /// The run's folder: parts in OUTPUT/parts/K, scripts and logs in OUTPUT/slurm,
+        /// the merged files in OUTPUT (default: results/<scene name>).
+        #[arg(short, long)]
+        output: Option<PathBuf>,
+        /// Slurm partition.
+        #[arg(long)]
+        partition: Option<String>,
+        /// Wall time per part, in Slurm's format (e.g. 2:00:00).
+        #[arg(long)]
+        time: Option<String>,
+        /// Memory per part, in Slurm's format (e.g. 8G).
+        #[arg(long)]
+        mem: Option<String>,
+        /// CPUs per part; slim runs as many threads.
+        #[arg(long, default_value_t = 1)]
+        cpus_per_task: usize,
+        /// Submit the jobs with sbatch (the merge waits for every part).
+        #[arg(long, conflicts_with = "dry_run")]
+        submit: bool,
+        /// Write nothing: run a short probe of the scene here and print what each part
+        /// needs (time and memory), and the scripts.
+        #[arg(long)]
+        dry_run: bool,
+        /// Steps the dry run's probe computes.
+        #[arg(long, default_value_t = 8, value_name = "STEPS")]
+        probe_steps: usize,
+        /// Most memory the probe may use (e.g. 8G; default: three quarters of this
+        /// machine's).
+        #[arg(long, value_name = "SIZE", value_parser = size)]
+        max_memory: Option<u64>,
     },
     /// Merge the part folders of a run (`slim run --shard K/N`) into the files of one run,
     /// byte-identical to a single `slim run` (docs/shards.md).
@@ -353,6 +398,25 @@ struct ServeArgs {
     /// Most labels a route plan may take (at most 240 bytes each).
     #[arg(long, default_value_t = Limits::default().max_route_labels)]
     max_route_labels: usize,
+    /// Where jobs compute: on this machine, or as Slurm array jobs plus a merge (the data
+    /// folder must be shared with the cluster's nodes; docs/shards.md).
+    #[arg(long, value_name = "local|slurm", default_value = "local")]
+    executor: String,
+    /// With --executor slurm: time parts per job.
+    #[arg(long, default_value_t = 4, value_name = "N")]
+    slurm_parts: usize,
+    /// With --executor slurm: the partition.
+    #[arg(long)]
+    slurm_partition: Option<String>,
+    /// With --executor slurm: wall time per part (Slurm's format, e.g. 2:00:00).
+    #[arg(long)]
+    slurm_time: Option<String>,
+    /// With --executor slurm: memory per part (Slurm's format, e.g. 8G).
+    #[arg(long)]
+    slurm_mem: Option<String>,
+    /// With --executor slurm: CPUs per part.
+    #[arg(long, default_value_t = 1)]
+    slurm_cpus_per_task: usize,
 }
 
 #[cfg(feature = "serve")]
@@ -371,7 +435,25 @@ impl ServeArgs {
         };
         let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
         let defaults = Limits::default();
+        let executor = match self.executor.as_str() {
+            "local" => Executor::Local,
+            "slurm" => Executor::Slurm {
+                parts: self.slurm_parts.max(1),
+                resources: Resources {
+                    partition: self.slurm_partition,
+                    time: self.slurm_time,
+                    mem: self.slurm_mem,
+                    cpus: self.slurm_cpus_per_task.max(1),
+                },
+            },
+            other => {
+                return Err(Error::Usage(format!(
+                    "--executor {other}: use 'local' or 'slurm'"
+                )))
+            }
+        };
         Ok(serve::Config {
+            executor,
             data_dir: self.data,
             listen: self.listen,
             token,
@@ -579,6 +661,37 @@ fn budget_of(max_memory: Option<u64>) -> Budget {
     }
 }
 
+/// Prints what each part of a Slurm batch needs.
+fn print_estimate(name: &str, parts: usize, by: slim::shard::By, e: &SlurmEstimate) {
+    let gib = |b: u64| b as f64 / (1u64 << 30) as f64;
+    println!(
+        "{name}: {parts} parts by {by}; per part, from a probe of {} steps here ({} threads):",
+        e.probe_steps, e.probe_threads
+    );
+    println!(
+        "  time:   {:.1} s setup + {} steps × {:.4} s + {:.1} s output = {:.1} s ({:.1} min)",
+        e.setup_s,
+        e.part_steps,
+        e.step_s,
+        e.output_s,
+        e.part_s,
+        e.part_s / 60.0
+    );
+    println!(
+        "  memory: {:.2} GiB planned, {:.2} GiB measured at the probe's peak",
+        gib(e.part_bytes_planned),
+        gib(e.part_bytes_probe)
+    );
+    let mem_gib = gib(e.part_bytes_planned.max(e.part_bytes_probe)) * 1.5;
+    let minutes = (e.part_s * 1.5 / 60.0).ceil().max(1.0) as u64;
+    println!(
+        "  ask for (×1.5, on as many CPUs as the probe had): --mem={}G --time={}:{:02}:00",
+        mem_gib.ceil().max(1.0) as u64,
+        minutes / 60,
+        minutes % 60
+    );
+}
+
 /// `results/NAME`, or `results/NAME/parts/K` for part K.
 fn default_output(scene: &Scene, shard: Option<Shard>) -> PathBuf {
     let run = PathBuf::from("results").join(&scene.name);
@@ -632,6 +745,76 @@ fn execute(cli: Cli) -> Result<()> {
                 if !quiet {
                     eprintln!("wrote the report to {}", written.index.display());
                 }
+            }
+            Ok(())
+        }
+        Command::Slurm {
+            scene,
+            shards,
+            by,
+            output,
+            partition,
+            time,
+            mem,
+            cpus_per_task,
+            submit,
+            dry_run,
+            probe_steps,
+            max_memory,
+        } => {
+            let scene = Scene::load(&scene)?;
+            let out = output.unwrap_or_else(|| default_output(&scene, None));
+            let resources = Resources {
+                partition,
+                time,
+                mem,
+                cpus: cpus_per_task.max(1),
+            };
+            let batch = Batch::new(&scene, &out, shards, by, resources)?;
+            if dry_run {
+                let scratch =
+                    std::env::temp_dir().join(format!("slim-probe-{}", std::process::id()));
+                let estimate = estimate(
+                    &scene,
+                    &budget_of(max_memory),
+                    shards,
+                    by,
+                    probe_steps,
+                    &scratch,
+                );
+                let _ = std::fs::remove_dir_all(&scratch);
+                print_estimate(&scene.name, shards, by, &estimate?);
+                println!(
+                    "\n# {}\n{}",
+                    batch.out.join("slurm/parts.sh").display(),
+                    batch.parts_script()
+                );
+                println!(
+                    "# {}\n{}",
+                    batch.out.join("slurm/merge.sh").display(),
+                    batch.merge_script()
+                );
+            } else if submit {
+                let jobs = batch.submit()?;
+                eprintln!(
+                    "submitted the {shards} parts as array job {} and their merge as job {} \
+                     (ids in {}); results in {}",
+                    jobs.array,
+                    jobs.merge,
+                    batch.out.join("slurm/jobs.json").display(),
+                    batch.out.display()
+                );
+            } else {
+                let (parts, merge) = batch.write()?;
+                eprintln!(
+                    "wrote {} and {}; submit with `slim slurm ... --submit`, or by hand:\n  \
+                     A=$(sbatch --parsable {})\n  \
+                     sbatch --dependency=afterok:$A --kill-on-invalid-dep=yes {}",
+                    parts.display(),
+                    merge.display(),
+                    parts.display(),
+                    merge.display()
+                );
             }
             Ok(())
         }

@@ -12,9 +12,13 @@ use super::scene_input::{check_files, SceneText};
 use super::store::{self, unix_now, JobRecord, State};
 use crate::budget::Budget;
 use crate::error::{Error, Result};
+use crate::output::record::RunRecord;
 use crate::plan::Plan;
 use crate::progress::Progress;
 use crate::run::run_scene;
+use crate::scene::Scene;
+use crate::shard::slurm::{Batch, BatchState, Resources};
+use crate::shard::By;
 use serde::Serialize;
 use std::collections::{HashMap, VecDeque};
 use std::hash::{BuildHasher, Hasher};
@@ -166,6 +170,7 @@ struct Shared {
     dir: PathBuf,
     /// The memory each job may hold, checked again when it starts.
     budget: Budget,
+    executor: Executor,
     table: Mutex<Table>,
     wake: Condvar,
 }
@@ -187,7 +192,13 @@ impl Jobs {
     /// Loads the stored jobs of `dir` and starts `workers` compute threads. Jobs that were
     /// running when the service stopped are marked `interrupted`; queued ones queue again;
     /// deletions cut short are finished.
-    pub fn open(dir: &Path, workers: usize, job_threads: usize, budget: Budget) -> Result<Jobs> {
+    pub fn open(
+        dir: &Path,
+        workers: usize,
+        job_threads: usize,
+        budget: Budget,
+        executor: Executor,
+    ) -> Result<Jobs> {
         let (stored, notes) = store::load_all(dir)?;
         for note in notes {
             eprintln!("slim serve: {note}");
@@ -227,6 +238,7 @@ impl Jobs {
         let shared = Arc::new(Shared {
             dir: dir.to_path_buf(),
             budget,
+            executor,
             table: Mutex::new(table),
             wake: Condvar::new(),
         });
@@ -377,7 +389,13 @@ fn work(shared: &Shared, pool: &rayon::ThreadPool) {
                 // The files were checked at submission; a link swapped in since must not
                 // let the run read outside the data folder.
                 check_files(dir, &scene).map_err(|e| e.message)?;
-                run_scene(&scene, &out, &shared.budget, live.as_ref()).map_err(|e| match e {
+                let ran = match &shared.executor {
+                    Executor::Local => run_scene(&scene, &out, &shared.budget, live.as_ref()),
+                    Executor::Slurm { parts, resources } => {
+                        run_on_slurm(&scene, &out, *parts, resources, live.as_ref())
+                    }
+                };
+                ran.map_err(|e| match e {
                     Error::Cancelled => String::new(),
                     e => e.to_string().replace(&format!("{}/", dir.display()), ""),
                 })
@@ -385,6 +403,80 @@ fn work(shared: &Shared, pool: &rayon::ThreadPool) {
         }))
         .unwrap_or_else(|_| Err("internal error: the run panicked".into()));
         finish(shared, &id, outcome);
+    }
+}
+
+/// Where jobs compute.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub enum Executor {
+    /// On this machine's compute threads.
+    #[default]
+    Local,
+    /// As `parts` time parts of a Slurm array job and a merge job (the data folder must
+    /// be on a file system the cluster's nodes share). Progress counts parts, not steps.
+    Slurm { parts: usize, resources: Resources },
+}
+
+/// How often a Slurm job's state is read, and how often cancellation is looked for.
+const SLURM_POLL: std::time::Duration = std::time::Duration::from_secs(2);
+const CANCEL_POLL: std::time::Duration = std::time::Duration::from_millis(200);
+
+/// Runs `scene` on Slurm into `out` ([`Batch`]): submits the parts and their merge, then
+/// follows them, mirroring parts done in `live` and cancelling them when `live` is.
+fn run_on_slurm(
+    scene: &Scene,
+    out: &Path,
+    parts: usize,
+    resources: &Resources,
+    live: &Live,
+) -> Result<RunRecord> {
+    // A scene sent inline has only a virtual path (its relative paths resolve from the
+    // data folder): the jobs need it as a file, so it is written there while they run.
+    let written = (!scene.path.exists())
+        .then(|| crate::atomic::write_atomic(&scene.path, &scene.source).map(|()| &scene.path))
+        .transpose()?;
+    let outcome = follow_batch(scene, out, parts, resources, live);
+    if let Some(path) = written {
+        let _ = std::fs::remove_file(path);
+    }
+    outcome
+}
+
+fn follow_batch(
+    scene: &Scene,
+    out: &Path,
+    parts: usize,
+    resources: &Resources,
+    live: &Live,
+) -> Result<RunRecord> {
+    // Never more parts than steps, which would leave parts empty.
+    let parts = parts
+        .min(scene.step_count().min(usize::MAX as f64) as usize)
+        .max(1);
+    let batch = Batch::new(scene, out, parts, By::Time, resources.clone())?;
+    let jobs = batch.submit()?;
+    live.total.store(parts as u64, Ordering::Relaxed);
+    loop {
+        let polled = std::time::Instant::now();
+        while polled.elapsed() < SLURM_POLL {
+            if live.cancelled() {
+                batch.cancel(&jobs)?;
+                return Err(Error::Cancelled);
+            }
+            std::thread::sleep(CANCEL_POLL);
+        }
+        let status = batch.poll(&jobs)?;
+        live.done.store(status.parts_done as u64, Ordering::Relaxed);
+        match status.state {
+            BatchState::Running => continue,
+            BatchState::Done => return RunRecord::read(out),
+            BatchState::Failed(what) => {
+                return Err(Error::Usage(format!(
+                    "on Slurm: {what} (logs in {})",
+                    out.join("slurm/logs").display()
+                )))
+            }
+        }
     }
 }
 

@@ -48,6 +48,8 @@ pub struct Config {
     /// Threads each job computes with.
     pub job_threads: usize,
     pub limits: Limits,
+    /// Where jobs compute: here, or on Slurm.
+    pub executor: jobs::Executor,
 }
 
 /// Everything the handlers share.
@@ -81,6 +83,7 @@ impl App {
             config.workers,
             config.job_threads,
             config.limits.job_budget(),
+            config.executor.clone(),
         )?;
         Ok(Arc::new(App {
             data_dir,
