@@ -134,6 +134,9 @@ enum Command {
         /// Steps the dry run's probe computes.
         #[arg(long, default_value_t = 8, value_name = "STEPS")]
         probe_steps: usize,
+        /// Print nothing but errors (and the dry run's estimate).
+        #[arg(short, long)]
+        quiet: bool,
         /// Most memory the probe may use (e.g. 8G; default: three quarters of this
         /// machine's).
         #[arg(long, value_name = "SIZE", value_parser = size)]
@@ -761,6 +764,7 @@ fn execute(cli: Cli) -> Result<()> {
             dry_run,
             probe_steps,
             max_memory,
+            quiet,
         } => {
             let scene = Scene::load(&scene)?;
             let out = output.unwrap_or_else(|| default_output(&scene, None));
@@ -796,25 +800,29 @@ fn execute(cli: Cli) -> Result<()> {
                 );
             } else if submit {
                 let jobs = batch.submit()?;
-                eprintln!(
-                    "submitted the {shards} parts as array job {} and their merge as job {} \
+                if !quiet {
+                    eprintln!(
+                        "submitted the {shards} parts as array job {} and their merge as job {} \
                      (ids in {}); results in {}",
-                    jobs.array,
-                    jobs.merge,
-                    batch.out.join("slurm/jobs.json").display(),
-                    batch.out.display()
-                );
+                        jobs.array,
+                        jobs.merge,
+                        batch.out.join("slurm/jobs.json").display(),
+                        batch.out.display()
+                    );
+                }
             } else {
                 let (parts, merge) = batch.write()?;
-                eprintln!(
-                    "wrote {} and {}; submit with `slim slurm ... --submit`, or by hand:\n  \
+                if !quiet {
+                    eprintln!(
+                        "wrote {} and {}; submit with `slim slurm ... --submit`, or by hand:\n  \
                      A=$(sbatch --parsable {})\n  \
                      sbatch --dependency=afterok:$A --kill-on-invalid-dep=yes {}",
-                    parts.display(),
-                    merge.display(),
-                    parts.display(),
-                    merge.display()
-                );
+                        parts.display(),
+                        merge.display(),
+                        parts.display(),
+                        merge.display()
+                    );
+                }
             }
             Ok(())
         }

@@ -1463,3 +1463,81 @@ fn routes_are_planned_and_evaluated_and_bad_ones_refused() {
         "bad_route",
     );
 }
+
+/// With `--executor slurm`, a job runs as time parts of an array job and a merge on the
+/// cluster: its files are byte-identical to `slim run`'s, its progress counts parts, and
+/// deleting a running job cancels its Slurm jobs. Needs a running Slurm (`.ci/slurm/up`
+/// starts a one-node cluster here); CI runs it with `cargo test --test serve -- --ignored`.
+#[test]
+#[ignore = "needs a Slurm cluster: run .ci/slurm/up first (CI does)"]
+fn the_slurm_executor_runs_jobs_as_parts_and_cancels_them() {
+    let data = DataDir::new("slurm");
+    let server = Server::start(data.path(), &["--executor", "slurm", "--slurm-parts", "3"]);
+    let id = run_job(
+        &server,
+        post_json(
+            &server,
+            "/v1/jobs",
+            &serde_json::json!({"scene_file": "scenes/ito.toml"}),
+        ),
+    );
+    let (_, job) = get(&server, &format!("/v1/jobs/{id}"));
+    assert_eq!(job["progress"]["steps_total"], 3, "{job}");
+    assert_eq!(job["progress"]["steps_done"], 3, "{job}");
+    let cli = data.path().join("cli");
+    cli_run(&data.path().join("scenes/ito.toml"), &cli);
+    for file in [
+        "summary.parquet",
+        "cdf.parquet",
+        "geometry.parquet",
+        "history.parquet",
+    ] {
+        let expected = std::fs::read(cli.join(file)).unwrap();
+        assert!(
+            bytes(&server, &format!("/v1/jobs/{id}/{file}")) == expected,
+            "{file} of the Slurm job differs from slim run's"
+        );
+    }
+    // A long inline scene, deleted while its parts run.
+    let (status, job) = post_toml(&server, &slow_scene());
+    assert_eq!(status, 202, "{job}");
+    let slow = job["id"].as_str().unwrap().to_string();
+    let jobs_file = data
+        .path()
+        .join("jobs")
+        .join(&slow)
+        .join("result/slurm/jobs.json");
+    let t0 = Instant::now();
+    while !jobs_file.is_file() {
+        assert!(
+            t0.elapsed() < Duration::from_secs(60),
+            "the slow job was never submitted"
+        );
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    let ids: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(&jobs_file).unwrap()).unwrap();
+    let status = agent()
+        .delete(&server.url(&format!("/v1/jobs/{slow}")))
+        .call()
+        .unwrap()
+        .status();
+    assert_eq!(status, 204);
+    let array = ids["array"].as_str().unwrap();
+    let t0 = Instant::now();
+    loop {
+        let out = Command::new("squeue")
+            .args(["-h", "-r", "-t", "all", "-j", array, "-o", "%T"])
+            .output()
+            .unwrap();
+        let states = String::from_utf8_lossy(&out.stdout).to_string();
+        if !states.is_empty() && states.lines().all(|s| s == "CANCELLED") {
+            break;
+        }
+        assert!(
+            t0.elapsed() < Duration::from_secs(30),
+            "parts not cancelled: {states}"
+        );
+        std::thread::sleep(Duration::from_millis(200));
+    }
+}

@@ -284,3 +284,66 @@ fn broken_sets_of_parts_are_refused_naming_the_folder() {
     let e = fails(&["run", s(&scene), "--shard", "1/9", "-o", s(&out)]);
     assert!(e.contains("at most") && e.contains("parts"), "{e}");
 }
+
+#[test]
+fn slurm_scripts_are_written_and_a_dry_run_estimates_a_part_without_writing() {
+    let dir = TempDir::new("slurm");
+    let scene = phobos_scene(&dir, "small", 40, "shapes/itokawa/itokawa_8.obj", "");
+    let batch = dir.join("batch");
+    let out = Command::new(env!("CARGO_BIN_EXE_slim"))
+        .args([
+            "slurm",
+            s(&scene),
+            "--shards",
+            "4",
+            "--dry-run",
+            "--probe-steps",
+            "5",
+            "-o",
+            s(&batch),
+        ])
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(
+        text.contains("4 parts by time") && text.contains("probe of 5 steps"),
+        "{text}"
+    );
+    assert!(
+        text.contains("10 steps ×") && text.contains("GiB planned"),
+        "{text}"
+    );
+    assert!(text.contains("#SBATCH --array=1-4"), "{text}");
+    assert!(!batch.exists(), "a dry run writes nothing");
+    ok(&[
+        "slurm",
+        s(&scene),
+        "--shards",
+        "3",
+        "--by",
+        "facets",
+        "--partition",
+        "short",
+        "-o",
+        s(&batch),
+    ]);
+    let parts = std::fs::read_to_string(batch.join("slurm/parts.sh")).unwrap();
+    assert!(
+        parts.contains("--by facets") && parts.contains("#SBATCH --partition=short"),
+        "{parts}"
+    );
+    assert!(
+        batch.join("slurm/logs").is_dir(),
+        "Slurm needs the log folder to exist"
+    );
+    let merge = std::fs::read_to_string(batch.join("slurm/merge.sh")).unwrap();
+    assert!(
+        merge.contains("parts/3'") && !merge.contains("parts/4'"),
+        "{merge}"
+    );
+}
