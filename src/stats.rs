@@ -77,6 +77,33 @@ struct Moments {
     dark_longest: u32,
 }
 
+impl Moments {
+    /// Merges `later`'s moments (`later_steps` steps) into these (`steps` steps), which
+    /// come first in time.
+    fn merge_later(&mut self, later: &Moments, steps: u64, later_steps: u64) {
+        let (a, b) = (self, later);
+        a.min = a.min.min(b.min);
+        a.max = a.max.max(b.max);
+        a.sum += b.sum;
+        a.squares.add(b.squares.low, b.squares.high);
+        a.lit += b.lit;
+        let a_dark_throughout = a.dark_leading as u64 == steps;
+        let b_dark_throughout = b.dark_leading as u64 == later_steps;
+        a.dark_longest = a
+            .dark_longest
+            .max(b.dark_longest)
+            .max(a.dark_trailing.saturating_add(b.dark_leading));
+        if a_dark_throughout {
+            a.dark_leading = a.dark_leading.saturating_add(b.dark_leading);
+        }
+        a.dark_trailing = if b_dark_throughout {
+            a.dark_trailing.saturating_add(b.dark_trailing)
+        } else {
+            b.dark_trailing
+        };
+    }
+}
+
 const EMPTY: Moments = Moments {
     min: f64::INFINITY,
     max: f64::NEG_INFINITY,
@@ -93,6 +120,94 @@ pub const MOMENT_BYTES: usize = std::mem::size_of::<Moments>();
 
 /// Bytes of one facet's moments in [`FacetStats::write_to`].
 const ENCODED_MOMENT_BYTES: usize = 8 + 8 + 16 + 16 + 8 + 8 + 3 * 4;
+
+/// Reads `facets` facets' moments as [`FacetStats::write_to`] wrote them.
+fn read_moments(input: &mut impl std::io::BufRead, facets: usize) -> std::io::Result<Vec<Moments>> {
+    let mut moments = Vec::with_capacity(facets);
+    let mut record = [0u8; ENCODED_MOMENT_BYTES];
+    for _ in 0..facets {
+        input.read_exact(&mut record)?;
+        let mut at = 0;
+        let mut take = |n: usize| {
+            at += n;
+            &record[at - n..at]
+        };
+        let u32_at = |b: &[u8]| u32::from_le_bytes(b.try_into().expect("4 bytes"));
+        moments.push(Moments {
+            min: f64::from_le_bytes(take(8).try_into().expect("8 bytes")),
+            max: f64::from_le_bytes(take(8).try_into().expect("8 bytes")),
+            sum: i128::from_le_bytes(take(16).try_into().expect("16 bytes")),
+            squares: Wide {
+                low: u128::from_le_bytes(take(16).try_into().expect("16 bytes")),
+                high: u64::from_le_bytes(take(8).try_into().expect("8 bytes")),
+            },
+            lit: u64::from_le_bytes(take(8).try_into().expect("8 bytes")),
+            dark_leading: u32_at(take(4)),
+            dark_trailing: u32_at(take(4)),
+            dark_longest: u32_at(take(4)),
+        });
+    }
+    Ok(moments)
+}
+
+/// Appends `counts` to `out` as LEB128 varints, each run of zeros as 0 and its length.
+fn encode_counts(counts: &[u32], out: &mut Vec<u8>) {
+    let varint = |mut v: u64, out: &mut Vec<u8>| loop {
+        let byte = (v & 0x7f) as u8;
+        v >>= 7;
+        if v == 0 {
+            out.push(byte);
+            break;
+        }
+        out.push(byte | 0x80);
+    };
+    let mut i = 0;
+    while i < counts.len() {
+        if counts[i] == 0 {
+            let run = counts[i..].iter().take_while(|&&c| c == 0).count();
+            varint(0, out);
+            varint(run as u64, out);
+            i += run;
+        } else {
+            varint(counts[i] as u64, out);
+            i += 1;
+        }
+    }
+}
+
+/// Reads `counts.len()` counts written by [`encode_counts`] into `counts`.
+fn decode_counts(input: &mut impl std::io::BufRead, counts: &mut [u32]) -> std::io::Result<()> {
+    let damaged = || std::io::Error::new(std::io::ErrorKind::InvalidData, "damaged CDF counts");
+    let mut varint = || -> std::io::Result<u64> {
+        let mut v = 0u64;
+        for shift in (0..64).step_by(7) {
+            let mut byte = [0u8];
+            input.read_exact(&mut byte)?;
+            v |= u64::from(byte[0] & 0x7f) << shift;
+            if byte[0] & 0x80 == 0 {
+                return Ok(v);
+            }
+        }
+        Err(damaged())
+    };
+    let mut b = 0;
+    while b < counts.len() {
+        match varint()? {
+            0 => {
+                let run = varint()?;
+                if run == 0 || run > (counts.len() - b) as u64 {
+                    return Err(damaged());
+                }
+                b += run as usize;
+            }
+            v => {
+                counts[b] = u32::try_from(v).map_err(|_| damaged())?;
+                b += 1;
+            }
+        }
+    }
+    Ok(())
+}
 
 /// A 192-bit unsigned integer, `high·2¹²⁸ + low`: a sum of squares of 63-bit values.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
@@ -311,30 +426,15 @@ impl FacetStats {
         if other.steps == 0 {
             return;
         }
-        for (a, b) in self.moments.iter_mut().zip(&other.moments) {
-            a.min = a.min.min(b.min);
-            a.max = a.max.max(b.max);
-            a.sum += b.sum;
-            a.squares.add(b.squares.low, b.squares.high);
-            a.lit += b.lit;
-            let a_dark_throughout = a.dark_leading as u64 == self.steps;
-            let b_dark_throughout = b.dark_leading as u64 == other.steps;
-            a.dark_longest = a
-                .dark_longest
-                .max(b.dark_longest)
-                .max(a.dark_trailing.saturating_add(b.dark_leading));
-            if a_dark_throughout {
-                a.dark_leading = a.dark_leading.saturating_add(b.dark_leading);
-            }
-            a.dark_trailing = if b_dark_throughout {
-                a.dark_trailing.saturating_add(b.dark_trailing)
-            } else {
-                b.dark_trailing
-            };
-        }
-        for (a, b) in self.hist.iter_mut().zip(&other.hist) {
-            *a += b;
-        }
+        let (a_steps, b_steps) = (self.steps, other.steps);
+        self.moments
+            .par_iter_mut()
+            .zip(other.moments.par_iter())
+            .for_each(|(a, b)| a.merge_later(b, a_steps, b_steps));
+        self.hist
+            .par_chunks_mut(1 << 16)
+            .zip(other.hist.par_chunks(1 << 16))
+            .for_each(|(a, b)| a.iter_mut().zip(b).for_each(|(a, b)| *a += b));
         self.steps += other.steps;
     }
 
@@ -352,15 +452,12 @@ impl FacetStats {
         Ok(())
     }
 
-    /// Bytes [`FacetStats::write_to`] writes per facet with `bins`.
-    pub fn encoded_bytes_per_facet(bins: Bins) -> usize {
-        ENCODED_MOMENT_BYTES + 4 * bins.count
-    }
-
     /// Writes the exact state, little-endian: per facet its moments (min, max: f64; Σq:
     /// i128; Σq²: u128 low, u64 high; lit: u64; darkness leading, trailing, longest: u32),
-    /// then per facet its CDF counts (u32 each). Steps, bins and facets are the caller's
-    /// to record ([`FacetStats::read_from`] needs them).
+    /// then per facet its CDF counts as LEB128 varints, a run of zero counts written as
+    /// a 0 followed by the run's length (a part of a run has few steps per facet, so most
+    /// counts are 0 or small). Steps, bins and facets are the caller's to record
+    /// ([`FacetStats::read_from`] needs them).
     pub fn write_to(&self, out: &mut impl std::io::Write) -> std::io::Result<()> {
         for m in &self.moments {
             out.write_all(&m.min.to_le_bytes())?;
@@ -373,56 +470,55 @@ impl FacetStats {
                 out.write_all(&run.to_le_bytes())?;
             }
         }
-        for count in &self.hist {
-            out.write_all(&count.to_le_bytes())?;
+        let mut buffer = Vec::new();
+        for counts in self.hist.chunks(self.bins.count.max(1)) {
+            buffer.clear();
+            encode_counts(counts, &mut buffer);
+            out.write_all(&buffer)?;
         }
         Ok(())
     }
 
     /// Reads what [`FacetStats::write_to`] wrote for `facets` facets over `steps` steps.
     pub fn read_from(
-        input: &mut impl std::io::Read,
+        input: &mut impl std::io::BufRead,
         facets: usize,
         steps: u64,
         bins: Bins,
     ) -> std::io::Result<FacetStats> {
         let mut stats = FacetStats::new(0, bins);
         stats.steps = steps;
-        stats.moments.reserve_exact(facets);
-        let mut record = [0u8; ENCODED_MOMENT_BYTES];
-        for _ in 0..facets {
-            input.read_exact(&mut record)?;
-            let mut at = 0;
-            let mut take = |n: usize| {
-                at += n;
-                &record[at - n..at]
-            };
-            let u32_at = |b: &[u8]| u32::from_le_bytes(b.try_into().expect("4 bytes"));
-            stats.moments.push(Moments {
-                min: f64::from_le_bytes(take(8).try_into().expect("8 bytes")),
-                max: f64::from_le_bytes(take(8).try_into().expect("8 bytes")),
-                sum: i128::from_le_bytes(take(16).try_into().expect("16 bytes")),
-                squares: Wide {
-                    low: u128::from_le_bytes(take(16).try_into().expect("16 bytes")),
-                    high: u64::from_le_bytes(take(8).try_into().expect("8 bytes")),
-                },
-                lit: u64::from_le_bytes(take(8).try_into().expect("8 bytes")),
-                dark_leading: u32_at(take(4)),
-                dark_trailing: u32_at(take(4)),
-                dark_longest: u32_at(take(4)),
-            });
-        }
-        let mut counts = vec![0u8; 4 * bins.count];
-        stats.hist.reserve_exact(facets * bins.count);
-        for _ in 0..facets {
-            input.read_exact(&mut counts)?;
-            stats.hist.extend(
-                counts
-                    .chunks_exact(4)
-                    .map(|c| u32::from_le_bytes(c.try_into().expect("4 bytes"))),
-            );
+        stats.moments = read_moments(input, facets)?;
+        stats.hist = vec![0; facets * bins.count];
+        for counts in stats.hist.chunks_mut(bins.count.max(1)) {
+            decode_counts(input, counts)?;
         }
         Ok(stats)
+    }
+
+    /// Merges what [`FacetStats::write_to`] wrote for these facets over the `steps` steps
+    /// that follow this one's, reading it straight into these counts (no second set of
+    /// CDF counts is held): the same result as [`FacetStats::read_from`] then
+    /// [`FacetStats::merge`].
+    pub fn merge_from(
+        &mut self,
+        input: &mut impl std::io::BufRead,
+        steps: u64,
+    ) -> std::io::Result<()> {
+        let later = read_moments(input, self.moments.len())?;
+        let mut counts = vec![0u32; self.bins.count];
+        for into in self.hist.chunks_mut(self.bins.count.max(1)) {
+            counts.fill(0);
+            decode_counts(input, &mut counts)?;
+            into.iter_mut().zip(&counts).for_each(|(a, b)| *a += b);
+        }
+        let before = self.steps;
+        self.moments
+            .par_iter_mut()
+            .zip(later.par_iter())
+            .for_each(|(a, b)| a.merge_later(b, before, steps));
+        self.steps += steps;
+        Ok(())
     }
 
     /// Number of facets.
@@ -584,10 +680,17 @@ mod tests {
         series(17, 33).iter().for_each(|e| s.add_step(e));
         let mut bytes = Vec::new();
         s.write_to(&mut bytes).unwrap();
-        assert_eq!(bytes.len(), 17 * FacetStats::encoded_bytes_per_facet(bins));
+        assert!(bytes.len() < 17 * (ENCODED_MOMENT_BYTES + 4 * bins.count));
         let back = FacetStats::read_from(&mut bytes.as_slice(), 17, 33, bins).unwrap();
         assert_eq!(back, s);
         assert!(FacetStats::read_from(&mut &bytes[..bytes.len() - 1], 17, 33, bins).is_err());
+        // Read straight into earlier statistics: as read, then merged.
+        let mut earlier = FacetStats::new(17, bins);
+        series(17, 9).iter().for_each(|e| earlier.add_step(e));
+        let mut merged = earlier.clone();
+        merged.merge(&s);
+        earlier.merge_from(&mut bytes.as_slice(), 33).unwrap();
+        assert_eq!(earlier, merged);
     }
 
     #[test]

@@ -11,7 +11,7 @@
 //! the merged statistics (what one run holds) plus one part's at a time; the history is
 //! streamed step by step.
 
-use super::part::{read_part, HistoryReader};
+use super::part::{merge_part, read_part, Header, HistoryReader, PART_FILE};
 use super::{geometry_sha256, By, ShardRecord};
 use crate::budget::Budget;
 use crate::error::{Error, Result};
@@ -259,13 +259,11 @@ fn check_against_scene(
     Ok(())
 }
 
-/// The merged statistics (total first): time parts merged in time order, facet parts
-/// appended in facet order.
+/// The merged statistics (total first): time parts merged in time order, each read
+/// straight into the sums; facet parts appended in facet order.
 fn merge_statistics(parts: &[Part], progress: &dyn Progress) -> Result<Vec<FacetStats>> {
-    let mut merged: Option<Vec<FacetStats>> = None;
     progress.note(&format!("merging the statistics of {} parts", parts.len()));
-    for p in parts {
-        let (header, sets) = read_part(&p.dir)?;
+    let fits = |p: &Part, header: &Header| {
         let [f0, f1] = p.shard.facets;
         let [s0, s1] = p.shard.steps;
         if header.facets != f1 - f0
@@ -273,26 +271,30 @@ fn merge_statistics(parts: &[Part], progress: &dyn Progress) -> Result<Vec<Facet
             || header.statistics != p.shard.statistics
         {
             return Err(Error::file(
-                &p.dir.join(super::part::PART_FILE),
+                &p.dir.join(PART_FILE),
                 "does not hold what its run.json says (facets, steps or statistics)",
             ));
         }
-        merged = Some(match merged {
-            None => sets,
-            Some(mut all) => {
-                for (into, set) in all.iter_mut().zip(sets) {
-                    match p.shard.by {
-                        By::Time => into.merge(&set),
-                        By::Facets => into
-                            .append(set)
-                            .map_err(|e| Error::file(&p.dir.join(super::part::PART_FILE), e))?,
-                    }
-                }
-                all
+        Ok(())
+    };
+    let (header, mut merged) = read_part(&parts[0].dir)?;
+    fits(&parts[0], &header)?;
+    for p in &parts[1..] {
+        match p.shard.by {
+            By::Time => {
+                merge_part(&p.dir, &mut merged, |h| fits(p, h))?;
             }
-        });
+            By::Facets => {
+                let (header, sets) = read_part(&p.dir)?;
+                fits(p, &header)?;
+                for (into, set) in merged.iter_mut().zip(sets) {
+                    into.append(set)
+                        .map_err(|e| Error::file(&p.dir.join(PART_FILE), e))?;
+                }
+            }
+        }
     }
-    Ok(merged.expect("at least one part"))
+    Ok(merged)
 }
 
 /// Streams the parts' history into `writer`, step by step in the order of one run.

@@ -25,7 +25,7 @@ use crate::stats::{Bins, FacetStats};
 use serde::{Deserialize, Serialize};
 use sha2::{Digest, Sha256};
 use std::fs::File;
-use std::io::{BufReader, BufWriter, Read, Write};
+use std::io::{BufReader, BufWriter, Read, Seek, Write};
 use std::path::{Path, PathBuf};
 
 /// The layout version of `part.bin`.
@@ -64,20 +64,6 @@ impl<W: Write> Write for Hashing<W> {
     }
 }
 
-/// A reader that hashes what comes through it.
-struct Hashed<R> {
-    inner: R,
-    hash: Sha256,
-}
-
-impl<R: Read> Read for Hashed<R> {
-    fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
-        let n = self.inner.read(buf)?;
-        self.hash.update(&buf[..n]);
-        Ok(n)
-    }
-}
-
 /// Writes `DIR/part.bin` with `statistics` (the total first), all of the same facets,
 /// steps and bins.
 pub fn write_part(dir: &Path, statistics: &[(String, &FacetStats)]) -> Result<PathBuf> {
@@ -112,75 +98,166 @@ pub fn write_part(dir: &Path, statistics: &[(String, &FacetStats)]) -> Result<Pa
     Ok(path)
 }
 
-/// Reads `DIR/part.bin`: its header and statistics (the total first), after checking
-/// the magic, the version and the checksum.
-pub fn read_part(dir: &Path) -> Result<(Header, Vec<FacetStats>)> {
-    let path = dir.join(PART_FILE);
-    let file = File::open(&path).map_err(|e| Error::io(&path, e))?;
-    let size = file.metadata().map_err(|e| Error::io(&path, e))?.len();
-    let mut input = Hashed {
-        inner: BufReader::new(file),
-        hash: Sha256::new(),
-    };
-    let bad = |what: String| Error::file(&path, what);
-    let io = |e: std::io::Error| {
-        if e.kind() == std::io::ErrorKind::UnexpectedEof {
-            Error::file(
-                &path,
-                "is cut short (an interrupted copy?); run this part again",
-            )
-        } else {
-            Error::io(&path, e)
+/// An opened `part.bin`, checked (checksum, magic, version, header) and positioned at
+/// its first statistic.
+struct PartFile {
+    path: PathBuf,
+    size: u64,
+    input: BufReader<File>,
+    header: Header,
+}
+
+impl PartFile {
+    fn open(dir: &Path) -> Result<PartFile> {
+        let path = dir.join(PART_FILE);
+        let bad = |what: String| Error::file(&path, what);
+        let file = File::open(&path).map_err(|e| Error::io(&path, e))?;
+        let size = file.metadata().map_err(|e| Error::io(&path, e))?.len();
+        let mut input = BufReader::with_capacity(1 << 20, file);
+        let mut start = [0u8; 20];
+        let not_ours = || bad("is not a slim part file (no SLIMPART at its start)".into());
+        input.read_exact(&mut start[..8]).map_err(|_| not_ours())?;
+        if &start[..8] != MAGIC {
+            return Err(not_ours());
         }
-    };
-    let mut start = [0u8; 20];
-    let not_ours = || bad("is not a slim part file (no SLIMPART at its start)".into());
-    input.read_exact(&mut start[..8]).map_err(|_| not_ours())?;
-    if &start[..8] != MAGIC {
-        return Err(not_ours());
+        if size < 20 + 32 {
+            return Err(bad(
+                "is cut short (an interrupted copy?); run this part again".into(),
+            ));
+        }
+        check_digest(&path, size)?;
+        input
+            .read_exact(&mut start[8..])
+            .map_err(|e| Error::io(&path, e))?;
+        let version = u32::from_le_bytes(start[8..12].try_into().expect("4 bytes"));
+        if version != FORMAT_VERSION {
+            return Err(bad(format!(
+                "has layout version {version}; this slim reads version {FORMAT_VERSION}: \
+                 run the part again with this slim"
+            )));
+        }
+        let header_len = u64::from_le_bytes(start[12..20].try_into().expect("8 bytes"));
+        if header_len > MAX_HEADER || header_len > size {
+            return Err(bad(format!(
+                "claims a {header_len}-byte header; it is damaged"
+            )));
+        }
+        let mut json = vec![0u8; header_len as usize];
+        input
+            .read_exact(&mut json)
+            .map_err(|e| Error::io(&path, e))?;
+        let header: Header =
+            serde_json::from_slice(&json).map_err(|e| bad(format!("has a damaged header: {e}")))?;
+        if header.bins.count == 0 {
+            return Err(bad(
+                "has no CDF thresholds in its header; it is damaged".into()
+            ));
+        }
+        Ok(PartFile {
+            path,
+            size,
+            input,
+            header,
+        })
     }
-    input.read_exact(&mut start[8..]).map_err(io)?;
-    let version = u32::from_le_bytes(start[8..12].try_into().expect("4 bytes"));
-    if version != FORMAT_VERSION {
-        return Err(bad(format!(
-            "has layout version {version}; this slim reads version {FORMAT_VERSION}: \
-             run the part again with this slim"
-        )));
+
+    /// The error for a failed read of the statistics.
+    fn read_error(&self, e: std::io::Error) -> Error {
+        match e.kind() {
+            std::io::ErrorKind::UnexpectedEof => Error::file(
+                &self.path,
+                "is cut short (an interrupted copy?); run this part again",
+            ),
+            std::io::ErrorKind::InvalidData => {
+                Error::file(&self.path, format!("is damaged ({e}); run this part again"))
+            }
+            _ => Error::io(&self.path, e),
+        }
     }
-    let header_len = u64::from_le_bytes(start[12..20].try_into().expect("8 bytes"));
-    if header_len > MAX_HEADER || header_len > size {
-        return Err(bad(format!(
-            "claims a {header_len}-byte header; it is damaged"
-        )));
+
+    /// Checks that every byte before the checksum was read.
+    fn finish(mut self) -> Result<Header> {
+        let read = self
+            .input
+            .stream_position()
+            .map_err(|e| Error::io(&self.path, e))?;
+        if read + 32 != self.size {
+            return Err(Error::file(
+                &self.path,
+                "holds bytes its header does not account for; it is damaged",
+            ));
+        }
+        Ok(self.header)
     }
-    let mut json = vec![0u8; header_len as usize];
-    input.read_exact(&mut json).map_err(io)?;
-    let header: Header =
-        serde_json::from_slice(&json).map_err(|e| bad(format!("has a damaged header: {e}")))?;
-    let per_set =
-        (header.facets as u128) * FacetStats::encoded_bytes_per_facet(header.bins) as u128;
-    let expected = 20 + header_len as u128 + per_set * header.statistics.len() as u128 + 32;
-    if header.bins.count == 0 || expected != size as u128 {
-        return Err(bad(format!(
-            "is {size} bytes, but its header describes {expected}: it is cut short or \
-             damaged; run this part again"
-        )));
-    }
-    let statistics = header
+}
+
+/// Reads `DIR/part.bin`: its header and statistics (the total first), after checking
+/// the checksum, the magic and the version.
+pub fn read_part(dir: &Path) -> Result<(Header, Vec<FacetStats>)> {
+    let mut part = PartFile::open(dir)?;
+    let h = part.header.clone();
+    let statistics = h
         .statistics
         .iter()
-        .map(|_| FacetStats::read_from(&mut input, header.facets, header.steps, header.bins))
+        .map(|_| FacetStats::read_from(&mut part.input, h.facets, h.steps, h.bins))
         .collect::<std::io::Result<Vec<_>>>()
-        .map_err(io)?;
-    let digest = input.hash.clone().finalize();
-    let mut stored = [0u8; 32];
-    input.inner.read_exact(&mut stored).map_err(io)?;
-    if stored[..] != digest[..] {
-        return Err(bad(
-            "fails its checksum (damaged on disk or in a copy); run this part again".into(),
+        .map_err(|e| part.read_error(e))?;
+    Ok((part.finish()?, statistics))
+}
+
+/// Merges `DIR/part.bin`, a part over the steps that follow those of `into` (the same
+/// facets and statistics), straight into `into`; returns its header. Checked as
+/// [`read_part`] checks, and `check` sees the header before anything is merged.
+pub fn merge_part(
+    dir: &Path,
+    into: &mut [FacetStats],
+    check: impl FnOnce(&Header) -> Result<()>,
+) -> Result<Header> {
+    let mut part = PartFile::open(dir)?;
+    check(&part.header)?;
+    let h = part.header.clone();
+    let fits = h.statistics.len() == into.len()
+        && into
+            .iter()
+            .all(|s| s.facets() == h.facets && s.bins() == h.bins);
+    if !fits {
+        return Err(Error::file(
+            &part.path,
+            "holds other facets, bins or statistics than the parts before it",
         ));
     }
-    Ok((header, statistics))
+    for stats in into.iter_mut() {
+        stats
+            .merge_from(&mut part.input, h.steps)
+            .map_err(|e| part.read_error(e))?;
+    }
+    part.finish()
+}
+
+/// Checks that the last 32 bytes of the file at `path` (`size` bytes) are the SHA-256
+/// of the bytes before them.
+fn check_digest(path: &Path, size: u64) -> Result<()> {
+    let mut file = File::open(path).map_err(|e| Error::io(path, e))?;
+    let mut hash = Sha256::new();
+    let mut left = size - 32;
+    let mut chunk = vec![0u8; 1 << 20];
+    while left > 0 {
+        let n = left.min(chunk.len() as u64) as usize;
+        file.read_exact(&mut chunk[..n])
+            .map_err(|e| Error::io(path, e))?;
+        hash.update(&chunk[..n]);
+        left -= n as u64;
+    }
+    let mut stored = [0u8; 32];
+    file.read_exact(&mut stored)
+        .map_err(|e| Error::io(path, e))?;
+    if stored[..] != hash.finalize()[..] {
+        return Err(Error::file(
+            path,
+            "fails its checksum (damaged on disk or in a copy); run this part again",
+        ));
+    }
+    Ok(())
 }
 
 /// Streams a part's history into `part-history.bin`.
@@ -313,7 +390,10 @@ mod tests {
         assert!(e.contains("part.bin") && e.contains("checksum"), "{e}");
         std::fs::write(&path, &bytes[..bytes.len() - 7]).unwrap();
         let e = read_part(&dir).unwrap_err().to_string();
-        assert!(e.contains("cut short"), "{e}");
+        assert!(e.contains("checksum"), "{e}");
+        std::fs::write(&path, &bytes[..30]).unwrap();
+        let e = read_part(&dir).unwrap_err().to_string();
+        assert!(e.contains("cut short") || e.contains("checksum"), "{e}");
         std::fs::write(&path, b"PAR1 not ours").unwrap();
         let e = read_part(&dir).unwrap_err().to_string();
         assert!(e.contains("not a slim part file"), "{e}");
