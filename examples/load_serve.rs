@@ -36,6 +36,7 @@ fn main() {
             .saturating_sub(1)
             .max(1),
         limits: Limits::default(),
+        executor: Default::default(),
     };
     std::thread::spawn(move || slim::serve::serve(config).expect("serve"));
     let base = format!("http://127.0.0.1:{port}");

@@ -50,7 +50,7 @@ pub fn run_shard(
 
 /// Where the history goes: the tables of a whole run, or a part's raw file.
 pub(crate) enum History {
-    Tables(HistoryWriter),
+    Tables(Box<HistoryWriter>),
     Part(HistoryPart),
 }
 
@@ -106,7 +106,9 @@ fn run_part(
     let csv = scene.output.csv;
     let mut history = match (scene.output.history, shard) {
         (false, _) => None,
-        (true, None) => Some(History::Tables(HistoryWriter::new(out_dir, csv, world))),
+        (true, None) => Some(History::Tables(Box::new(HistoryWriter::new(
+            out_dir, csv, world,
+        )))),
         (true, Some(_)) => Some(History::Part(HistoryPart::create(out_dir)?)),
     };
     let mut bands = Bands::from_scene(scene, world, scatter.as_ref(), bins, slice.kept(world))?;

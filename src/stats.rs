@@ -309,7 +309,9 @@ impl Selection {
     /// The selected facets numbered `range` among the selected (all for `None`).
     pub fn within(self, range: Option<std::ops::Range<usize>>) -> Selection {
         let Some(range) = range else { return self };
-        let ranges = self.ranges.unwrap_or_else(|| vec![0..self.facets]);
+        let ranges = self
+            .ranges
+            .unwrap_or_else(|| std::iter::once(0..self.facets).collect());
         let mut before = 0;
         let mut picked = Vec::new();
         for r in ranges {

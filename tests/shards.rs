@@ -100,7 +100,7 @@ fn run_in_parts(scene: &Path, dir: &TempDir, n: usize, by: &str) -> PathBuf {
     let mut parts = Vec::new();
     // Run the parts out of order: a part does not depend on the others.
     for k in (1..=n).rev() {
-        let part = root.join(&k.to_string());
+        let part = root.join(k.to_string());
         ok(&[
             "run",
             s(scene),

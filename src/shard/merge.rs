@@ -85,7 +85,7 @@ pub fn merge(
             timings.time("history", || {
                 merge_history(&parts, &states, values, &mut writer, progress)
             })?;
-            Some(History::Tables(writer))
+            Some(History::Tables(Box::new(writer)))
         }
     };
     let statistics = timings.time("statistics", || merge_statistics(&parts, progress))?;

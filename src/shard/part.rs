@@ -25,7 +25,7 @@ use crate::stats::{Bins, FacetStats};
 use serde::{Deserialize, Serialize};
 use sha2::{Digest, Sha256};
 use std::fs::File;
-use std::io::{BufReader, BufWriter, Read, Seek, Write};
+use std::io::{BufReader, BufWriter, Read, Write};
 use std::path::{Path, PathBuf};
 
 /// The layout version of `part.bin`.
@@ -98,12 +98,14 @@ pub fn write_part(dir: &Path, statistics: &[(String, &FacetStats)]) -> Result<Pa
     Ok(path)
 }
 
-/// An opened `part.bin`, checked (checksum, magic, version, header) and positioned at
-/// its first statistic.
+/// A `part.bin` read into memory and checked (checksum, magic, version, header) before
+/// any of it is used: a damaged part is refused before its numbers reach a merge.
 struct PartFile {
     path: PathBuf,
-    size: u64,
-    input: BufReader<File>,
+    bytes: Vec<u8>,
+    /// Where the statistics start and end (the checksum follows).
+    start: usize,
+    end: usize,
     header: Header,
 }
 
@@ -111,43 +113,41 @@ impl PartFile {
     fn open(dir: &Path) -> Result<PartFile> {
         let path = dir.join(PART_FILE);
         let bad = |what: String| Error::file(&path, what);
-        let file = File::open(&path).map_err(|e| Error::io(&path, e))?;
-        let size = file.metadata().map_err(|e| Error::io(&path, e))?.len();
-        let mut input = BufReader::with_capacity(1 << 20, file);
-        let mut start = [0u8; 20];
-        let not_ours = || bad("is not a slim part file (no SLIMPART at its start)".into());
-        input.read_exact(&mut start[..8]).map_err(|_| not_ours())?;
-        if &start[..8] != MAGIC {
-            return Err(not_ours());
+        let bytes = std::fs::read(&path).map_err(|e| Error::io(&path, e))?;
+        if !bytes.starts_with(MAGIC) {
+            return Err(bad(
+                "is not a slim part file (no SLIMPART at its start)".into()
+            ));
         }
-        if size < 20 + 32 {
+        if bytes.len() < 20 + 32 {
             return Err(bad(
                 "is cut short (an interrupted copy?); run this part again".into(),
             ));
         }
-        check_digest(&path, size)?;
-        input
-            .read_exact(&mut start[8..])
-            .map_err(|e| Error::io(&path, e))?;
-        let version = u32::from_le_bytes(start[8..12].try_into().expect("4 bytes"));
+        let end = bytes.len() - 32;
+        if Sha256::digest(&bytes[..end])[..] != bytes[end..] {
+            return Err(bad(
+                "fails its checksum (cut short, or damaged on disk or in a copy); run this \
+                 part again"
+                    .into(),
+            ));
+        }
+        let version = u32::from_le_bytes(bytes[8..12].try_into().expect("4 bytes"));
         if version != FORMAT_VERSION {
             return Err(bad(format!(
                 "has layout version {version}; this slim reads version {FORMAT_VERSION}: \
                  run the part again with this slim"
             )));
         }
-        let header_len = u64::from_le_bytes(start[12..20].try_into().expect("8 bytes"));
-        if header_len > MAX_HEADER || header_len > size {
+        let header_len = u64::from_le_bytes(bytes[12..20].try_into().expect("8 bytes"));
+        if header_len > MAX_HEADER || header_len > (end - 20) as u64 {
             return Err(bad(format!(
                 "claims a {header_len}-byte header; it is damaged"
             )));
         }
-        let mut json = vec![0u8; header_len as usize];
-        input
-            .read_exact(&mut json)
-            .map_err(|e| Error::io(&path, e))?;
-        let header: Header =
-            serde_json::from_slice(&json).map_err(|e| bad(format!("has a damaged header: {e}")))?;
+        let start = 20 + header_len as usize;
+        let header: Header = serde_json::from_slice(&bytes[20..start])
+            .map_err(|e| bad(format!("has a damaged header: {e}")))?;
         if header.bins.count == 0 {
             return Err(bad(
                 "has no CDF thresholds in its header; it is damaged".into()
@@ -155,33 +155,30 @@ impl PartFile {
         }
         Ok(PartFile {
             path,
-            size,
-            input,
+            bytes,
+            start,
+            end,
             header,
         })
     }
 
-    /// The error for a failed read of the statistics.
-    fn read_error(&self, e: std::io::Error) -> Error {
-        match e.kind() {
-            std::io::ErrorKind::UnexpectedEof => Error::file(
-                &self.path,
-                "is cut short (an interrupted copy?); run this part again",
-            ),
-            std::io::ErrorKind::InvalidData => {
-                Error::file(&self.path, format!("is damaged ({e}); run this part again"))
-            }
-            _ => Error::io(&self.path, e),
-        }
+    /// The statistics' bytes.
+    fn statistics(&self) -> &[u8] {
+        &self.bytes[self.start..self.end]
     }
 
-    /// Checks that every byte before the checksum was read.
-    fn finish(mut self) -> Result<Header> {
-        let read = self
-            .input
-            .stream_position()
-            .map_err(|e| Error::io(&self.path, e))?;
-        if read + 32 != self.size {
+    /// The error for statistics that do not read as the header says (possible only for a
+    /// file written wrongly with a valid checksum).
+    fn read_error(&self, e: std::io::Error) -> Error {
+        Error::file(
+            &self.path,
+            format!("does not hold what its header describes ({e}); run this part again"),
+        )
+    }
+
+    /// Checks that the statistics were read to their end (`left` bytes were not).
+    fn finish(self, left: usize) -> Result<Header> {
+        if left > 0 {
             return Err(Error::file(
                 &self.path,
                 "holds bytes its header does not account for; it is damaged",
@@ -194,15 +191,17 @@ impl PartFile {
 /// Reads `DIR/part.bin`: its header and statistics (the total first), after checking
 /// the checksum, the magic and the version.
 pub fn read_part(dir: &Path) -> Result<(Header, Vec<FacetStats>)> {
-    let mut part = PartFile::open(dir)?;
-    let h = part.header.clone();
+    let part = PartFile::open(dir)?;
+    let h = &part.header;
+    let mut input = part.statistics();
     let statistics = h
         .statistics
         .iter()
-        .map(|_| FacetStats::read_from(&mut part.input, h.facets, h.steps, h.bins))
+        .map(|_| FacetStats::read_from(&mut input, h.facets, h.steps, h.bins))
         .collect::<std::io::Result<Vec<_>>>()
         .map_err(|e| part.read_error(e))?;
-    Ok((part.finish()?, statistics))
+    let left = input.len();
+    Ok((part.finish(left)?, statistics))
 }
 
 /// Merges `DIR/part.bin`, a part over the steps that follow those of `into` (the same
@@ -213,9 +212,9 @@ pub fn merge_part(
     into: &mut [FacetStats],
     check: impl FnOnce(&Header) -> Result<()>,
 ) -> Result<Header> {
-    let mut part = PartFile::open(dir)?;
+    let part = PartFile::open(dir)?;
     check(&part.header)?;
-    let h = part.header.clone();
+    let h = &part.header;
     let fits = h.statistics.len() == into.len()
         && into
             .iter()
@@ -226,38 +225,14 @@ pub fn merge_part(
             "holds other facets, bins or statistics than the parts before it",
         ));
     }
+    let mut input = part.statistics();
     for stats in into.iter_mut() {
         stats
-            .merge_from(&mut part.input, h.steps)
+            .merge_from(&mut input, h.steps)
             .map_err(|e| part.read_error(e))?;
     }
-    part.finish()
-}
-
-/// Checks that the last 32 bytes of the file at `path` (`size` bytes) are the SHA-256
-/// of the bytes before them.
-fn check_digest(path: &Path, size: u64) -> Result<()> {
-    let mut file = File::open(path).map_err(|e| Error::io(path, e))?;
-    let mut hash = Sha256::new();
-    let mut left = size - 32;
-    let mut chunk = vec![0u8; 1 << 20];
-    while left > 0 {
-        let n = left.min(chunk.len() as u64) as usize;
-        file.read_exact(&mut chunk[..n])
-            .map_err(|e| Error::io(path, e))?;
-        hash.update(&chunk[..n]);
-        left -= n as u64;
-    }
-    let mut stored = [0u8; 32];
-    file.read_exact(&mut stored)
-        .map_err(|e| Error::io(path, e))?;
-    if stored[..] != hash.finalize()[..] {
-        return Err(Error::file(
-            path,
-            "fails its checksum (damaged on disk or in a copy); run this part again",
-        ));
-    }
-    Ok(())
+    let left = input.len();
+    part.finish(left)
 }
 
 /// Streams a part's history into `part-history.bin`.
