@@ -231,8 +231,6 @@ fn obtain_maps(
     Ok((maps, records))
 }
 
-/// The steps computed together: with scattered light on a single body, whose exchange
-/// areas are the same at every step, up to [`LANES`] steps are traced first and then
 /// Tells the user about the one long silent stage of a BVH run: the tree and horizon
 /// bound of every body that can shadow itself, and roughly how long they take.
 fn announce_bvh_build(world: &World, progress: &dyn Progress) {

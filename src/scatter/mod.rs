@@ -673,6 +673,30 @@ struct Cached {
     backward: Csr,
 }
 
+/// Every body that receives planet-shine (every one that is not a planet), with what
+/// can hide the planet from its facets.
+fn planet_receivers<'a>(
+    world: &'a World,
+    settings: &Settings,
+    bvhs: &'a [Bvh],
+    bounds: &'a [Option<HorizonBound>],
+) -> Vec<(usize, Receiver<'a>)> {
+    world
+        .bodies
+        .iter()
+        .enumerate()
+        .filter(|(r, _)| !settings.is_planet(*r))
+        .map(|(r, body)| {
+            let receiver = Receiver {
+                mesh: &body.mesh,
+                bvh: &bvhs[r],
+                bound: bounds[r].as_ref(),
+            };
+            (r, receiver)
+        })
+        .collect()
+}
+
 /// Most steps that [`Scatter::step_many`] solves side by side.
 pub const LANES: usize = 8;
 
@@ -980,17 +1004,10 @@ impl<'w> Scatter<'w> {
                 }
             }
         }
+        let receivers = planet_receivers(world, &self.settings, &self.bvhs, &self.bounds);
         for shine in &mut self.planets {
-            for (r, body) in world.bodies.iter().enumerate() {
-                if self.settings.is_planet(r) {
-                    continue;
-                }
-                let receiver = Receiver {
-                    mesh: &body.mesh,
-                    bvh: &self.bvhs[r],
-                    bound: self.bounds[r].as_ref(),
-                };
-                shine.prime(earlier, r, &receiver);
+            for (r, receiver) in &receivers {
+                shine.prime(earlier, *r, receiver);
             }
         }
     }
@@ -1011,21 +1028,14 @@ impl<'w> Scatter<'w> {
         }
         let mut out = vec![0.0; self.areas.len()];
         let world = self.world;
+        let receivers = planet_receivers(world, &self.settings, &self.bvhs, &self.bounds);
         for (shine, &planet_albedo) in self.planets.iter_mut().zip(albedos) {
-            for (r, body) in world.bodies.iter().enumerate() {
-                if self.settings.is_planet(r) {
-                    continue;
-                }
-                let receiver = Receiver {
-                    mesh: &body.mesh,
-                    bvh: &self.bvhs[r],
-                    bound: self.bounds[r].as_ref(),
-                };
-                let range = self.offsets[r]..self.offsets[r] + body.mesh.len();
+            for &(r, ref receiver) in &receivers {
+                let range = self.offsets[r]..self.offsets[r] + receiver.mesh.len();
                 shine.add(
                     state,
                     r,
-                    &receiver,
+                    receiver,
                     planet_albedo,
                     flux_share,
                     replay,
