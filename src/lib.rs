@@ -49,6 +49,7 @@
 //! | statistics | [`stats`] | per-step W/m² → min, max, mean, std, lit fraction, CDF |
 //! | files | [`output`] | statistics → Parquet/CSV tables, PLY, `run.json`; and read back |
 //! | a whole run | [`run`] | scene and folder → the files and the [`output::record::RunRecord`] |
+//! | parts of a run | [`shard`] | a time or facet part → its exact partial state; parts → one run's files, byte-identical; Slurm array jobs |
 //! | progress | [`progress`] | notes, steps done, stage timings |
 //! | integrals | [`quadrature`] | Gauss–Legendre nodes for disk and cap integrals |
 //! | validation | [`analytic`] | closed-form irradiance of a rotating sphere |
