@@ -12,3 +12,16 @@ bench_init() {
   export SLIM_CACHE_DIR="$OUT/cache"
   ABSOLUTE=(-e "s|\"kernels/|\"$DATA/kernels/|" -e "s|\"shapes/|\"$DATA/shapes/|")
 }
+
+# subdivided_itokawa LEVELS: prints the path of the 49,152-facet Itokawa model split
+# LEVELS times (×4 facets each), made once into bench/results/meshes.
+subdivided_itokawa() {
+  local mesh
+  mesh=$(realpath -m "bench/results/meshes/itokawa-x4^$1.obj")
+  if [[ ! -f $mesh ]]; then
+    mkdir -p "$(dirname "$mesh")"
+    python3 bench/subdivide_obj.py data/shapes/itokawa/ItokawaHayabusa.obj "$1" "$mesh.partial"
+    mv "$mesh.partial" "$mesh"
+  fi
+  echo "$mesh"
+}

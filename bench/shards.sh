@@ -2,6 +2,7 @@
 # Merging parts at scale: the 49,152-facet Itokawa model subdivided twice (786,432
 # facets), a spin of STEPS steps (default 128) with the default 10 W/m² CDF bins, run as
 # PARTS time parts (default 64), then `slim merge` of them timed REPEAT times (default 3)
+# (tables as Parquet only: CSV=true adds the CSV tables, as the scene default does)
 # with /usr/bin/time -v (wall time and peak memory). Also prints the merge's own stage
 # times from its run.json (reading and combining the parts against writing the tables)
 # and the size of the parts on disk.
@@ -12,11 +13,12 @@ cd "$(dirname "$0")/.."
 source bench/common.sh
 PARTS=${1:-64} STEPS=${2:-128} REPEAT=${3:-3}
 bench_init bench/results/shards "${4:-}"
-mesh="$OUT/itokawa_786k.obj"
-python3 bench/subdivide_obj.py "$DATA/shapes/itokawa/ItokawaHayabusa.obj" 2 "$mesh"
+mesh=$(subdivided_itokawa 2)
 cat >"$OUT/scene.toml" <<TOML
 [run]
 name = "itokawa-786k"
+[output]
+csv = ${CSV:-false}
 [ephemeris]
 mode = "spin"
 distance_au = 1.1

@@ -35,7 +35,7 @@ use slim::report::colormap::Colormap;
 use slim::report::select::{FacetRef, LatLon};
 #[cfg(feature = "report")]
 use slim::report::{write_report, ReportOptions};
-use slim::run::{run_scene, run_shard};
+use slim::run::run_scene;
 use slim::scene::Scene;
 #[cfg(feature = "serve")]
 use slim::serve::jobs::Executor;
@@ -43,7 +43,7 @@ use slim::serve::jobs::Executor;
 use slim::serve::{self, limits::Limits};
 use slim::shard::merge::merge;
 use slim::shard::slurm::{estimate, Batch, Estimate as SlurmEstimate, Resources};
-use slim::shard::Shard;
+use slim::shard::{run_shard, Shard};
 #[cfg(feature = "imaging")]
 use std::fmt::Write as _;
 use std::io::Write as _;

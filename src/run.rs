@@ -5,7 +5,9 @@
 //! [`prepare`] (scene to geometry and plan) and [`simulate`] (the step loop); this module
 //! clears the folder of an earlier run, streams the history, writes the tables and the
 //! record. Progress is reported through [`Progress`] so the CLI can draw a bar and a
-//! service can track jobs.
+//! service can track jobs. What is computed and written goes through [`Outputs`]: the
+//! tables of a whole run ([`Tables`]), or a part's files ([`crate::shard`]), so that
+//! both share this one loop.
 
 use crate::bands::Bands;
 use crate::budget::Budget;
@@ -13,6 +15,7 @@ use crate::ephemeris::EpochState;
 use crate::error::{Error, Result};
 use crate::horizon::shadows::MapRecord;
 use crate::illum::StepCounts;
+use crate::output::record::ShardRecord;
 use crate::output::record::{InputFile, RunRecord};
 use crate::output::{self, HistoryWriter, NamedStats};
 use crate::plan::Plan;
@@ -20,8 +23,6 @@ use crate::prepare::{prepare, Assembly, Prepared};
 use crate::progress::{Progress, Timings};
 use crate::scatter::ScatterRecord;
 use crate::scene::Scene;
-use crate::shard::part::{write_part, HistoryPart, FORMAT_VERSION, HISTORY_FILE, PART_FILE};
-use crate::shard::{geometry_sha256, Shard, ShardRecord};
 use crate::simulate::{simulate, Options, Simulation, Slice, StepIrradiance};
 use crate::stats::{Bins, FacetStats};
 use crate::world::World;
@@ -34,53 +35,109 @@ pub fn run_scene(
     budget: &Budget,
     progress: &dyn Progress,
 ) -> Result<RunRecord> {
-    run_part(scene, out_dir, budget, None, progress)
+    run_with(scene, out_dir, budget, &Tables, progress)
 }
 
-/// Runs part `shard` of `scene` into the part folder `out_dir`, for [`crate::shard::merge`].
-pub fn run_shard(
-    scene: &Scene,
-    out_dir: &Path,
-    budget: &Budget,
-    shard: Shard,
-    progress: &dyn Progress,
-) -> Result<RunRecord> {
-    run_part(scene, out_dir, budget, Some(shard), progress)
+/// A step's irradiance going to a history file as the run goes.
+pub trait HistorySink {
+    fn write_step(&mut self, state: &EpochState, step: StepIrradiance) -> Result<()>;
+    /// Finishes the files; returns their paths.
+    fn finish(self: Box<Self>) -> Result<Vec<PathBuf>>;
 }
 
-/// Where the history goes: the tables of a whole run, or a part's raw file.
-pub(crate) enum History {
-    Tables(Box<HistoryWriter>),
-    Part(HistoryPart),
-}
-
-impl History {
-    pub(crate) fn write_step(&mut self, state: &EpochState, step: StepIrradiance) -> Result<()> {
-        match self {
-            History::Tables(h) => h.write_step(state, step),
-            History::Part(h) => h.write_step(step),
-        }
+impl HistorySink for HistoryWriter {
+    fn write_step(&mut self, state: &EpochState, step: StepIrradiance) -> Result<()> {
+        HistoryWriter::write_step(self, state, step)
     }
-
-    fn finish(self) -> Result<Vec<PathBuf>> {
-        match self {
-            History::Tables(h) => h.finish(),
-            History::Part(h) => h.finish(),
-        }
+    fn finish(self: Box<Self>) -> Result<Vec<PathBuf>> {
+        HistoryWriter::finish(*self)
     }
 }
 
-/// [`run_scene`] or, with `shard`, [`run_shard`].
-fn run_part(
+/// What a finished step loop hands to [`Outputs::write`] and [`Outputs::record`].
+pub struct Results<'a> {
+    pub scene: &'a Scene,
+    pub world: &'a World,
+    pub states: &'a [EpochState],
+    /// The part of the run that was computed.
+    pub slice: &'a Slice,
+    /// Statistics of the total, and the named parts beside it (`direct`, `scattered`,
+    /// `planet`, `band_NAME`, `bands`).
+    pub total: &'a FacetStats,
+    pub parts: NamedStats<'a>,
+    /// Whether the history holds the direct and scattered parts too.
+    pub scattered: bool,
+}
+
+/// How a run's results leave it: the tables of a whole run ([`Tables`]), or the files
+/// of a part ([`crate::shard`]).
+pub trait Outputs {
+    /// The files this writes into a folder, refused when there and not written by slim.
+    fn file_names(&self, scene: &Scene) -> Vec<String>;
+    /// The part of a run of `steps` steps and `facets` facets with outputs to compute.
+    fn slice(&self, steps: usize, facets: usize) -> Result<Slice>;
+    /// Where the history goes, when the scene asks for it.
+    fn history(&self, dir: &Path, scene: &Scene, world: &World) -> Result<Box<dyn HistorySink>>;
+    /// Writes the results and finishes `history`; returns the files written.
+    fn write(
+        &self,
+        dir: &Path,
+        results: &Results,
+        history: Option<Box<dyn HistorySink>>,
+    ) -> Result<Vec<PathBuf>>;
+    /// What `run.json` says of the part (`None` for a whole run).
+    fn shard(&self, results: &Results) -> Option<ShardRecord>;
+}
+
+/// The tables of a whole run ([`crate::output`]).
+pub struct Tables;
+
+impl Outputs for Tables {
+    fn file_names(&self, scene: &Scene) -> Vec<String> {
+        let bodies: Vec<&str> = scene
+            .bodies
+            .iter()
+            .filter(|b| b.outputs)
+            .map(|b| b.name.as_str())
+            .collect();
+        let o = &scene.output;
+        output::file_names(o.csv, o.history, o.ply, &bodies)
+    }
+
+    fn slice(&self, _: usize, _: usize) -> Result<Slice> {
+        Ok(Slice::default())
+    }
+
+    fn history(&self, dir: &Path, scene: &Scene, world: &World) -> Result<Box<dyn HistorySink>> {
+        Ok(Box::new(HistoryWriter::new(dir, scene.output.csv, world)))
+    }
+
+    fn write(
+        &self,
+        dir: &Path,
+        r: &Results,
+        history: Option<Box<dyn HistorySink>>,
+    ) -> Result<Vec<PathBuf>> {
+        write_results(dir, r.scene, r.world, r.states, r.total, r.parts, history)
+    }
+
+    fn shard(&self, _: &Results) -> Option<ShardRecord> {
+        None
+    }
+}
+
+/// Runs `scene` (the part `outputs` says) within `budget` into `out_dir`, writing what
+/// `outputs` writes.
+pub fn run_with(
     scene: &Scene,
     out_dir: &Path,
     budget: &Budget,
-    shard: Option<Shard>,
+    outputs: &dyn Outputs,
     progress: &dyn Progress,
 ) -> Result<RunRecord> {
     let mut timings = Timings::default();
     let previous = previous_outputs(out_dir)?;
-    refuse_foreign_files(out_dir, scene, shard.is_some(), &previous)?;
+    refuse_foreign_files(out_dir, &outputs.file_names(scene), &previous)?;
     let Prepared {
         assembly,
         states,
@@ -91,25 +148,16 @@ fn run_part(
         horizon_maps,
     } = prepare(scene, budget, &mut timings)?;
     let world = &assembly.world;
-    let slice = match shard {
-        Some(s) => s
-            .slice(states.len(), world.output_facet_count())
-            .map_err(|e| Error::Usage(format!("--shard {}/{}: {e}", s.index, s.count)))?,
-        None => Slice::default(),
-    };
+    let slice = outputs.slice(states.len(), world.output_facet_count())?;
     // Only now that the scene is known to run is the earlier run cleared away.
     clear_previous_run(out_dir, previous)?;
     for w in &assembly.warnings {
         progress.note(&format!("warning: {w}"));
     }
     progress.note(&plan.to_string());
-    let csv = scene.output.csv;
-    let mut history = match (scene.output.history, shard) {
-        (false, _) => None,
-        (true, None) => Some(History::Tables(Box::new(HistoryWriter::new(
-            out_dir, csv, world,
-        )))),
-        (true, Some(_)) => Some(History::Part(HistoryPart::create(out_dir)?)),
+    let mut history = match scene.output.history {
+        true => Some(outputs.history(out_dir, scene, world)?),
+        false => None,
     };
     let mut bands = Bands::from_scene(scene, world, scatter.as_ref(), bins, slice.kept(world))?;
     let options = Options {
@@ -126,44 +174,17 @@ fn run_part(
     })?;
     let band_parts = bands.map(Bands::into_parts).unwrap_or_default();
     let parts = named_parts(&sim, &band_parts);
-    let outputs = timings.time("output", || -> Result<Vec<_>> {
-        match shard {
-            None => write_results(out_dir, scene, world, &states, &sim.stats, &parts, history),
-            Some(_) => {
-                let all: Vec<(String, &FacetStats)> = std::iter::once(("total".into(), &sim.stats))
-                    .chain(parts.iter().map(|(n, s)| (n.clone(), *s)))
-                    .collect();
-                let mut files = vec![write_part(out_dir, &all)?];
-                if let Some(h) = history.take() {
-                    files.extend(h.finish()?);
-                }
-                Ok(files)
-            }
-        }
-    })?;
-    let shard_record = shard.map(|s| ShardRecord {
-        index: s.index,
-        count: s.count,
-        by: s.by,
-        steps: bounds(slice.steps.clone(), states.len()),
-        facets: bounds(slice.facets.clone(), world.output_facet_count()),
-        total_steps: states.len(),
-        total_facets: world.output_facet_count(),
-        scene_file: std::path::absolute(&scene.path).unwrap_or_else(|_| scene.path.clone()),
-        geometry_sha256: {
-            let [first, end] = bounds(slice.steps.clone(), states.len());
-            geometry_sha256(&states[first..end])
-        },
-        statistics: std::iter::once("total".to_string())
-            .chain(parts.iter().map(|(n, _)| n.clone()))
-            .collect(),
-        history_values: if scene.output.history {
-            1 + 2 * usize::from(sim.parts.is_some())
-        } else {
-            0
-        },
-        format_version: FORMAT_VERSION,
-    });
+    let results = Results {
+        scene,
+        world,
+        states: &states,
+        slice: &slice,
+        total: &sim.stats,
+        parts: &parts,
+        scattered: sim.parts.is_some(),
+    };
+    let outputs_written = timings.time("output", || outputs.write(out_dir, &results, history))?;
+    let shard = outputs.shard(&results);
     let record = run_record(
         scene,
         assembly,
@@ -175,18 +196,12 @@ fn run_part(
         },
         bins,
         timings,
-        outputs,
-        shard_record,
+        outputs_written,
+        shard,
         progress,
     )?;
     record.write(out_dir)?;
     Ok(record)
-}
-
-/// `[start, end]` of `range`, or of `0..total` for `None`.
-fn bounds(range: Option<std::ops::Range<usize>>, total: usize) -> [usize; 2] {
-    let r = range.unwrap_or(0..total);
-    [r.start, r.end]
 }
 
 /// Writes the result tables of a whole run (summary, cdf, geometry, the history `history`
@@ -198,7 +213,7 @@ pub(crate) fn write_results(
     states: &[EpochState],
     stats: &FacetStats,
     parts: NamedStats,
-    history: Option<History>,
+    history: Option<Box<dyn HistorySink>>,
 ) -> Result<Vec<PathBuf>> {
     let csv = scene.output.csv;
     let step_s = even_step_s(states);
@@ -349,25 +364,12 @@ pub(crate) fn clear_previous_run(dir: &Path, previous: Vec<String>) -> Result<()
 /// like a body's PLY, say) and will not overwrite it.
 pub(crate) fn refuse_foreign_files(
     dir: &Path,
-    scene: &Scene,
-    part: bool,
+    names: &[String],
     previous: &[String],
 ) -> Result<()> {
-    let bodies: Vec<&str> = scene
-        .bodies
-        .iter()
-        .filter(|b| b.outputs)
-        .map(|b| b.name.as_str())
-        .collect();
-    let o = &scene.output;
-    let names = if part {
-        vec![PART_FILE.to_string(), HISTORY_FILE.to_string()]
-    } else {
-        output::file_names(o.csv, o.history, o.ply, &bodies)
-    };
     for name in names {
-        let path = dir.join(&name);
-        if path.exists() && !previous.contains(&name) {
+        let path = dir.join(name);
+        if path.exists() && !previous.contains(name) {
             return Err(Error::file(
                 &path,
                 "is in the output folder but no run.json of slim lists it: slim does not \

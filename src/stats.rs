@@ -175,16 +175,19 @@ fn encode_counts(counts: &[u32], out: &mut Vec<u8>) {
     }
 }
 
-/// Reads `counts.len()` counts written by [`encode_counts`] into `counts`.
-fn decode_counts(input: &mut impl std::io::BufRead, counts: &mut [u32]) -> std::io::Result<()> {
+/// Adds the `counts.len()` counts written by [`encode_counts`] at the start of `input`
+/// to `counts`, and moves `input` past them. Only the counts that are not 0 are touched.
+fn add_counts(input: &mut &[u8], counts: &mut [u32]) -> std::io::Result<()> {
     let damaged = || std::io::Error::new(std::io::ErrorKind::InvalidData, "damaged CDF counts");
     let mut varint = || -> std::io::Result<u64> {
         let mut v = 0u64;
         for shift in (0..64).step_by(7) {
-            let mut byte = [0u8];
-            input.read_exact(&mut byte)?;
-            v |= u64::from(byte[0] & 0x7f) << shift;
-            if byte[0] & 0x80 == 0 {
+            let (&byte, rest) = input
+                .split_first()
+                .ok_or_else(|| std::io::Error::from(std::io::ErrorKind::UnexpectedEof))?;
+            *input = rest;
+            v |= u64::from(byte & 0x7f) << shift;
+            if byte & 0x80 == 0 {
                 return Ok(v);
             }
         }
@@ -201,7 +204,8 @@ fn decode_counts(input: &mut impl std::io::BufRead, counts: &mut [u32]) -> std::
                 b += run as usize;
             }
             v => {
-                counts[b] = u32::try_from(v).map_err(|_| damaged())?;
+                let v = u32::try_from(v).map_err(|_| damaged())?;
+                counts[b] = counts[b].checked_add(v).ok_or_else(damaged)?;
                 b += 1;
             }
         }
@@ -483,7 +487,7 @@ impl FacetStats {
 
     /// Reads what [`FacetStats::write_to`] wrote for `facets` facets over `steps` steps.
     pub fn read_from(
-        input: &mut impl std::io::BufRead,
+        input: &mut &[u8],
         facets: usize,
         steps: u64,
         bins: Bins,
@@ -493,7 +497,7 @@ impl FacetStats {
         stats.moments = read_moments(input, facets)?;
         stats.hist = vec![0; facets * bins.count];
         for counts in stats.hist.chunks_mut(bins.count.max(1)) {
-            decode_counts(input, counts)?;
+            add_counts(input, counts)?;
         }
         Ok(stats)
     }
@@ -502,17 +506,10 @@ impl FacetStats {
     /// that follow this one's, reading it straight into these counts (no second set of
     /// CDF counts is held): the same result as [`FacetStats::read_from`] then
     /// [`FacetStats::merge`].
-    pub fn merge_from(
-        &mut self,
-        input: &mut impl std::io::BufRead,
-        steps: u64,
-    ) -> std::io::Result<()> {
+    pub fn merge_from(&mut self, input: &mut &[u8], steps: u64) -> std::io::Result<()> {
         let later = read_moments(input, self.moments.len())?;
-        let mut counts = vec![0u32; self.bins.count];
         for into in self.hist.chunks_mut(self.bins.count.max(1)) {
-            counts.fill(0);
-            decode_counts(input, &mut counts)?;
-            into.iter_mut().zip(&counts).for_each(|(a, b)| *a += b);
+            add_counts(input, into)?;
         }
         let before = self.steps;
         self.moments

@@ -66,10 +66,76 @@ pub struct RunRecord {
     pub outputs: Vec<String>,
     /// In a part folder: which part of which run it holds (`slim run --shard`).
     #[serde(skip_serializing_if = "Option::is_none")]
-    pub shard: Option<crate::shard::ShardRecord>,
+    pub shard: Option<ShardRecord>,
     /// In a merged folder: how many parts, split by what (`slim merge`).
     #[serde(skip_serializing_if = "Option::is_none")]
-    pub merged_from: Option<crate::shard::merge::Merged>,
+    pub merged_from: Option<Merged>,
+}
+
+/// What a run is split by.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "lowercase")]
+pub enum By {
+    /// Consecutive ranges of steps.
+    #[default]
+    Time,
+    /// Consecutive ranges of the facets that get outputs.
+    Facets,
+}
+
+impl std::str::FromStr for By {
+    type Err = String;
+    fn from_str(text: &str) -> Result<By, String> {
+        match text {
+            "time" => Ok(By::Time),
+            "facets" => Ok(By::Facets),
+            _ => Err(format!("'{text}': split by 'time' or 'facets'")),
+        }
+    }
+}
+
+impl std::fmt::Display for By {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            By::Time => "time",
+            By::Facets => "facets",
+        })
+    }
+}
+
+/// Which part of which run a part folder holds (`run.json`'s `shard`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ShardRecord {
+    /// Part K of N (1-based), and what the run is split by.
+    pub index: usize,
+    pub count: usize,
+    pub by: By,
+    /// The steps [start, end) and facets [start, end) (among those that get outputs)
+    /// this part holds statistics of.
+    pub steps: [usize; 2],
+    pub facets: [usize; 2],
+    /// The whole run's steps and facets that get outputs.
+    pub total_steps: usize,
+    pub total_facets: usize,
+    /// The scene file, as an absolute path, for the merge to read back.
+    pub scene_file: PathBuf,
+    /// SHA-256 of the geometry of this part's steps (epochs, Sun vectors, fluxes, poses):
+    /// the merge recomputes it from the scene to be sure the parts saw the same inputs.
+    pub geometry_sha256: String,
+    /// The statistics in `part.bin`, in order: `total`, then the named parts.
+    pub statistics: Vec<String>,
+    /// Whether `part-history.bin` holds the history and how many values per facet and
+    /// step it has (1, or 3 with scattered light).
+    pub history_values: usize,
+    /// The layout version of `part.bin`.
+    pub format_version: u32,
+}
+
+/// How a merged folder came to be (`run.json`'s `merged_from`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Merged {
+    pub parts: usize,
+    pub by: By,
 }
 
 /// SHA-256 of a byte string, hex.

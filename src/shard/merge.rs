@@ -11,27 +11,19 @@
 //! the merged statistics (what one run holds) plus one part's at a time; the history is
 //! streamed step by step.
 
-use super::part::{merge_part, read_part, Header, HistoryReader, PART_FILE};
-use super::{geometry_sha256, By, ShardRecord};
+use super::part::{merge_part, open_part, read_part, Header, HistoryReader, PART_FILE};
+use super::{geometry_sha256, By, Merged, ShardRecord};
 use crate::budget::Budget;
 use crate::error::{Error, Result};
 use crate::output::record::RunRecord;
 use crate::output::HistoryWriter;
 use crate::prepare::{prepare, Prepared};
 use crate::progress::{Progress, Timings};
-use crate::run::{self, History, Outcome};
+use crate::run::{self, HistorySink, Outcome, Outputs, Tables};
 use crate::scene::Scene;
 use crate::simulate::StepIrradiance;
 use crate::stats::FacetStats;
-use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
-
-/// How a merged folder came to be (`run.json`'s `merged_from`).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct Merged {
-    pub parts: usize,
-    pub by: By,
-}
 
 /// A part folder and its record.
 struct Part {
@@ -74,7 +66,7 @@ pub fn merge(
     } = prepare(&scene, budget, &mut timings)?;
     check_against_scene(&parts, &states, bins)?;
     let previous = run::previous_outputs(out_dir)?;
-    run::refuse_foreign_files(out_dir, &scene, false, &previous)?;
+    run::refuse_foreign_files(out_dir, &Tables.file_names(&scene), &previous)?;
     run::clear_previous_run(out_dir, previous)?;
     let world = &assembly.world;
     let by = first.shard.by;
@@ -85,7 +77,7 @@ pub fn merge(
             timings.time("history", || {
                 merge_history(&parts, &states, values, &mut writer, progress)
             })?;
-            Some(History::Tables(Box::new(writer)))
+            Some(Box::new(writer) as Box<dyn HistorySink>)
         }
     };
     let statistics = timings.time("statistics", || merge_statistics(&parts, progress))?;
@@ -263,38 +255,67 @@ fn check_against_scene(
 /// straight into the sums; facet parts appended in facet order.
 fn merge_statistics(parts: &[Part], progress: &dyn Progress) -> Result<Vec<FacetStats>> {
     progress.note(&format!("merging the statistics of {} parts", parts.len()));
-    let fits = |p: &Part, header: &Header| {
-        let [f0, f1] = p.shard.facets;
-        let [s0, s1] = p.shard.steps;
-        if header.facets != f1 - f0
-            || header.steps != (s1 - s0) as u64
-            || header.statistics != p.shard.statistics
-        {
-            return Err(Error::file(
-                &p.dir.join(PART_FILE),
-                "does not hold what its run.json says (facets, steps or statistics)",
-            ));
-        }
-        Ok(())
-    };
     let (header, mut merged) = read_part(&parts[0].dir)?;
     fits(&parts[0], &header)?;
-    for p in &parts[1..] {
-        match p.shard.by {
-            By::Time => {
-                merge_part(&p.dir, &mut merged, |h| fits(p, h))?;
-            }
-            By::Facets => {
-                let (header, sets) = read_part(&p.dir)?;
-                fits(p, &header)?;
-                for (into, set) in merged.iter_mut().zip(sets) {
-                    into.append(set)
-                        .map_err(|e| Error::file(&p.dir.join(PART_FILE), e))?;
+    match parts[0].shard.by {
+        By::Time => merge_in_time(&parts[1..], &mut merged)?,
+        By::Facets => append_facets(&parts[1..], &mut merged)?,
+    }
+    Ok(merged)
+}
+
+/// A part's statistics must be what its `run.json` says they are.
+fn fits(p: &Part, header: &Header) -> Result<()> {
+    let [f0, f1] = p.shard.facets;
+    let [s0, s1] = p.shard.steps;
+    if header.facets != f1 - f0
+        || header.steps != (s1 - s0) as u64
+        || header.statistics != p.shard.statistics
+    {
+        return Err(Error::file(
+            &p.dir.join(PART_FILE),
+            "does not hold what its run.json says (facets, steps or statistics)",
+        ));
+    }
+    Ok(())
+}
+
+/// Merges time parts into `merged` in order, each straight into the sums. One thread
+/// reads and checks the next part while the merge of this one goes on.
+fn merge_in_time(parts: &[Part], merged: &mut [FacetStats]) -> Result<()> {
+    std::thread::scope(|scope| {
+        let (send, receive) = std::sync::mpsc::sync_channel(1);
+        scope.spawn(move || {
+            for p in parts {
+                // The merge stopped (an error): nothing more to read.
+                if send.send(open_part(&p.dir)).is_err() {
+                    break;
                 }
+            }
+        });
+        for p in parts {
+            let part = receive
+                .recv()
+                .expect("the reader sends one part per part")?;
+            merge_part(part, merged, |h| fits(p, h))?;
+        }
+        Ok(())
+    })
+}
+
+/// Appends facet parts to `merged` in facet order.
+fn append_facets(parts: &[Part], merged: &mut [FacetStats]) -> Result<()> {
+    for p in parts {
+        {
+            let (header, sets) = read_part(&p.dir)?;
+            fits(p, &header)?;
+            for (into, set) in merged.iter_mut().zip(sets) {
+                into.append(set)
+                    .map_err(|e| Error::file(&p.dir.join(PART_FILE), e))?;
             }
         }
     }
-    Ok(merged)
+    Ok(())
 }
 
 /// Streams the parts' history into `writer`, step by step in the order of one run.

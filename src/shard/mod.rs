@@ -24,40 +24,92 @@ pub mod merge;
 pub mod part;
 pub mod slurm;
 
+use crate::budget::Budget;
+use crate::error::{Error, Result};
+use crate::output::record::RunRecord;
+pub use crate::output::record::{By, Merged, ShardRecord};
+use crate::progress::Progress;
+use crate::run::{run_with, HistorySink, Outputs, Results};
+use crate::scene::Scene;
 use crate::simulate::Slice;
-use serde::{Deserialize, Serialize};
+use crate::world::World;
+use part::{write_part, HistoryPart, FORMAT_VERSION, HISTORY_FILE, PART_FILE};
 use std::ops::Range;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
-/// What a run is split by.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
-#[serde(rename_all = "lowercase")]
-pub enum By {
-    /// Consecutive ranges of steps.
-    #[default]
-    Time,
-    /// Consecutive ranges of the facets that get outputs.
-    Facets,
+/// Runs part `shard` of `scene` within `budget` into the part folder `out_dir`.
+pub fn run_shard(
+    scene: &Scene,
+    out_dir: &Path,
+    budget: &Budget,
+    shard: Shard,
+    progress: &dyn Progress,
+) -> Result<RunRecord> {
+    run_with(scene, out_dir, budget, &shard, progress)
 }
 
-impl std::str::FromStr for By {
-    type Err = String;
-    fn from_str(text: &str) -> Result<By, String> {
-        match text {
-            "time" => Ok(By::Time),
-            "facets" => Ok(By::Facets),
-            _ => Err(format!("'{text}': split by 'time' or 'facets'")),
-        }
+/// A part's outputs: `part.bin`, `part-history.bin` and the `shard` of `run.json`.
+impl Outputs for Shard {
+    fn file_names(&self, _: &Scene) -> Vec<String> {
+        vec![PART_FILE.to_string(), HISTORY_FILE.to_string()]
     }
-}
 
-impl std::fmt::Display for By {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str(match self {
-            By::Time => "time",
-            By::Facets => "facets",
+    fn slice(&self, steps: usize, facets: usize) -> Result<Slice> {
+        Shard::slice(self, steps, facets)
+            .map_err(|e| Error::Usage(format!("--shard {}/{}: {e}", self.index, self.count)))
+    }
+
+    fn history(&self, dir: &Path, _: &Scene, _: &World) -> Result<Box<dyn HistorySink>> {
+        Ok(Box::new(HistoryPart::create(dir)?))
+    }
+
+    fn write(
+        &self,
+        dir: &Path,
+        r: &Results,
+        history: Option<Box<dyn HistorySink>>,
+    ) -> Result<Vec<PathBuf>> {
+        let all: Vec<(String, &crate::stats::FacetStats)> =
+            std::iter::once(("total".into(), r.total))
+                .chain(r.parts.iter().map(|(n, s)| (n.clone(), *s)))
+                .collect();
+        let mut files = vec![write_part(dir, &all)?];
+        if let Some(h) = history {
+            files.extend(h.finish()?);
+        }
+        Ok(files)
+    }
+
+    fn shard(&self, r: &Results) -> Option<ShardRecord> {
+        let facets = r.world.output_facet_count();
+        let steps = bounds(r.slice.steps.clone(), r.states.len());
+        Some(ShardRecord {
+            index: self.index,
+            count: self.count,
+            by: self.by,
+            steps,
+            facets: bounds(r.slice.facets.clone(), facets),
+            total_steps: r.states.len(),
+            total_facets: facets,
+            scene_file: std::path::absolute(&r.scene.path).unwrap_or_else(|_| r.scene.path.clone()),
+            geometry_sha256: geometry_sha256(&r.states[steps[0]..steps[1]]),
+            statistics: std::iter::once("total".to_string())
+                .chain(r.parts.iter().map(|(n, _)| n.clone()))
+                .collect(),
+            history_values: match (r.scene.output.history, r.scattered) {
+                (false, _) => 0,
+                (true, false) => 1,
+                (true, true) => 3,
+            },
+            format_version: FORMAT_VERSION,
         })
     }
+}
+
+/// `[start, end]` of `range`, or of `0..total` for `None`.
+fn bounds(range: Option<Range<usize>>, total: usize) -> [usize; 2] {
+    let r = range.unwrap_or(0..total);
+    [r.start, r.end]
 }
 
 /// Part `index` (1-based) of `count`, split by `by`.
@@ -120,34 +172,6 @@ impl Shard {
         let at = |k: usize| (k as u128 * total as u128 / self.count as u128) as usize;
         at(self.index - 1)..at(self.index)
     }
-}
-
-/// Which part of which run a part folder holds (`run.json`'s `shard`).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct ShardRecord {
-    /// Part K of N (1-based), and what the run is split by.
-    pub index: usize,
-    pub count: usize,
-    pub by: By,
-    /// The steps [start, end) and facets [start, end) (among those that get outputs)
-    /// this part holds statistics of.
-    pub steps: [usize; 2],
-    pub facets: [usize; 2],
-    /// The whole run's steps and facets that get outputs.
-    pub total_steps: usize,
-    pub total_facets: usize,
-    /// The scene file, as an absolute path, for the merge to read back.
-    pub scene_file: PathBuf,
-    /// SHA-256 of the geometry of this part's steps (epochs, Sun vectors, fluxes, poses):
-    /// the merge recomputes it from the scene to be sure the parts saw the same inputs.
-    pub geometry_sha256: String,
-    /// The statistics in `part.bin`, in order: `total`, then the named parts.
-    pub statistics: Vec<String>,
-    /// Whether `part-history.bin` holds the history and how many values per facet and
-    /// step it has (1, or 3 with scattered light).
-    pub history_values: usize,
-    /// The layout version of `part.bin`.
-    pub format_version: u32,
 }
 
 /// SHA-256 of the geometry of `states` (bit patterns, in order).

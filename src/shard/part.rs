@@ -188,6 +188,14 @@ impl PartFile {
     }
 }
 
+/// A `part.bin` read and checked, its statistics not yet decoded ([`open_part`]).
+pub struct OpenPart(PartFile);
+
+/// Reads `DIR/part.bin` into memory and checks its checksum, magic, version and header.
+pub fn open_part(dir: &Path) -> Result<OpenPart> {
+    PartFile::open(dir).map(OpenPart)
+}
+
 /// Reads `DIR/part.bin`: its header and statistics (the total first), after checking
 /// the checksum, the magic and the version.
 pub fn read_part(dir: &Path) -> Result<(Header, Vec<FacetStats>)> {
@@ -204,15 +212,15 @@ pub fn read_part(dir: &Path) -> Result<(Header, Vec<FacetStats>)> {
     Ok((part.finish(left)?, statistics))
 }
 
-/// Merges `DIR/part.bin`, a part over the steps that follow those of `into` (the same
-/// facets and statistics), straight into `into`; returns its header. Checked as
-/// [`read_part`] checks, and `check` sees the header before anything is merged.
+/// Merges an opened part over the steps that follow those of `into` (the same facets
+/// and statistics) straight into `into`; returns its header. `check` sees the header
+/// before anything is merged.
 pub fn merge_part(
-    dir: &Path,
+    part: OpenPart,
     into: &mut [FacetStats],
     check: impl FnOnce(&Header) -> Result<()>,
 ) -> Result<Header> {
-    let part = PartFile::open(dir)?;
+    let part = part.0;
     check(&part.header)?;
     let h = &part.header;
     let fits = h.statistics.len() == into.len()
@@ -249,9 +257,11 @@ impl HistoryPart {
         let (tmp, out) = create_partial(&path)?;
         Ok(HistoryPart { path, tmp, out })
     }
+}
 
+impl crate::run::HistorySink for HistoryPart {
     /// Appends one step: the total, then the direct and scattered parts if any.
-    pub fn write_step(&mut self, step: StepIrradiance) -> Result<()> {
+    fn write_step(&mut self, _: &crate::ephemeris::EpochState, step: StepIrradiance) -> Result<()> {
         let arrays =
             std::iter::once(step.total).chain(step.parts.into_iter().flat_map(|(d, s)| [d, s]));
         for values in arrays {
@@ -265,7 +275,7 @@ impl HistoryPart {
     }
 
     /// Finishes the file (flushed and renamed into place).
-    pub fn finish(mut self) -> Result<Vec<PathBuf>> {
+    fn finish(mut self: Box<Self>) -> Result<Vec<PathBuf>> {
         self.out.flush().map_err(|e| Error::io(&self.tmp, e))?;
         commit(&self.tmp, &self.path)?;
         Ok(vec![self.path])

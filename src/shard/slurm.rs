@@ -372,7 +372,7 @@ pub fn estimate(
         count: probe_parts,
         by: By::Time,
     };
-    let record = crate::run::run_shard(scene, scratch, budget, probe, &Silent)?;
+    let record = super::run_shard(scene, scratch, budget, probe, &Silent)?;
     let ran = record
         .shard
         .as_ref()
