@@ -7,10 +7,11 @@
 //! Before anything is written the parts are checked: each is a finished part; all come
 //! from the same scene file (SHA-256), kernels and slim version, split the same way and
 //! hold the same statistics; parts 1 … N are there exactly once; the scene file read back
-//! gives the same CDF bins and, for each part, the same geometry of its steps. Memory:
-//! the merged statistics (what one run holds) plus one part's at a time; the history is
+//! gives the same CDF bins and, for each part, the same geometry of its steps. Each
+//! `part.bin` is read whole and its checksum checked before any of its numbers are used.
+//! Memory: the merged statistics (what one run holds) plus two parts' files (the one being
+//! merged, and the next, read and checked meanwhile on a second thread); the history is
 //! streamed step by step.
-
 use super::part::{merge_part, open_part, read_part, Header, HistoryReader, PART_FILE};
 use super::{geometry_sha256, By, Merged, ShardRecord};
 use crate::budget::Budget;

@@ -19,7 +19,6 @@ use super::{By, Shard};
 use crate::budget::Budget;
 use crate::error::{Error, Result};
 use crate::output::record::RunRecord;
-use crate::progress::Silent;
 use crate::scene::Scene;
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
@@ -372,7 +371,8 @@ pub fn estimate(
         count: probe_parts,
         by: By::Time,
     };
-    let record = super::run_shard(scene, scratch, budget, probe, &Silent)?;
+    let clock = StepClock::default();
+    let record = super::run_shard(scene, scratch, budget, probe, &clock)?;
     let ran = record
         .shard
         .as_ref()
@@ -390,20 +390,12 @@ pub fn estimate(
             .map(|(_, t)| t)
             .sum::<f64>()
     };
-    let step_s = STEP_STAGES
-        .iter()
-        .map(|s| {
-            stage(s)
-                * if FACET_SHARE_STAGES.contains(s) {
-                    share
-                } else {
-                    1.0
-                }
-        })
-        .sum::<f64>()
-        / ran as f64;
-    let total: f64 = record.timings_s.iter().map(|(_, t)| t).sum();
     let per_step_total: f64 = STEP_STAGES.iter().map(|s| stage(s)).sum();
+    let shared: f64 = FACET_SHARE_STAGES.iter().map(|s| stage(s)).sum();
+    // A facet part keeps statistics of its share of the facets only.
+    let facet_share = 1.0 - (1.0 - share) * shared / per_step_total.max(f64::MIN_POSITIVE);
+    let step_s = clock.steady_step_s().unwrap_or(per_step_total / ran as f64) * facet_share;
+    let total: f64 = record.timings_s.iter().map(|(_, t)| t).sum();
     let output_s = stage("output") * share;
     let setup_s = total - per_step_total - stage("output");
     let part_steps = match by {
@@ -429,6 +421,35 @@ pub fn estimate(
         part_bytes_planned: scaled(memory.total_bytes() as f64, facet_items as f64),
         part_bytes_probe: scaled(peak_resident_bytes() as f64, facet_items as f64),
     })
+}
+
+/// Progress that notes when each step ends, for the probe's time per step.
+#[derive(Default)]
+struct StepClock {
+    ends: std::sync::Mutex<Vec<std::time::Instant>>,
+}
+
+impl crate::progress::Progress for StepClock {
+    fn note(&self, _: &str) {}
+    fn begin_steps(&self, _: u64) {}
+    fn step_done(&self) {
+        if let Ok(mut ends) = self.ends.lock() {
+            ends.push(std::time::Instant::now());
+        }
+    }
+    fn end_steps(&self) {}
+}
+
+impl StepClock {
+    /// Seconds per step over the second half of the steps: the first steps are slower
+    /// (memory touched for the first time), and a long part is made of the later kind.
+    fn steady_step_s(&self) -> Option<f64> {
+        let ends = self.ends.lock().ok()?;
+        let half = &ends[ends.len() / 2..];
+        let (first, last) = (half.first()?, half.last()?);
+        (half.len() >= 2)
+            .then(|| last.duration_since(*first).as_secs_f64() / (half.len() - 1) as f64)
+    }
 }
 
 /// This process's peak resident set (bytes), from `/proc/self/status` (0 where there is
