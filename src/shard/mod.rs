@@ -14,7 +14,8 @@
 //! scattered-light stage of a time part starts where one run would stand
 //! ([`crate::scatter::Scatter::prime`]), and the tables are written by the same code from
 //! the same values. `run.json` differs only in what describes the work rather than the
-//! result: `timings_s`, `threads` and `merged_from`.
+//! result: `timings_s`, `threads`, `merged_from`, and where cached inputs came from (the
+//! form factors' `build_s` and `source`, `horizon_maps`).
 //!
 //! A time part computes steps ⌊(K−1)·S/N⌋ … ⌊K·S/N⌋ of S; a facet part keeps statistics
 //! for that share of the facets that get outputs (in output order) but lights and traces
