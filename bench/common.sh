@@ -25,3 +25,26 @@ subdivided_itokawa() {
   fi
   echo "$mesh"
 }
+
+# spin_scene NAME MESH STEPS CSV [RUN_LINE]: prints a spin scene of the Itokawa-like body
+# with MESH (km) at 1.1 AU, STEPS steps per 12.13 h spin, `csv = CSV`, and RUN_LINE
+# (e.g. `shadows = "rays"`) in [run].
+spin_scene() {
+  cat <<TOML
+[run]
+name = "$1"
+${5:-}
+[output]
+csv = $4
+[ephemeris]
+mode = "spin"
+distance_au = 1.1
+subsolar_latitude_deg = 15.0
+steps_per_period = $3
+[[body]]
+name = "itokawa"
+mesh = "$2"
+units = "km"
+spin_period_h = 12.13
+TOML
+}

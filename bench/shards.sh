@@ -14,22 +14,7 @@ source bench/common.sh
 PARTS=${1:-64} STEPS=${2:-128} REPEAT=${3:-3}
 bench_init bench/results/shards "${4:-}"
 mesh=$(subdivided_itokawa 2)
-cat >"$OUT/scene.toml" <<TOML
-[run]
-name = "itokawa-786k"
-[output]
-csv = ${CSV:-false}
-[ephemeris]
-mode = "spin"
-distance_au = 1.1
-subsolar_latitude_deg = 15.0
-steps_per_period = $STEPS
-[[body]]
-name = "itokawa"
-mesh = "$mesh"
-units = "km"
-spin_period_h = 12.13
-TOML
+spin_scene itokawa-786k "$mesh" "$STEPS" "${CSV:-false}" >"$OUT/scene.toml"
 start=$(date +%s)
 for k in $(seq 1 "$PARTS"); do
   "$B" run "$OUT/scene.toml" --shard "$k/$PARTS" -o "$OUT/parts/$k" --quiet

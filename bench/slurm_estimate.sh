@@ -12,23 +12,7 @@ source bench/common.sh
 LEVELS=${1:-3} STEPS=${2:-8760} PARTS=${3:-64}
 bench_init bench/results/slurm_estimate "${4:-}"
 mesh=$(subdivided_itokawa "$LEVELS")
-cat >"$OUT/scene.toml" <<TOML
-[run]
-name = "itokawa-estimate"
-shadows = "rays"
-[output]
-csv = false
-[ephemeris]
-mode = "spin"
-distance_au = 1.1
-subsolar_latitude_deg = 15.0
-steps_per_period = $STEPS
-[[body]]
-name = "itokawa"
-mesh = "$mesh"
-units = "km"
-spin_period_h = 12.13
-TOML
+spin_scene itokawa-estimate "$mesh" "$STEPS" false 'shadows = "rays"' >"$OUT/scene.toml"
 "$B" slurm "$OUT/scene.toml" --shards "$PARTS" --dry-run -o "$OUT/batch" | head -4
 /usr/bin/time -v "$B" run "$OUT/scene.toml" --shard "1/$PARTS" -o "$OUT/part1" --quiet 2>"$OUT/time.txt"
 echo "part 1/$PARTS measured: wall $(grep 'Elapsed (wall' "$OUT/time.txt" | awk '{print $NF}'), \

@@ -200,7 +200,7 @@ pub fn geometry_sha256(states: &[crate::ephemeris::EpochState]) -> String {
                 .for_each(|x| hash.update(x.to_le_bytes()));
         }
     }
-    hash.finalize().iter().map(|b| format!("{b:02x}")).collect()
+    crate::output::record::hex(&hash.finalize())
 }
 
 #[cfg(test)]

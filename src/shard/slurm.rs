@@ -360,12 +360,10 @@ pub fn estimate(
     probe_steps: usize,
     scratch: &Path,
 ) -> Result<Estimate> {
-    let mut timings = crate::progress::Timings::default();
-    let prepared = crate::prepare::prepare(scene, budget, &mut timings)?;
-    let steps = prepared.states.len();
-    let memory = prepared.plan.memory.clone();
-    drop(prepared);
-    let probe_parts = steps.div_ceil(probe_steps.clamp(1, steps.max(1))).max(1);
+    // The probe is part 1 of as many parts as hold about `probe_steps` steps each,
+    // counted from the scene alone; its run.json then gives the steps and the plan.
+    let asked = scene.step_count().min(usize::MAX as f64) as usize;
+    let probe_parts = (asked / probe_steps.max(1)).max(1);
     let probe = Shard {
         index: 1,
         count: probe_parts,
@@ -373,6 +371,8 @@ pub fn estimate(
     };
     let clock = StepClock::default();
     let record = super::run_shard(scene, scratch, budget, probe, &clock)?;
+    let steps = record.plan.steps;
+    let memory = &record.plan.memory;
     let ran = record
         .shard
         .as_ref()
