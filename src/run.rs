@@ -217,8 +217,14 @@ pub(crate) fn write_results(
 ) -> Result<Vec<PathBuf>> {
     let csv = scene.output.csv;
     let step_s = even_step_s(states);
-    let mut files = output::write_summary(out_dir, csv, world, stats, parts, step_s)?;
-    files.extend(output::write_cdf(out_dir, csv, world, stats, parts)?);
+    // The CDF table is the largest by far (facets × thresholds rows): it is built beside
+    // the summary rather than after it.
+    let (summary, cdf) = rayon::join(
+        || output::write_summary(out_dir, csv, world, stats, parts, step_s),
+        || output::write_cdf(out_dir, csv, world, stats, parts),
+    );
+    let mut files = summary?;
+    files.extend(cdf?);
     files.extend(output::write_geometry(out_dir, csv, world, states)?);
     if let Some(h) = history {
         files.extend(h.finish()?);

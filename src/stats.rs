@@ -122,32 +122,38 @@ pub const MOMENT_BYTES: usize = std::mem::size_of::<Moments>();
 const ENCODED_MOMENT_BYTES: usize = 8 + 8 + 16 + 16 + 8 + 8 + 3 * 4;
 
 /// Reads `facets` facets' moments as [`FacetStats::write_to`] wrote them.
-fn read_moments(input: &mut impl std::io::BufRead, facets: usize) -> std::io::Result<Vec<Moments>> {
-    let mut moments = Vec::with_capacity(facets);
-    let mut record = [0u8; ENCODED_MOMENT_BYTES];
-    for _ in 0..facets {
-        input.read_exact(&mut record)?;
-        let mut at = 0;
-        let mut take = |n: usize| {
-            at += n;
-            &record[at - n..at]
-        };
-        let u32_at = |b: &[u8]| u32::from_le_bytes(b.try_into().expect("4 bytes"));
-        moments.push(Moments {
-            min: f64::from_le_bytes(take(8).try_into().expect("8 bytes")),
-            max: f64::from_le_bytes(take(8).try_into().expect("8 bytes")),
-            sum: i128::from_le_bytes(take(16).try_into().expect("16 bytes")),
-            squares: Wide {
-                low: u128::from_le_bytes(take(16).try_into().expect("16 bytes")),
-                high: u64::from_le_bytes(take(8).try_into().expect("8 bytes")),
-            },
-            lit: u64::from_le_bytes(take(8).try_into().expect("8 bytes")),
-            dark_leading: u32_at(take(4)),
-            dark_trailing: u32_at(take(4)),
-            dark_longest: u32_at(take(4)),
-        });
+/// Splits the moments of `facets` facets off the front of `input` (fixed-size records).
+fn take_moment_records<'a>(input: &mut &'a [u8], facets: usize) -> std::io::Result<&'a [u8]> {
+    let bytes = facets * ENCODED_MOMENT_BYTES;
+    if input.len() < bytes {
+        return Err(std::io::ErrorKind::UnexpectedEof.into());
     }
-    Ok(moments)
+    let (records, rest) = input.split_at(bytes);
+    *input = rest;
+    Ok(records)
+}
+
+/// One facet's moments from its record, as [`FacetStats::write_to`] wrote them.
+fn decode_moments(record: &[u8]) -> Moments {
+    let mut at = 0;
+    let mut take = |n: usize| {
+        at += n;
+        &record[at - n..at]
+    };
+    let u32_at = |b: &[u8]| u32::from_le_bytes(b.try_into().expect("4 bytes"));
+    Moments {
+        min: f64::from_le_bytes(take(8).try_into().expect("8 bytes")),
+        max: f64::from_le_bytes(take(8).try_into().expect("8 bytes")),
+        sum: i128::from_le_bytes(take(16).try_into().expect("16 bytes")),
+        squares: Wide {
+            low: u128::from_le_bytes(take(16).try_into().expect("16 bytes")),
+            high: u64::from_le_bytes(take(8).try_into().expect("8 bytes")),
+        },
+        lit: u64::from_le_bytes(take(8).try_into().expect("8 bytes")),
+        dark_leading: u32_at(take(4)),
+        dark_trailing: u32_at(take(4)),
+        dark_longest: u32_at(take(4)),
+    }
 }
 
 /// Appends `counts` to `out` as LEB128 varints, each run of zeros as 0 and its length.
@@ -494,7 +500,10 @@ impl FacetStats {
     ) -> std::io::Result<FacetStats> {
         let mut stats = FacetStats::new(0, bins);
         stats.steps = steps;
-        stats.moments = read_moments(input, facets)?;
+        stats.moments = take_moment_records(input, facets)?
+            .chunks_exact(ENCODED_MOMENT_BYTES)
+            .map(decode_moments)
+            .collect();
         stats.hist = vec![0; facets * bins.count];
         for counts in stats.hist.chunks_mut(bins.count.max(1)) {
             add_counts(input, counts)?;
@@ -507,15 +516,25 @@ impl FacetStats {
     /// CDF counts is held): the same result as [`FacetStats::read_from`] then
     /// [`FacetStats::merge`].
     pub fn merge_from(&mut self, input: &mut &[u8], steps: u64) -> std::io::Result<()> {
-        let later = read_moments(input, self.moments.len())?;
-        for into in self.hist.chunks_mut(self.bins.count.max(1)) {
-            add_counts(input, into)?;
-        }
+        let records = take_moment_records(input, self.moments.len())?;
         let before = self.steps;
-        self.moments
-            .par_iter_mut()
-            .zip(later.par_iter())
-            .for_each(|(a, b)| a.merge_later(b, before, steps));
+        let hist = &mut self.hist;
+        let per_facet = self.bins.count.max(1);
+        // The counts are varints, read in order on one thread; the fixed-size moments
+        // merge beside them on the others.
+        let (counts, ()) = rayon::join(
+            || {
+                hist.chunks_mut(per_facet)
+                    .try_for_each(|into| add_counts(input, into))
+            },
+            || {
+                self.moments
+                    .par_iter_mut()
+                    .zip(records.par_chunks_exact(ENCODED_MOMENT_BYTES))
+                    .for_each(|(a, r)| a.merge_later(&decode_moments(r), before, steps))
+            },
+        );
+        counts?;
         self.steps += steps;
         Ok(())
     }

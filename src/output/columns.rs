@@ -10,6 +10,9 @@ pub enum Values {
     U32(Vec<u32>),
     U64(Vec<u64>),
     Str(Vec<String>),
+    /// Text in runs: each text repeated on its number of rows (a body's name over its
+    /// facets), so that no row needs a string of its own.
+    Runs(Vec<(String, usize)>),
 }
 
 impl Values {
@@ -20,6 +23,7 @@ impl Values {
             Values::U32(v) => v.len(),
             Values::U64(v) => v.len(),
             Values::Str(v) => v.len(),
+            Values::Runs(runs) => runs.iter().map(|(_, n)| n).sum(),
         }
     }
 

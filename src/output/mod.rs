@@ -94,7 +94,7 @@ pub fn write_summary(
         let batch = Table::default()
             .with(
                 "body",
-                Values::Str(vec![world.bodies[body].name.clone(); range.len()]),
+                Values::Runs(vec![(world.bodies[body].name.clone(), range.len())]),
             )
             .with(
                 "facet",
@@ -128,7 +128,7 @@ pub fn write_summary(
         let batch = parts.iter().fold(batch, |batch, (name, stats)| {
             with_stat_columns(batch, &format!("{name}_"), stats, global())
         });
-        writer.write(&batch)
+        writer.write(batch)
     })?;
     writer.finish()
 }
@@ -161,7 +161,7 @@ pub fn write_cdf(
         let batch = Table::default()
             .with(
                 "body",
-                Values::Str(vec![world.bodies[body].name.clone(); rows]),
+                Values::Runs(vec![(world.bodies[body].name.clone(), rows)]),
             )
             .with("facet", Values::U32(facet))
             .with("irradiance_w_m2", Values::F64(threshold))
@@ -171,7 +171,7 @@ pub fn write_cdf(
         let batch = parts.iter().fold(batch, |batch, (name, stats)| {
             batch.with(format!("cdf_{name}"), all_cdfs(stats))
         });
-        writer.write(&batch)
+        writer.write(batch)
     })?;
     writer.finish()
 }
@@ -225,7 +225,7 @@ pub fn write_geometry(
         .with("rotation_x", column(&|x| quaternion(x).x))
         .with("rotation_y", column(&|x| quaternion(x).y))
         .with("rotation_z", column(&|x| quaternion(x).z));
-    writer.write(&batch)?;
+    writer.write(batch)?;
     writer.finish()
 }
 
@@ -286,11 +286,7 @@ impl HistoryWriter {
         let bodies = || world.bodies.iter().filter(|b| b.outputs);
         HistoryWriter {
             writer: TableWriter::new(dir, "history", csv),
-            body: Values::Str(
-                bodies()
-                    .flat_map(|b| std::iter::repeat_n(b.name.clone(), b.mesh.len()))
-                    .collect(),
-            ),
+            body: Values::Runs(bodies().map(|b| (b.name.clone(), b.mesh.len())).collect()),
             facet: Values::U32(bodies().flat_map(|b| 0..b.mesh.len() as u32).collect()),
         }
     }
@@ -312,7 +308,7 @@ impl HistoryWriter {
                 .with("scattered_w_m2", Values::F64(scattered.to_vec())),
             None => batch,
         };
-        self.writer.write(&batch)
+        self.writer.write(batch)
     }
 
     /// Finishes the files.

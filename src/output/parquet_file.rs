@@ -8,6 +8,7 @@ use super::columns::{Table, Values};
 use crate::atomic::{commit, partial};
 use crate::error::{Error, Result};
 use arrow::array::{ArrayRef, Float64Array, StringArray, UInt32Array, UInt64Array};
+use arrow::buffer::{Buffer, OffsetBuffer, ScalarBuffer};
 use arrow::datatypes::{DataType, Field, Schema, SchemaRef};
 use arrow::record_batch::RecordBatch;
 use parquet::arrow::ArrowWriter;
@@ -32,10 +33,10 @@ impl ParquetFile {
     }
 
     /// Appends a batch (the first batch fixes the columns).
-    pub(super) fn write(&mut self, batch: &Table) -> Result<()> {
+    pub(super) fn write(&mut self, batch: Table) -> Result<()> {
         let tmp = partial(&self.path);
         if self.writer.is_none() {
-            let schema = schema(batch);
+            let schema = schema(&batch);
             let file = File::create(&tmp).map_err(|e| Error::io(&tmp, e))?;
             let props = WriterProperties::builder()
                 .set_compression(Compression::SNAPPY)
@@ -68,17 +69,40 @@ fn data_type(values: &Values) -> DataType {
         Values::F64(_) => DataType::Float64,
         Values::U32(_) => DataType::UInt32,
         Values::U64(_) => DataType::UInt64,
-        Values::Str(_) => DataType::Utf8,
+        Values::Str(_) | Values::Runs(_) => DataType::Utf8,
     }
 }
 
-fn to_arrow(values: &Values) -> ArrayRef {
+/// The column as an Arrow array, taking its values (no copy of numbers).
+fn to_arrow(values: Values) -> ArrayRef {
     match values {
-        Values::F64(v) => Arc::new(Float64Array::from(v.clone())),
-        Values::U32(v) => Arc::new(UInt32Array::from(v.clone())),
-        Values::U64(v) => Arc::new(UInt64Array::from(v.clone())),
-        Values::Str(v) => Arc::new(StringArray::from(v.clone())),
+        Values::F64(v) => Arc::new(Float64Array::from(v)),
+        Values::U32(v) => Arc::new(UInt32Array::from(v)),
+        Values::U64(v) => Arc::new(UInt64Array::from(v)),
+        Values::Str(v) => Arc::new(StringArray::from(v)),
+        Values::Runs(runs) => Arc::new(runs_array(&runs)),
     }
+}
+
+/// A text column in runs as one buffer of bytes and its offsets: the same array as one
+/// string per row, without a string per row.
+fn runs_array(runs: &[(String, usize)]) -> StringArray {
+    let rows: usize = runs.iter().map(|(_, n)| n).sum();
+    let mut text = Vec::with_capacity(runs.iter().map(|(t, n)| t.len() * n).sum());
+    let mut offsets = Vec::with_capacity(rows + 1);
+    offsets.push(0i32);
+    for (t, n) in runs {
+        let start = text.len();
+        text.extend_from_slice(&t.as_bytes().repeat(*n));
+        let end =
+            |k: usize| i32::try_from(start + k * t.len()).expect("a batch's text under 2 GiB");
+        offsets.extend((1..=*n).map(end));
+    }
+    StringArray::new(
+        OffsetBuffer::new(ScalarBuffer::from(offsets)),
+        Buffer::from_vec(text),
+        None,
+    )
 }
 
 fn schema(table: &Table) -> SchemaRef {
@@ -91,10 +115,14 @@ fn schema(table: &Table) -> SchemaRef {
     ))
 }
 
-fn record_batch(table: &Table, schema: SchemaRef) -> std::result::Result<RecordBatch, String> {
+fn record_batch(table: Table, schema: SchemaRef) -> std::result::Result<RecordBatch, String> {
     RecordBatch::try_new(
         schema,
-        table.columns.iter().map(|(_, v)| to_arrow(v)).collect(),
+        table
+            .columns
+            .into_iter()
+            .map(|(_, v)| to_arrow(v))
+            .collect(),
     )
     .map_err(|e| e.to_string())
 }

@@ -9,9 +9,9 @@
 //! hold the same statistics; parts 1 … N are there exactly once; the scene file read back
 //! gives the same CDF bins and, for each part, the same geometry of its steps. Each
 //! `part.bin` is read whole and its checksum checked before any of its numbers are used.
-//! Memory: the merged statistics (what one run holds) plus two parts' files (the one being
-//! merged, and the next, read and checked meanwhile on a second thread); the history is
-//! streamed step by step.
+//! Memory: the merged statistics (what one run holds) plus four parts' files (the one
+//! being merged, and the next ones, read and checked meanwhile by two threads); the
+//! history is streamed step by step.
 use super::part::{merge_part, open_part, read_part, Header, HistoryReader, PART_FILE};
 use super::{geometry_sha256, By, Merged, ShardRecord};
 use crate::budget::Budget;
@@ -281,28 +281,41 @@ fn fits(p: &Part, header: &Header) -> Result<()> {
     Ok(())
 }
 
-/// Merges time parts into `merged` in order, each straight into the sums. One thread
-/// reads and checks the next part while the merge of this one goes on.
+/// Merges time parts into `merged` in order, each straight into the sums. Reading a part
+/// and checking its checksum costs more than merging it, so [`READERS`] threads read and
+/// check the next parts (reader r takes every r-th) while this one is merged.
 fn merge_in_time(parts: &[Part], merged: &mut [FacetStats]) -> Result<()> {
     std::thread::scope(|scope| {
-        let (send, receive) = std::sync::mpsc::sync_channel(1);
-        scope.spawn(move || {
-            for p in parts {
-                // The merge stopped (an error): nothing more to read.
-                if send.send(open_part(&p.dir)).is_err() {
-                    break;
+        let mut readers = Vec::new();
+        for r in 0..READERS {
+            // A reader hands over one part at a time and reads the next into the memory
+            // of one already merged: two parts' memory per reader.
+            let (send, receive) = std::sync::mpsc::sync_channel(0);
+            let (give_back, recycled) = std::sync::mpsc::channel::<Vec<u8>>();
+            scope.spawn(move || {
+                for p in parts.iter().skip(r).step_by(READERS) {
+                    let buffer = recycled.try_recv().unwrap_or_default();
+                    // The merge stopped (an error): nothing more to read.
+                    if send.send(open_part(&p.dir, buffer)).is_err() {
+                        break;
+                    }
                 }
-            }
-        });
-        for p in parts {
-            let part = receive
-                .recv()
-                .expect("the reader sends one part per part")?;
-            merge_part(part, merged, |h| fits(p, h))?;
+            });
+            readers.push((receive, give_back));
+        }
+        for (k, p) in parts.iter().enumerate() {
+            let (receive, give_back) = &readers[k % READERS];
+            let part = receive.recv().expect("a reader sends one part per part")?;
+            let buffer = merge_part(part, merged, |h| fits(p, h))?;
+            // The reader may have finished: the memory is then simply freed.
+            let _ = give_back.send(buffer);
         }
         Ok(())
     })
 }
+
+/// Threads reading and checking parts during a merge in time.
+const READERS: usize = 2;
 
 /// Appends facet parts to `merged` in facet order.
 fn append_facets(parts: &[Part], merged: &mut [FacetStats]) -> Result<()> {

@@ -8,7 +8,7 @@
 //! | 4 | layout version (u32) |
 //! | 8 | header length H (u64) |
 //! | H | header, JSON: `steps`, `facets`, `bins` (`width_w_m2`, `count`), `statistics` (names) |
-//! | per statistic | [`FacetStats::write_to`]: facets × 76 bytes of moments, then facets × bins × 4 bytes of CDF counts |
+//! | per statistic | [`FacetStats::write_to`]: facets × 76 bytes of moments, then per facet its CDF counts as LEB128 varints (a run of zeros as 0 and its length) |
 //! | 32 | SHA-256 of every byte before it |
 //!
 //! **`part-history.bin`** (when the scene asks for history): for each of the part's steps
@@ -110,10 +110,14 @@ struct PartFile {
 }
 
 impl PartFile {
-    fn open(dir: &Path) -> Result<PartFile> {
+    /// Reads and checks `DIR/part.bin` into `bytes` (its capacity reused).
+    fn open(dir: &Path, mut bytes: Vec<u8>) -> Result<PartFile> {
         let path = dir.join(PART_FILE);
         let bad = |what: String| Error::file(&path, what);
-        let bytes = std::fs::read(&path).map_err(|e| Error::io(&path, e))?;
+        bytes.clear();
+        File::open(&path)
+            .and_then(|mut f| f.read_to_end(&mut bytes))
+            .map_err(|e| Error::io(&path, e))?;
         if !bytes.starts_with(MAGIC) {
             return Err(bad(
                 "is not a slim part file (no SLIMPART at its start)".into()
@@ -177,14 +181,14 @@ impl PartFile {
     }
 
     /// Checks that the statistics were read to their end (`left` bytes were not).
-    fn finish(self, left: usize) -> Result<Header> {
+    fn check_all_read(&self, left: usize) -> Result<()> {
         if left > 0 {
             return Err(Error::file(
                 &self.path,
                 "holds bytes its header does not account for; it is damaged",
             ));
         }
-        Ok(self.header)
+        Ok(())
     }
 }
 
@@ -192,14 +196,16 @@ impl PartFile {
 pub struct OpenPart(PartFile);
 
 /// Reads `DIR/part.bin` into memory and checks its checksum, magic, version and header.
-pub fn open_part(dir: &Path) -> Result<OpenPart> {
-    PartFile::open(dir).map(OpenPart)
+/// The file is read into `buffer`, whose memory is reused (a merge reads part after part
+/// of the same size, and fresh memory of that size costs more than reading the file).
+pub fn open_part(dir: &Path, buffer: Vec<u8>) -> Result<OpenPart> {
+    PartFile::open(dir, buffer).map(OpenPart)
 }
 
 /// Reads `DIR/part.bin`: its header and statistics (the total first), after checking
 /// the checksum, the magic and the version.
 pub fn read_part(dir: &Path) -> Result<(Header, Vec<FacetStats>)> {
-    let part = PartFile::open(dir)?;
+    let part = PartFile::open(dir, Vec::new())?;
     let h = &part.header;
     let mut input = part.statistics();
     let statistics = h
@@ -208,18 +214,18 @@ pub fn read_part(dir: &Path) -> Result<(Header, Vec<FacetStats>)> {
         .map(|_| FacetStats::read_from(&mut input, h.facets, h.steps, h.bins))
         .collect::<std::io::Result<Vec<_>>>()
         .map_err(|e| part.read_error(e))?;
-    let left = input.len();
-    Ok((part.finish(left)?, statistics))
+    part.check_all_read(input.len())?;
+    Ok((part.header, statistics))
 }
 
 /// Merges an opened part over the steps that follow those of `into` (the same facets
-/// and statistics) straight into `into`; returns its header. `check` sees the header
-/// before anything is merged.
+/// and statistics) straight into `into`. `check` sees the header before anything is
+/// merged. Returns the part's memory, for the next part to be read into.
 pub fn merge_part(
     part: OpenPart,
     into: &mut [FacetStats],
     check: impl FnOnce(&Header) -> Result<()>,
-) -> Result<Header> {
+) -> Result<Vec<u8>> {
     let part = part.0;
     check(&part.header)?;
     let h = &part.header;
@@ -239,8 +245,8 @@ pub fn merge_part(
             .merge_from(&mut input, h.steps)
             .map_err(|e| part.read_error(e))?;
     }
-    let left = input.len();
-    part.finish(left)
+    part.check_all_read(input.len())?;
+    Ok(part.bytes)
 }
 
 /// Streams a part's history into `part-history.bin`.
