@@ -3,7 +3,12 @@
 //! ```text
 //! cargo run --release --example bench_direct -- [MESH] [--subdivide N] [--steps N]
 //!     [--tracer sunview|bvh|grid|both|all] [--threads N]
+//!     [--horizon exact|approximate [--azimuths A] [--sun point|disk] [--cache DIR]]
 //! ```
+//! With `--horizon`, the step loop looks the Sun up in the body's horizon map (A wedges,
+//! default 128) instead of tracing every ray: `exact` traces only where the Sun is not
+//! above the wedge's upper bound, `approximate` traces nothing. The map is read from
+//! `--cache DIR` when there, else built (and stored there); its time is the `build s`.
 //! Default: the 49,152-facet Itokawa model, 360 steps over one spin, Sun in the equator
 //! plane, both tracers. `--subdivide 2` splits every facet into 16 (786,432 facets).
 //! Only the step loop is timed (the Sun-view build per step included; mesh loading and the
@@ -14,7 +19,9 @@
 mod common;
 
 use glam::DVec3;
+use slim::horizon::shadows::{HorizonMode, ShadowMethod, Shadows, SunShape, DEFAULT_AZIMUTHS};
 use slim::illum::{Direct, StepCounts};
+use slim::progress::Silent;
 use slim::trace::TracerKind;
 use std::time::Instant;
 
@@ -33,10 +40,18 @@ fn tracers(options: &common::Options) -> Result<Vec<TracerKind>, String> {
 }
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
-    let options = common::Options::from_env(&["--subdivide", "--steps", "--tracer", "--threads"]);
+    let options = common::Options::from_env(&[
+        "--subdivide",
+        "--steps",
+        "--tracer",
+        "--threads",
+        "--horizon",
+        "--azimuths",
+        "--sun",
+        "--cache",
+    ]);
     options.apply_threads()?;
     let steps: usize = options.value("--steps", 360)?;
-    let tracers = tracers(&options)?;
     let world = options.world(0)?;
     let states = common::spin_states(steps, DVec3::X)?;
     println!(
@@ -50,25 +65,79 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         "{:<8} {:>12} {:>14} {:>16} {:>10}",
         "tracer", "build s", "ms per step", "queries per s", "shadowed"
     );
-    let mut out = vec![0.0; world.facet_count()];
-    for &kind in &tracers {
-        let t0 = Instant::now();
-        let direct = Direct::new(&world, kind);
-        let build = t0.elapsed().as_secs_f64();
-        let mut counts = StepCounts::default();
-        let t1 = Instant::now();
-        for s in &states {
-            counts += direct.compute(s, &mut out)?;
+    match options.optional::<String>("--horizon")? {
+        Some(mode) => {
+            let shadows = horizon_shadows(&options, &mode)?;
+            let t0 = Instant::now();
+            let maps = world
+                .bodies
+                .iter()
+                .map(|b| shadows.obtain(b, &Silent).map(|(map, _)| Some(map)))
+                .collect::<Result<Vec<_>, _>>()?;
+            let direct = Direct::with_maps(&world, TracerKind::Bvh, maps, &shadows);
+            time_steps(
+                &format!("map {mode}"),
+                t0,
+                direct,
+                &states,
+                world.facet_count(),
+            )?;
         }
-        let loop_s = t1.elapsed().as_secs_f64();
-        println!(
-            "{:<8} {:>12.3} {:>14.3} {:>16.3e} {:>10}",
-            format!("{kind:?}").to_lowercase(),
-            build,
-            1e3 * loop_s / steps as f64,
-            counts.rays as f64 / loop_s,
-            counts.shadowed
-        );
+        None => {
+            for kind in tracers(&options)? {
+                let t0 = Instant::now();
+                let direct = Direct::new(&world, kind);
+                let name = format!("{kind:?}").to_lowercase();
+                time_steps(&name, t0, direct, &states, world.facet_count())?;
+            }
+        }
     }
+    Ok(())
+}
+
+/// The shadows `--horizon MODE` with `--azimuths`, `--sun` and `--cache` ask for.
+fn horizon_shadows(options: &common::Options, mode: &str) -> Result<Shadows, String> {
+    Ok(Shadows {
+        method: ShadowMethod::Horizon,
+        mode: match mode {
+            "exact" => HorizonMode::Exact,
+            "approximate" => HorizonMode::Approximate,
+            m => return Err(format!("unknown horizon mode {m}")),
+        },
+        azimuths: options.value("--azimuths", DEFAULT_AZIMUTHS)?,
+        sun: match options.value("--sun", "point".to_string())?.as_str() {
+            "point" => SunShape::Point,
+            "disk" => SunShape::Disk,
+            s => return Err(format!("unknown Sun shape {s}")),
+        },
+        cache_dir: options.optional("--cache")?,
+        ..Shadows::default()
+    })
+}
+
+/// Runs `direct` over `states` and prints its line (`t0`: when its setup began).
+fn time_steps(
+    name: &str,
+    t0: Instant,
+    direct: Direct,
+    states: &[slim::ephemeris::EpochState],
+    facets: usize,
+) -> Result<(), slim::Error> {
+    let build = t0.elapsed().as_secs_f64();
+    let mut out = vec![0.0; facets];
+    let mut counts = StepCounts::default();
+    let t1 = Instant::now();
+    for s in states {
+        counts += direct.compute(s, &mut out)?;
+    }
+    let loop_s = t1.elapsed().as_secs_f64();
+    println!(
+        "{:<8} {:>12.3} {:>14.3} {:>16.3e} {:>10}",
+        name,
+        build,
+        1e3 * loop_s / states.len() as f64,
+        counts.rays as f64 / loop_s,
+        counts.shadowed
+    );
     Ok(())
 }

@@ -53,5 +53,9 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
 pub fn create_partial(path: &Path) -> Result<(PathBuf, BufWriter<File>)> {
     let tmp = partial(path);
     let file = File::create(&tmp).map_err(|e| Error::io(&tmp, e))?;
-    Ok((tmp, BufWriter::new(file)))
+    Ok((tmp, BufWriter::with_capacity(WRITE_BUFFER, file)))
 }
+
+/// Bytes buffered before a streamed file is written to: large writes of whole pages
+/// cost the kernel less than many small ones (GB-sized CSV tables).
+const WRITE_BUFFER: usize = 1 << 20;

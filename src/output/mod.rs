@@ -16,6 +16,7 @@
 //! written last, so a folder holds a complete run exactly when it holds `run.json`.
 
 pub mod columns;
+mod csv_file;
 #[cfg(feature = "parquet")]
 mod parquet_file;
 pub mod ply;

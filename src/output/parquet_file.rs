@@ -5,6 +5,7 @@
 //! `.partial` name and renamed when finished.
 
 use super::columns::{Table, Values};
+use super::table::TableFile;
 use crate::atomic::{commit, partial};
 use crate::error::{Error, Result};
 use arrow::array::{ArrayRef, Float64Array, StringArray, UInt32Array, UInt64Array};
@@ -31,9 +32,13 @@ impl ParquetFile {
     pub(super) fn new(path: PathBuf) -> ParquetFile {
         ParquetFile { path, writer: None }
     }
+}
 
-    /// Appends a batch (the first batch fixes the columns).
-    pub(super) fn write(&mut self, batch: Table) -> Result<()> {
+impl TableFile for ParquetFile {
+    /// Appends a batch (the first batch fixes the columns). Its columns move into Arrow
+    /// when no other file of the table still reads them, and are copied otherwise.
+    fn write(&mut self, batch: Arc<Table>) -> Result<()> {
+        let batch = Arc::try_unwrap(batch).unwrap_or_else(|shared| (*shared).clone());
         let tmp = partial(&self.path);
         if self.writer.is_none() {
             let schema = schema(&batch);
@@ -52,8 +57,7 @@ impl ParquetFile {
         writer.write(&record).map_err(|e| Error::output(&tmp, e))
     }
 
-    /// Closes the file and moves it into place; the path, if anything was written.
-    pub(super) fn finish(self) -> Result<Option<PathBuf>> {
+    fn finish(self: Box<Self>) -> Result<Option<PathBuf>> {
         let Some((writer, _)) = self.writer else {
             return Ok(None);
         };

@@ -2,27 +2,35 @@
 //!
 //! In: batches of named columns ([`super::columns::Table`]). Out: `NAME.parquet`
 //! (Snappy-compressed, one row group per batch up to a size limit; see `parquet_file`)
-//! and optionally `NAME.csv` with the same columns and values. A build without the
-//! `parquet` feature writes the CSV alone, whatever the scene asks. Files are written as
-//! `NAME.ext.partial` and renamed only by [`TableWriter::finish`], so an interrupted run
-//! never leaves a file that looks complete.
+//! and optionally `NAME.csv` with the same columns and values (`csv_file`). A build
+//! without the `parquet` feature writes the CSV alone, whatever the scene asks. Each file
+//! is encoded on a thread of its own while the caller builds the next batch. Files are
+//! written as `NAME.ext.partial` and renamed only by [`TableWriter::finish`], so an
+//! interrupted run never leaves a file that looks complete.
 
-use super::columns::{Table, Values};
+use super::columns::Table;
+use super::csv_file::CsvFile;
 #[cfg(feature = "parquet")]
 use super::parquet_file::ParquetFile;
-use crate::atomic::{commit, partial};
-use crate::error::{Error, Result};
-use std::fs::File;
-use std::io::{BufWriter, Write};
+use crate::error::Result;
 use std::path::{Path, PathBuf};
-use std::sync::mpsc::{sync_channel, Receiver, SyncSender};
+use std::sync::mpsc::{sync_channel, SyncSender};
+use std::sync::Arc;
 use std::thread::JoinHandle;
 
-/// Writes one table as Parquet (and CSV if asked), batch by batch, on a thread of its
-/// own: the caller builds the next batch while this one is encoded and written.
+/// One file of a table, written batch by batch on its own thread.
+pub(super) trait TableFile: Send + 'static {
+    /// Appends a batch (shared with the table's other files; the first fixes the columns).
+    fn write(&mut self, batch: Arc<Table>) -> Result<()>;
+    /// Closes the file and moves it into place; its path, if anything was written.
+    fn finish(self: Box<Self>) -> Result<Option<PathBuf>>;
+}
+
+/// Writes one table as Parquet (and CSV if asked), batch by batch. Each file is encoded
+/// on a thread of its own, so the caller builds the next batch while this one is
+/// encoded, and the two formats are encoded side by side.
 pub struct TableWriter {
-    batches: Option<SyncSender<Table>>,
-    encoder: Option<JoinHandle<Result<Vec<PathBuf>>>>,
+    encoders: Vec<Encoder>,
 }
 
 /// The files a [`TableWriter`] for table `name` writes: `NAME.parquet` with the `parquet`
@@ -37,31 +45,30 @@ impl TableWriter {
     /// A writer for `DIR/NAME.parquet` and, if `csv` (or without Parquet support),
     /// `DIR/NAME.csv`.
     pub fn new(dir: &Path, name: &str, csv: bool) -> TableWriter {
-        let csv = csv || !cfg!(feature = "parquet");
-        let files = TableFiles {
-            #[cfg(feature = "parquet")]
-            parquet: ParquetFile::new(dir.join(format!("{name}.parquet"))),
-            csv_path: csv.then(|| dir.join(format!("{name}.csv"))),
-            csv: None,
-        };
-        // One batch waits while another is encoded: at most two batches in memory
-        // beside the one being built.
-        let (batches, received) = sync_channel::<Table>(1);
-        let encoder = std::thread::spawn(move || files.write_all(received));
+        let mut files: Vec<Box<dyn TableFile>> = Vec::new();
+        #[cfg(feature = "parquet")]
+        files.push(Box::new(ParquetFile::new(
+            dir.join(format!("{name}.parquet")),
+        )));
+        if csv || !cfg!(feature = "parquet") {
+            files.push(Box::new(CsvFile::new(dir.join(format!("{name}.csv")))));
+        }
         TableWriter {
-            batches: Some(batches),
-            encoder: Some(encoder),
+            encoders: files.into_iter().map(Encoder::start).collect(),
         }
     }
 
     /// Appends a batch (the first batch fixes the columns). An error of an earlier batch
     /// may be the one returned.
     pub fn write(&mut self, batch: Table) -> Result<()> {
-        let batches = self.batches.as_ref().expect("open until finished");
-        if batches.send(batch).is_ok() {
+        let batch = Arc::new(batch);
+        // The last file gets the batch itself: alone, it can then take the columns.
+        let (last, others) = self.encoders.split_last().expect("a table has a file");
+        let stopped = others.iter().any(|e| !e.send(Arc::clone(&batch))) || !last.send(batch);
+        if !stopped {
             return Ok(());
         }
-        // The encoder takes batches until it meets an error: that error is the answer.
+        // An encoder takes batches until it meets an error: that error is the answer.
         match self.join() {
             Err(e) => Err(e),
             Ok(_) => unreachable!("an encoder stops early only on an error"),
@@ -70,128 +77,98 @@ impl TableWriter {
 
     /// Closes the files and moves them into place. Returns the paths written.
     pub fn finish(mut self) -> Result<Vec<PathBuf>> {
+        for e in &self.encoders {
+            e.finish();
+        }
         self.join()
     }
 
+    /// Closes every channel and waits for every encoder; the paths written, or the first
+    /// error. An encoder told to finish commits its file; any other leaves it partial.
     fn join(&mut self) -> Result<Vec<PathBuf>> {
-        self.batches = None;
-        match self.encoder.take().map(JoinHandle::join) {
-            Some(Ok(written)) => written,
-            Some(Err(panic)) => std::panic::resume_unwind(panic),
-            None => unreachable!("joined once: by finish, or by a write's error"),
-        }
+        self.encoders.iter_mut().for_each(|e| e.batches = None);
+        let ends: Vec<_> = self.encoders.iter_mut().map(Encoder::join).collect();
+        ends.into_iter().filter_map(Result::transpose).collect()
     }
 }
 
 impl Drop for TableWriter {
-    /// A writer dropped unfinished (an error elsewhere) still waits for its thread; its
+    /// A writer dropped unfinished (an error elsewhere) still waits for its threads; its
     /// files stay under their `.partial` names.
     fn drop(&mut self) {
+        self.encoders.iter_mut().for_each(|e| e.batches = None);
+        for e in &mut self.encoders {
+            if let Some(thread) = e.thread.take() {
+                let _ = thread.join();
+            }
+        }
+    }
+}
+
+/// What an encoder's thread is told.
+enum Message {
+    Batch(Arc<Table>),
+    /// Every batch is sent: close the file and move it into place. A channel closed
+    /// without it means the table was abandoned, and the file stays partial.
+    Finish,
+}
+
+/// A file's thread and the channel that feeds it.
+struct Encoder {
+    batches: Option<SyncSender<Message>>,
+    thread: Option<JoinHandle<Result<Option<PathBuf>>>>,
+}
+
+impl Encoder {
+    fn start(mut file: Box<dyn TableFile>) -> Encoder {
+        // One batch waits while another is encoded: at most two batches in memory
+        // beside the one being built.
+        let (batches, received) = sync_channel::<Message>(1);
+        let thread = std::thread::spawn(move || {
+            for message in received {
+                match message {
+                    Message::Batch(batch) => file.write(batch)?,
+                    Message::Finish => return file.finish(),
+                }
+            }
+            Ok(None)
+        });
+        Encoder {
+            batches: Some(batches),
+            thread: Some(thread),
+        }
+    }
+
+    /// Hands `batch` over; false when the encoder has stopped (on an error).
+    fn send(&self, batch: Arc<Table>) -> bool {
+        self.batches
+            .as_ref()
+            .is_some_and(|b| b.send(Message::Batch(batch)).is_ok())
+    }
+
+    /// Tells the encoder to finish its file (an encoder stopped on an error ignores it,
+    /// and [`Encoder::join`] gives that error).
+    fn finish(&self) {
+        if let Some(b) = &self.batches {
+            let _ = b.send(Message::Finish);
+        }
+    }
+
+    /// Waits for the thread (its channel closed first); `Ok(None)` when already joined or
+    /// abandoned.
+    fn join(&mut self) -> Result<Option<PathBuf>> {
         self.batches = None;
-        if let Some(encoder) = self.encoder.take() {
-            let _ = encoder.join();
+        match self.thread.take().map(JoinHandle::join) {
+            Some(Ok(written)) => written,
+            Some(Err(panic)) => std::panic::resume_unwind(panic),
+            None => Ok(None),
         }
-    }
-}
-
-/// The files of one table, owned by its encoding thread.
-struct TableFiles {
-    #[cfg(feature = "parquet")]
-    parquet: ParquetFile,
-    csv_path: Option<PathBuf>,
-    csv: Option<BufWriter<File>>,
-}
-
-impl TableFiles {
-    /// Writes every batch received, then finishes the files (when the sender is gone).
-    fn write_all(mut self, batches: Receiver<Table>) -> Result<Vec<PathBuf>> {
-        for batch in batches {
-            self.write(batch)?;
-        }
-        self.finish()
-    }
-
-    fn write(&mut self, batch: Table) -> Result<()> {
-        if let Some(path) = &self.csv_path {
-            if self.csv.is_none() {
-                self.csv = Some(create_csv(path, &batch)?);
-            }
-            let out = self.csv.as_mut().expect("created above");
-            write_csv_rows(&batch, out).map_err(|e| Error::io(&partial(path), e))?;
-        }
-        #[cfg(feature = "parquet")]
-        self.parquet.write(batch)?;
-        Ok(())
-    }
-
-    fn finish(mut self) -> Result<Vec<PathBuf>> {
-        let mut written = Vec::new();
-        #[cfg(feature = "parquet")]
-        written.extend(self.parquet.finish()?);
-        if let (Some(mut out), Some(path)) = (self.csv.take(), self.csv_path.clone()) {
-            let tmp = partial(&path);
-            out.flush().map_err(|e| Error::io(&tmp, e))?;
-            drop(out);
-            commit(&tmp, &path)?;
-            written.push(path);
-        }
-        Ok(written)
-    }
-}
-
-/// `path` under its temporary name, with the header line of `first`'s columns.
-fn create_csv(path: &Path, first: &Table) -> Result<BufWriter<File>> {
-    let tmp = partial(path);
-    let mut out = BufWriter::new(File::create(&tmp).map_err(|e| Error::io(&tmp, e))?);
-    let header: Vec<&str> = first.columns.iter().map(|(n, _)| n.as_str()).collect();
-    writeln!(out, "{}", header.join(",")).map_err(|e| Error::io(&tmp, e))?;
-    Ok(out)
-}
-
-fn write_csv_rows(batch: &Table, out: &mut impl Write) -> std::io::Result<()> {
-    for row in 0..batch.rows() {
-        for (k, (_, values)) in batch.columns.iter().enumerate() {
-            if k > 0 {
-                out.write_all(b",")?;
-            }
-            write_csv_cell(values, row, out)?;
-        }
-        out.write_all(b"\n")?;
-    }
-    Ok(())
-}
-
-fn write_csv_cell(values: &Values, row: usize, out: &mut impl Write) -> std::io::Result<()> {
-    match values {
-        Values::F64(v) => write!(out, "{}", v[row]),
-        Values::U32(v) => write!(out, "{}", v[row]),
-        Values::U64(v) => write!(out, "{}", v[row]),
-        Values::Str(v) => write_csv_text(&v[row], out),
-        Values::Runs(runs) => write_csv_text(run_text(runs, row), out),
-    }
-}
-
-/// The text on `row` of a column in runs (few runs: one per body).
-fn run_text(runs: &[(String, usize)], mut row: usize) -> &str {
-    for (text, rows) in runs {
-        if row < *rows {
-            return text;
-        }
-        row -= rows;
-    }
-    panic!("row {row} past the end of a column in runs")
-}
-
-fn write_csv_text(s: &str, out: &mut impl Write) -> std::io::Result<()> {
-    if s.contains([',', '"', '\n', '\r']) {
-        write!(out, "\"{}\"", s.replace('"', "\"\""))
-    } else {
-        out.write_all(s.as_bytes())
     }
 }
 
 #[cfg(test)]
 mod tests {
+    use super::super::columns::Values;
     use super::*;
 
     fn folder(name: &str) -> PathBuf {
@@ -245,6 +222,23 @@ mod tests {
             std::fs::read(dir.join("a/t.parquet")).unwrap(),
             std::fs::read(dir.join("b/t.parquet")).unwrap()
         );
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    #[test]
+    fn a_writer_dropped_unfinished_leaves_only_partial_files() {
+        let dir = folder("dropped");
+        let mut writer = TableWriter::new(&dir, "t", true);
+        writer
+            .write(Table::default().with("x", Values::F64(vec![1.0])))
+            .unwrap();
+        drop(writer);
+        let names: Vec<_> = std::fs::read_dir(&dir)
+            .unwrap()
+            .map(|e| e.unwrap().file_name().into_string().unwrap())
+            .collect();
+        assert!(names.iter().all(|n| n.ends_with(".partial")), "{names:?}");
+        assert!(names.contains(&"t.csv.partial".to_string()), "{names:?}");
         let _ = std::fs::remove_dir_all(&dir);
     }
 
