@@ -35,7 +35,7 @@ use crate::trace::bvh::Bvh;
 use glam::DVec3;
 use rayon::prelude::*;
 use std::cell::RefCell;
-use std::f64::consts::{FRAC_PI_2, TAU};
+use std::f64::consts::{FRAC_PI_2, FRAC_PI_4, PI, TAU};
 
 /// Quanta per radian of elevation: 0–90° onto 0–65535.
 const QUANTA_PER_RAD: f64 = 65535.0 / FRAC_PI_2;
@@ -43,6 +43,10 @@ const QUANTA_PER_RAD: f64 = 65535.0 / FRAC_PI_2;
 /// Least and most wedges a map may have (a wedge must be narrower than half a turn).
 pub const AZIMUTHS_MIN: u32 = 8;
 pub const AZIMUTHS_MAX: u32 = 4096;
+
+/// How far (radians) a Sun must stand above a wedge's upper bound to clear it: more than
+/// the rounding of its elevation.
+const CLEAR_MARGIN: f64 = 1e-9;
 
 /// Extra width (radians) given to each wedge on both sides when the upper bound is
 /// built, so that the rounding of the Sun's azimuth at lookup never picks a wedge that
@@ -55,6 +59,10 @@ pub struct HorizonMap {
     azimuths: u32,
     /// Per facet, per wedge: [upper, centre] elevation in quanta.
     cells: Vec<[u16; 2]>,
+    /// Per facet, a sine of elevation that no wedge's upper bound or centre reaches
+    /// (derived from `cells`): a Sun higher than it clears the facet's whole horizon,
+    /// decided without its azimuth.
+    ceilings: Vec<f64>,
 }
 
 /// Where the Sun stands in a facet's sky: its wedge, its place between wedge centres
@@ -122,14 +130,37 @@ impl HorizonMap {
                 .collect();
             rows.into_iter().for_each(|r| cells.extend(r));
         }
-        Some(HorizonMap { azimuths, cells })
+        Some(HorizonMap::with_ceilings(azimuths, cells))
     }
 
     /// A map from stored cells (the cache); `None` when their number does not fit.
     pub(super) fn from_cells(azimuths: u32, facets: usize, cells: Vec<[u16; 2]>) -> Option<Self> {
         ((AZIMUTHS_MIN..=AZIMUTHS_MAX).contains(&azimuths)
             && cells.len() == facets * azimuths as usize)
-            .then_some(HorizonMap { azimuths, cells })
+            .then(|| HorizonMap::with_ceilings(azimuths, cells))
+    }
+
+    fn with_ceilings(azimuths: u32, cells: Vec<[u16; 2]>) -> HorizonMap {
+        let ceilings = cells
+            .chunks(azimuths as usize)
+            .map(|row| {
+                let top = row.iter().flatten().max().copied().unwrap_or(0);
+                // A Sun whose sine is above it stands more than `CLEAR_MARGIN` above
+                // every upper bound and centre (1e-12 covers the rounding of sin): it
+                // clears every wedge, and stands above the horizon at any azimuth.
+                let elevation = top as f64 / QUANTA_PER_RAD + CLEAR_MARGIN + 1e-12;
+                if elevation >= FRAC_PI_2 {
+                    f64::INFINITY
+                } else {
+                    elevation.sin()
+                }
+            })
+            .collect();
+        HorizonMap {
+            azimuths,
+            cells,
+            ceilings,
+        }
     }
 
     /// The stored cells, facet by facet (for the cache).
@@ -149,7 +180,16 @@ impl HorizonMap {
 
     /// Memory held, bytes.
     pub fn bytes(&self) -> usize {
-        self.cells.len() * 4
+        self.cells.len() * 4 + self.ceilings.len() * 8
+    }
+
+    /// True when a Sun at `sin_elevation` above facet `i`'s plane stands above every
+    /// wedge of its horizon for certain (as [`HorizonMap::clears`] certifies in one
+    /// wedge), and above [`HorizonMap::horizon`] at any azimuth: its azimuth need not
+    /// be found.
+    #[inline]
+    pub fn above_all(&self, i: usize, sin_elevation: f64) -> bool {
+        sin_elevation > self.ceilings[i]
     }
 
     /// Where the unit Sun direction `sun` (body frame) stands in the sky of a facet with
@@ -164,7 +204,7 @@ impl HorizonMap {
     #[inline]
     pub fn clears(&self, i: usize, at: &SkyPosition) -> bool {
         let upper = self.cell(i, at.wedge)[0];
-        at.elevation > upper as f64 / QUANTA_PER_RAD + 1e-9
+        at.elevation > upper as f64 / QUANTA_PER_RAD + CLEAR_MARGIN
     }
 
     /// The approximate horizon of facet `i` at the Sun's azimuth: linear between the
@@ -189,10 +229,16 @@ impl HorizonMap {
 
 /// Where the unit direction `dir` stands in the sky of a plane with unit normal `up`
 /// cut into `azimuths` wedges, given `sin_elevation = up·dir`.
+///
+/// Both angles come from [`atan2_within`], within [`ANGLE_ERROR`] of the exact ones:
+/// less than the margin by which each wedge's upper bound was widened
+/// ([`WEDGE_OVERLAP`]) and by which a Sun must clear it ([`CLEAR_MARGIN`]), so that a
+/// Sun near a wedge's edge is checked against a bound that holds where it really is.
 #[inline]
 fn sky_position(azimuths: u32, up: DVec3, dir: DVec3, sin_elevation: f64) -> SkyPosition {
     let (t1, t2) = tangent_frame(up);
-    let mut phi = dir.dot(t2).atan2(dir.dot(t1));
+    let (x, y) = (dir.dot(t1), dir.dot(t2));
+    let mut phi = atan2_within(y, x);
     if phi < 0.0 {
         phi += TAU;
     }
@@ -200,8 +246,46 @@ fn sky_position(azimuths: u32, up: DVec3, dir: DVec3, sin_elevation: f64) -> Sky
     SkyPosition {
         wedge: (w as usize).min(azimuths as usize - 1),
         between: w - 0.5,
-        elevation: sin_elevation.clamp(-1.0, 1.0).asin(),
+        elevation: atan2_within(sin_elevation, (x * x + y * y).sqrt()),
     }
+}
+
+/// Largest error of [`atan2_within`], radians.
+const ANGLE_ERROR: f64 = 5e-10;
+const _: () = assert!(ANGLE_ERROR < WEDGE_OVERLAP && ANGLE_ERROR < CLEAR_MARGIN);
+
+/// atan2(y, x) in (−π, π] within [`ANGLE_ERROR`], with one division and no call: the
+/// lookups' hot path (libm's atan2 and asin took a fifth of a step).
+///
+/// The ratio r = min/max of |x|, |y| is in [0, 1]; above tan(π/8), atan r = π/4 +
+/// atan((r − 1)/(r + 1)). Either way the argument u has |u| ≤ tan(π/8), and the Taylor
+/// series of atan u to u¹⁹ leaves at most |u|²¹/21 < 4.4e-10.
+#[inline]
+fn atan2_within(y: f64, x: f64) -> f64 {
+    const TAN_PI_8: f64 = 0.414_213_562_373_095_1;
+    let (ax, ay) = (x.abs(), y.abs());
+    let (small, large) = if ay > ax { (ax, ay) } else { (ay, ax) };
+    if large == 0.0 {
+        return 0.0;
+    }
+    let (u, base) = if small > TAN_PI_8 * large {
+        ((small - large) / (small + large), FRAC_PI_4)
+    } else {
+        (small / large, 0.0)
+    };
+    let u2 = u * u;
+    // Σ (−1)ᵏ u²ᵏ/(2k + 1), k = 0 … 9, by Horner's rule.
+    let series = (0..10).rev().fold(0.0, |acc, k| {
+        acc * u2 + if k % 2 == 0 { 1.0 } else { -1.0 } / (2 * k + 1) as f64
+    });
+    let mut angle = base + u * series;
+    if ay > ax {
+        angle = FRAC_PI_2 - angle;
+    }
+    if x < 0.0 {
+        angle = PI - angle;
+    }
+    angle.copysign(y)
 }
 
 /// The horizon at `at`'s azimuth, linear between the wedge-centre elevations `centre(k)`
@@ -211,8 +295,10 @@ fn between_centres(azimuths: u32, at: &SkyPosition, centre: impl Fn(usize) -> f6
     let a = azimuths as usize;
     let below = at.between.floor();
     let t = at.between - below;
-    let k0 = (below as isize).rem_euclid(a as isize) as usize;
-    let (h0, h1) = (centre(k0), centre((k0 + 1) % a));
+    // `between` lies in [−½, A − ½): the wedge below is −1 (the last) to A − 1.
+    let k0 = if below < 0.0 { a - 1 } else { below as usize };
+    let k1 = if k0 + 1 == a { 0 } else { k0 + 1 };
+    let (h0, h1) = (centre(k0), centre(k1));
     LocalHorizon {
         elevation: h0 + (h1 - h0) * t,
         slope: (h1 - h0) * (a as f64 / TAU),
@@ -867,5 +953,43 @@ mod tests {
             assert!((at.between - (k as f64 - 0.25)).abs() < 1e-9);
             assert!((at.elevation - n.dot(s).asin()).abs() < 1e-15);
         }
+    }
+    #[test]
+    fn fast_angles_are_within_their_stated_error() {
+        let mut worst: f64 = 0.0;
+        let mut check = |y: f64, x: f64| {
+            let (fast, exact) = (atan2_within(y, x), y.atan2(x));
+            assert!(
+                fast.is_finite() && (-PI..=PI).contains(&fast),
+                "{y} {x}: {fast}"
+            );
+            worst = worst.max((fast - exact).abs());
+        };
+        // Every octant edge and axis, signed zeros, and extreme magnitudes.
+        let t8 = (PI / 8.0).tan();
+        for (y, x) in [
+            (0.0, 1.0),
+            (1.0, 0.0),
+            (0.0, -1.0),
+            (-0.0, -1.0),
+            (1.0, 1.0),
+            (t8, 1.0),
+        ] {
+            for (sy, sx) in [(1.0, 1.0), (-1.0, 1.0), (1.0, -1.0), (-1.0, -1.0)] {
+                check(sy * y, sx * x);
+                check(sy * x, sx * y);
+            }
+        }
+        check(1e-300, 1.0);
+        check(1.0, 1e-300);
+        check(1e300, -1e300);
+        // Dense angles around the circle, on and beside the octant edges.
+        for k in 0..2_000_000 {
+            let a = -PI + TAU * (k as f64 + 0.5) / 2e6;
+            check(a.sin(), a.cos());
+            check(3e5 * a.sin(), 3e5 * a.cos());
+        }
+        assert!(worst <= ANGLE_ERROR, "worst error {worst:e} rad");
+        assert_eq!(atan2_within(0.0, 0.0), 0.0);
     }
 }

@@ -221,7 +221,7 @@ impl Shadows {
             .iter()
             .zip(uses)
             .filter(|(_, &u)| u)
-            .map(|(b, _)| b.mesh.len() as f64 * self.azimuths as f64 * 4.0)
+            .map(|(b, _)| b.mesh.len() as f64 * (self.azimuths as f64 * 4.0 + 8.0))
             .sum()
     }
 
