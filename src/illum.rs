@@ -372,68 +372,93 @@ impl<'w> Direct<'w> {
         out.par_chunks_mut(CHUNK)
             .enumerate()
             .map(|(chunk, values)| {
+                let first = chunk * CHUNK;
                 let mut counts = StepCounts::default();
                 let mut rays = Vec::new();
-                let normals = &mesh.normals[chunk * CHUNK..chunk * CHUNK + values.len()];
+                // Facets whose map cells decide, with where the Sun stands in their sky.
+                let mut pending = Vec::new();
+                let normals = &mesh.normals[first..first + values.len()];
                 // The cosines first, in a loop of their own: most facets need nothing else.
                 for (e, normal) in values.iter_mut().zip(normals) {
                     *e = normal.dot(light.sun);
                 }
                 for (k, e) in values.iter_mut().enumerate() {
-                    let i = chunk * CHUNK + k;
-                    let normal = normals[k];
+                    let i = first + k;
                     let cos = *e;
                     if cos <= facing {
                         counts.night += 1;
                         *e = 0.0;
                         continue;
                     }
-                    if self.sun == SunShape::Disk {
-                        let h = match horizon {
-                            OwnHorizon::Map { map, .. } => {
-                                counts.horizon_lookups += 1;
-                                map.horizon(i, &map.position(normal, light.sun, cos))
+                    let cleared = match horizon {
+                        OwnHorizon::Map { map, exact } => {
+                            // A point Sun above the facet's whole horizon, or above the
+                            // octant of azimuth it stands in, needs no lookup.
+                            let at = match self.sun {
+                                SunShape::Point if map.above_all(i, cos) => None,
+                                SunShape::Point => map.locate(i, normals[k], light.sun, cos),
+                                SunShape::Disk => Some(map.position(normals[k], light.sun, cos)),
+                            };
+                            match at {
+                                // Its value holds the cosine until the lookup.
+                                Some(at) => {
+                                    pending.push((k, at));
+                                    continue;
+                                }
+                                None if *exact => counts.above_horizon += 1,
+                                None => counts.horizon_lookups += 1,
                             }
-                            // Only the facet's own plane.
-                            _ => LocalHorizon {
+                            *e = light.flux * cos;
+                            continue;
+                        }
+                        // Only the facet's own plane.
+                        _ if self.sun == SunShape::Disk => {
+                            let plane = LocalHorizon {
                                 elevation: 0.0,
                                 slope: 0.0,
-                            },
-                        };
-                        *e = light.flux * self.disk_share(cos, h, light.radius);
-                        counts.shadowed += (*e == 0.0) as u64;
-                        continue;
-                    }
-                    *e = light.flux * cos;
-                    let cleared = match horizon {
-                        // A Sun above the facet's whole horizon needs no azimuth.
-                        OwnHorizon::Map { map, exact: true } => {
-                            map.above_all(i, cos)
-                                || map.clears(i, &map.position(normal, light.sun, cos))
-                        }
-                        OwnHorizon::Map { map, exact: false } => {
-                            counts.horizon_lookups += 1;
-                            if !map.above_all(i, cos) {
-                                let at = map.position(normal, light.sun, cos);
-                                if at.elevation <= map.horizon(i, &at).elevation {
-                                    *e = 0.0;
-                                    counts.shadowed += 1;
-                                }
-                            }
+                            };
+                            *e = light.flux * self.disk_share(cos, plane, light.radius);
+                            counts.shadowed += (*e == 0.0) as u64;
                             continue;
                         }
                         OwnHorizon::Bound(bound) => bound.clears(i, cos),
                         OwnHorizon::None if traces_own => false,
-                        OwnHorizon::None => continue,
+                        OwnHorizon::None => {
+                            *e = light.flux * cos;
+                            continue;
+                        }
                     };
+                    *e = light.flux * cos;
                     if cleared {
                         counts.above_horizon += 1;
                     } else {
-                        rays.push(OwnRay {
-                            facet: i as u32,
-                            origin: mesh.centroids[i],
-                            t_min: self.t_min(b, i, cos),
-                        });
+                        rays.push(self.own_ray(b, i, cos));
+                    }
+                }
+                // The map's cells are read in a loop of their own: the reads do not wait
+                // on one another, so the memory serves several at once.
+                if let OwnHorizon::Map { map, exact } = horizon {
+                    for (k, at) in pending {
+                        let i = first + k;
+                        let e = &mut values[k];
+                        let cos = *e;
+                        *e = light.flux * cos;
+                        if self.sun == SunShape::Disk {
+                            counts.horizon_lookups += 1;
+                            let h = map.horizon(i, &at);
+                            *e = light.flux * self.disk_share(cos, h, light.radius);
+                            counts.shadowed += (*e == 0.0) as u64;
+                        } else if !exact {
+                            counts.horizon_lookups += 1;
+                            if at.elevation <= map.horizon(i, &at).elevation {
+                                *e = 0.0;
+                                counts.shadowed += 1;
+                            }
+                        } else if map.clears(i, &at) {
+                            counts.above_horizon += 1;
+                        } else {
+                            rays.push(self.own_ray(b, i, cos));
+                        }
                     }
                 }
                 (counts, rays)
@@ -510,6 +535,16 @@ impl<'w> Direct<'w> {
         let e = sin_elevation.clamp(-1.0, 1.0).asin();
         let (fraction, centroid) = self.disk.above(e, horizon, radius);
         fraction * centroid.sin().max(0.0)
+    }
+
+    /// The shadow ray of facet `i` of body `b` through its own body, the Sun at `cos_i`
+    /// from its normal.
+    fn own_ray(&self, b: usize, i: usize, cos_i: f64) -> OwnRay {
+        OwnRay {
+            facet: i as u32,
+            origin: self.world.bodies[b].mesh.centroids[i],
+            t_min: self.t_min(b, i, cos_i),
+        }
     }
 
     /// The least distance along the Sun ray at which a hit on facet `i` of body `b` counts

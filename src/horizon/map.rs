@@ -63,6 +63,9 @@ pub struct HorizonMap {
     /// (derived from `cells`): a Sun higher than it clears the facet's whole horizon,
     /// decided without its azimuth.
     ceilings: Vec<f64>,
+    /// Per facet, the same per octant of azimuth (f32 rounded up), over the wedges that
+    /// meet the octant and one more on each side (the interpolation's neighbours).
+    octant_ceilings: Vec<[f32; 8]>,
 }
 
 /// Where the Sun stands in a facet's sky: its wedge, its place between wedge centres
@@ -141,25 +144,20 @@ impl HorizonMap {
     }
 
     fn with_ceilings(azimuths: u32, cells: Vec<[u16; 2]>) -> HorizonMap {
-        let ceilings = cells
-            .chunks(azimuths as usize)
+        let a = azimuths as usize;
+        let ceilings = cells.chunks(a).map(|row| ceiling(row.iter())).collect();
+        let octants: Vec<Vec<usize>> = (0..8).map(|o| octant_wedges(a, o)).collect();
+        let octant_ceilings = cells
+            .chunks(a)
             .map(|row| {
-                let top = row.iter().flatten().max().copied().unwrap_or(0);
-                // A Sun whose sine is above it stands more than `CLEAR_MARGIN` above
-                // every upper bound and centre (1e-12 covers the rounding of sin): it
-                // clears every wedge, and stands above the horizon at any azimuth.
-                let elevation = top as f64 / QUANTA_PER_RAD + CLEAR_MARGIN + 1e-12;
-                if elevation >= FRAC_PI_2 {
-                    f64::INFINITY
-                } else {
-                    elevation.sin()
-                }
+                std::array::from_fn(|o| f32_at_least(ceiling(octants[o].iter().map(|&k| &row[k]))))
             })
             .collect();
         HorizonMap {
             azimuths,
             cells,
             ceilings,
+            octant_ceilings,
         }
     }
 
@@ -180,7 +178,7 @@ impl HorizonMap {
 
     /// Memory held, bytes.
     pub fn bytes(&self) -> usize {
-        self.cells.len() * 4 + self.ceilings.len() * 8
+        self.cells.len() * 4 + self.ceilings.len() * (8 + 32)
     }
 
     /// True when a Sun at `sin_elevation` above facet `i`'s plane stands above every
@@ -197,6 +195,23 @@ impl HorizonMap {
     #[inline]
     pub fn position(&self, normal: DVec3, sun: DVec3, sin_elevation: f64) -> SkyPosition {
         sky_position(self.azimuths, normal, sun, sin_elevation)
+    }
+
+    /// As [`HorizonMap::position`] for facet `i` (normal `normal`), or `None` when the
+    /// Sun stands above every wedge of its octant of azimuth (found by signs and one
+    /// comparison, without an angle): clear for certain, as [`HorizonMap::above_all`].
+    #[inline]
+    pub fn locate(
+        &self,
+        i: usize,
+        normal: DVec3,
+        sun: DVec3,
+        sin_elevation: f64,
+    ) -> Option<SkyPosition> {
+        let (x, y) = in_plane(normal, sun);
+        let ceiling = self.octant_ceilings[i][octant(x, y)];
+        (sin_elevation <= ceiling as f64)
+            .then(|| position_in_plane(self.azimuths, x, y, sin_elevation))
     }
 
     /// True when facet `i` sees a Sun at `at` for certain: above the upper bound of its
@@ -236,8 +251,20 @@ impl HorizonMap {
 /// Sun near a wedge's edge is checked against a bound that holds where it really is.
 #[inline]
 fn sky_position(azimuths: u32, up: DVec3, dir: DVec3, sin_elevation: f64) -> SkyPosition {
+    let (x, y) = in_plane(up, dir);
+    position_in_plane(azimuths, x, y, sin_elevation)
+}
+
+/// The components of `dir` along the tangent frame of the plane with unit normal `up`.
+#[inline]
+fn in_plane(up: DVec3, dir: DVec3) -> (f64, f64) {
     let (t1, t2) = tangent_frame(up);
-    let (x, y) = (dir.dot(t1), dir.dot(t2));
+    (dir.dot(t1), dir.dot(t2))
+}
+
+/// [`sky_position`] from the in-plane components `x`, `y` of the direction.
+#[inline]
+fn position_in_plane(azimuths: u32, x: f64, y: f64, sin_elevation: f64) -> SkyPosition {
     let mut phi = atan2_within(y, x);
     if phi < 0.0 {
         phi += TAU;
@@ -247,6 +274,52 @@ fn sky_position(azimuths: u32, up: DVec3, dir: DVec3, sin_elevation: f64) -> Sky
         wedge: (w as usize).min(azimuths as usize - 1),
         between: w - 0.5,
         elevation: atan2_within(sin_elevation, (x * x + y * y).sqrt()),
+    }
+}
+
+/// The octant 0–7 of the azimuth atan2(y, x) in [0, 2π), π/4 wide each, from signs and
+/// one comparison (a direction on an octant's edge may fall on either side: the octants'
+/// wedges overlap by one, see [`octant_wedges`]).
+#[inline]
+fn octant(x: f64, y: f64) -> usize {
+    match (y >= 0.0, x >= 0.0) {
+        (true, true) => usize::from(y >= x),
+        (true, false) => 2 + usize::from(y <= -x),
+        (false, false) => 4 + usize::from(-y >= -x),
+        (false, true) => 6 + usize::from(-y <= x),
+    }
+}
+
+/// The wedges (of `a`) that meet octant `o`, with one more on each side.
+fn octant_wedges(a: usize, o: usize) -> Vec<usize> {
+    let first = (o * a) / 8;
+    let last = ((o + 1) * a).div_ceil(8);
+    (first as isize - 1..=last as isize)
+        .map(|k| k.rem_euclid(a as isize) as usize)
+        .collect()
+}
+
+/// The sine of an elevation no cell in `cells` reaches by [`CLEAR_MARGIN`]: a Sun whose
+/// sine is above it stands more than the margin above every upper bound and centre
+/// (1e-12 covers the rounding of sin); infinite when the cells reach straight up.
+fn ceiling<'a>(cells: impl Iterator<Item = &'a [u16; 2]>) -> f64 {
+    let top = cells.flatten().max().copied().unwrap_or(0);
+    let elevation = top as f64 / QUANTA_PER_RAD + CLEAR_MARGIN + 1e-12;
+    if elevation >= FRAC_PI_2 {
+        f64::INFINITY
+    } else {
+        elevation.sin()
+    }
+}
+
+/// The least f32 at or above `v` (a sine in (0, 1], or infinite).
+fn f32_at_least(v: f64) -> f32 {
+    let rounded = v as f32;
+    if (rounded as f64) < v {
+        // The next f32 up: positive floats order as their bits.
+        f32::from_bits(rounded.to_bits() + 1)
+    } else {
+        rounded
     }
 }
 
@@ -991,5 +1064,61 @@ mod tests {
         }
         assert!(worst <= ANGLE_ERROR, "worst error {worst:e} rad");
         assert_eq!(atan2_within(0.0, 0.0), 0.0);
+    }
+    #[test]
+    fn ceilings_only_clear_suns_the_cells_clear() {
+        // Random maps (some wedge counts not divisible by 8) and random Suns: wherever a
+        // ceiling decides, the Sun's own wedge clears and it stands above the
+        // interpolated horizon; and the octants' wedges hold each azimuth's neighbours.
+        let mut seed = 0x2545_F491_4F6C_DD1Du64;
+        let mut random = move || {
+            seed ^= seed << 13;
+            seed ^= seed >> 7;
+            seed ^= seed << 17;
+            (seed >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let (mut decided, mut looked_up) = (0, 0);
+        for azimuths in [8u32, 12, 128, 131] {
+            let facets = 50;
+            let cells = (0..facets * azimuths as usize)
+                .map(|_| {
+                    let upper = (random() * random() * 40000.0) as u16;
+                    [upper, (upper as f64 * random()) as u16]
+                })
+                .collect();
+            let map = HorizonMap::from_cells(azimuths, facets, cells).expect("fits");
+            for _ in 0..20_000 {
+                let i = (random() * facets as f64) as usize;
+                let unit = |r: &mut dyn FnMut() -> f64| {
+                    let z: f64 = 2.0 * r() - 1.0;
+                    let a = TAU * r();
+                    let s = (1.0 - z * z).sqrt();
+                    DVec3::new(s * a.cos(), s * a.sin(), z)
+                };
+                let normal = unit(&mut random);
+                let sun = unit(&mut random);
+                let cos = normal.dot(sun);
+                if cos <= 0.0 {
+                    continue;
+                }
+                let at = map.position(normal, sun, cos);
+                let (x, y) = in_plane(normal, sun);
+                let wedges = octant_wedges(azimuths as usize, octant(x, y));
+                let below = (at.between.floor() as isize).rem_euclid(azimuths as isize) as usize;
+                for k in [at.wedge, below, (below + 1) % azimuths as usize] {
+                    assert!(wedges.contains(&k), "wedge {k} not in octant {wedges:?}");
+                }
+                let located = map.locate(i, normal, sun, cos);
+                if map.above_all(i, cos) || located.is_none() {
+                    decided += 1;
+                    assert!(map.clears(i, &at), "{i} {at:?}");
+                    assert!(at.elevation > map.horizon(i, &at).elevation, "{i} {at:?}");
+                } else {
+                    looked_up += 1;
+                    assert_eq!(located, Some(at));
+                }
+            }
+        }
+        assert!(decided > 1000 && looked_up > 1000, "{decided} {looked_up}");
     }
 }
