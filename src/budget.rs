@@ -168,15 +168,22 @@ const MOMENT_BYTES: f64 = crate::stats::MOMENT_BYTES as f64;
 const CDF_COUNT_BYTES: f64 = 4.0;
 
 /// The rows the CDF table is written in at a time (see [`crate::output`]), and its bytes
-/// per row and set of statistics as built and converted for the file (110 B measured on
-/// Phobos: the body name, facet, threshold and value, then their Arrow copies).
+/// per row and set of statistics in a batch: as built (facet, threshold and value, 20 B),
+/// its Arrow copy while the CSV encoder shares it (20 B) and the body name's text (8 B).
 pub const CDF_ROWS_PER_BATCH: usize = 1 << 18;
-const CDF_ROW_BYTES: f64 = 112.0;
+const CDF_ROW_BYTES: f64 = 48.0;
 
 /// Rows the history table holds before it writes them out, and its bytes per row once
 /// encoded (5 MB measured for 32,000 facets × 360 steps).
 const HISTORY_BUFFER_ROWS: f64 = (1u64 << 20) as f64;
 const HISTORY_ROW_BYTES: f64 = 8.0;
+/// Bytes per facet of a step's history batch as built: step, epoch, facet, the values
+/// (up to three) and the body name's text.
+const HISTORY_BATCH_BYTES: f64 = 56.0;
+
+/// Batches of a table held at once: one being built, one waiting and one being encoded
+/// (`output::table`).
+const BATCHES_IN_FLIGHT: f64 = 3.0;
 
 /// Bytes per form-factor entry at the peak of building: the rows as computed (8 B) and
 /// the packed block with its transpose (up to 16 B).
@@ -274,14 +281,15 @@ impl Demand {
         );
         let cdf_rows = (self.reported() * self.bins).min(CDF_ROWS_PER_BATCH as f64);
         e.push(
-            "CDF table batch",
-            cdf_rows * CDF_ROW_BYTES * self.stat_sets.min(3.0),
+            "CDF table batches",
+            cdf_rows * CDF_ROW_BYTES * self.stat_sets.min(3.0) * BATCHES_IN_FLIGHT,
             "use wider CDF bins (run.bin_width_w_m2)",
         );
         if self.history {
             e.push(
                 "history buffer",
-                (self.reported() * self.steps).min(HISTORY_BUFFER_ROWS) * HISTORY_ROW_BYTES,
+                (self.reported() * self.steps).min(HISTORY_BUFFER_ROWS) * HISTORY_ROW_BYTES
+                    + self.reported() * HISTORY_BATCH_BYTES * BATCHES_IN_FLIGHT,
                 "switch the history off (output.history = false)",
             );
         }

@@ -348,7 +348,7 @@ const STEP_STAGES: [&str; 5] = [
 ];
 const FACET_SHARE_STAGES: [&str; 2] = ["statistics", "history"];
 /// Items of the memory estimate that a facet part holds its share of.
-const FACET_SHARE_ITEMS: [&str; 3] = ["statistics", "CDF table batch", "history buffer"];
+const FACET_SHARE_ITEMS: [&str; 3] = ["statistics", "CDF table batches", "history buffer"];
 
 /// Runs the first `probe_steps` steps of `scene` as a time part in `scratch` and scales
 /// what it took to a part of `parts` split `by`.
