@@ -44,6 +44,10 @@ const QUANTA_PER_RAD: f64 = 65535.0 / FRAC_PI_2;
 pub const AZIMUTHS_MIN: u32 = 8;
 pub const AZIMUTHS_MAX: u32 = 4096;
 
+/// Bytes per facet of a map's ceilings (the whole horizon's, f64, and its octants', f32),
+/// beside its `4 × azimuths` bytes of cells.
+pub const CEILING_BYTES: usize = 8 + 8 * 4;
+
 /// How far (radians) a Sun must stand above a wedge's upper bound to clear it: more than
 /// the rounding of its elevation.
 const CLEAR_MARGIN: f64 = 1e-9;
@@ -178,7 +182,7 @@ impl HorizonMap {
 
     /// Memory held, bytes.
     pub fn bytes(&self) -> usize {
-        self.cells.len() * 4 + self.ceilings.len() * (8 + 32)
+        self.cells.len() * 4 + self.ceilings.len() * CEILING_BYTES
     }
 
     /// True when a Sun at `sin_elevation` above facet `i`'s plane stands above every

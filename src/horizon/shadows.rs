@@ -13,7 +13,7 @@
 
 use super::cache;
 use super::disk::SolarDisk;
-use super::map::{HorizonMap, AZIMUTHS_MAX, AZIMUTHS_MIN};
+use super::map::{HorizonMap, AZIMUTHS_MAX, AZIMUTHS_MIN, CEILING_BYTES};
 use crate::cache::Lookup;
 use crate::error::{Error, Result};
 use crate::progress::Progress;
@@ -221,7 +221,7 @@ impl Shadows {
             .iter()
             .zip(uses)
             .filter(|(_, &u)| u)
-            .map(|(b, _)| b.mesh.len() as f64 * (self.azimuths as f64 * 4.0 + 8.0))
+            .map(|(b, _)| b.mesh.len() as f64 * (self.azimuths as f64 * 4.0 + CEILING_BYTES as f64))
             .sum()
     }
 
