@@ -153,7 +153,7 @@ impl Shadows {
             );
         }
         let facets = body.mesh.len();
-        let bytes = facets as f64 * self.azimuths as f64 * 4.0;
+        let bytes = facets as f64 * self.map_bytes_per_facet();
         let size = format!(
             "{facets} facets × {} wedges, {:.1} MB",
             self.azimuths,
@@ -221,8 +221,13 @@ impl Shadows {
             .iter()
             .zip(uses)
             .filter(|(_, &u)| u)
-            .map(|(b, _)| b.mesh.len() as f64 * (self.azimuths as f64 * 4.0 + CEILING_BYTES as f64))
+            .map(|(b, _)| b.mesh.len() as f64 * self.map_bytes_per_facet())
             .sum()
+    }
+
+    /// A map's bytes per facet: its cells (4 per wedge) and its ceilings.
+    fn map_bytes_per_facet(&self) -> f64 {
+        self.azimuths as f64 * 4.0 + CEILING_BYTES as f64
     }
 
     /// The map of `body`: read from the cache when an intact one is there, built (and
