@@ -222,8 +222,7 @@ impl HorizonMap {
     /// wedge (the exact tracers agree).
     #[inline]
     pub fn clears(&self, i: usize, at: &SkyPosition) -> bool {
-        let upper = self.cell(i, at.wedge)[0];
-        at.elevation > upper as f64 / QUANTA_PER_RAD + CLEAR_MARGIN
+        clears_bound(at, self.cell(i, at.wedge)[0] as f64 / QUANTA_PER_RAD)
     }
 
     /// The approximate horizon of facet `i` at the Sun's azimuth: linear between the
@@ -279,6 +278,13 @@ fn position_in_plane(azimuths: u32, x: f64, y: f64, sin_elevation: f64) -> SkyPo
         between: w - 0.5,
         elevation: atan2_within(sin_elevation, (x * x + y * y).sqrt()),
     }
+}
+
+/// True when a Sun at `at` stands above the upper bound `upper` (radians) of its wedge
+/// for certain: by more than its elevation's error ([`CLEAR_MARGIN`]).
+#[inline]
+fn clears_bound(at: &SkyPosition, upper: f64) -> bool {
+    at.elevation > upper + CLEAR_MARGIN
 }
 
 /// The octant 0–7 of the azimuth atan2(y, x) in [0, 2π), π/4 wide each, from signs and
@@ -602,7 +608,7 @@ impl PointHorizon {
 
     /// True when a direction at `at` is above every point of the mesh in its wedge.
     pub fn clears(&self, at: &SkyPosition) -> bool {
-        at.elevation > self.cells[at.wedge][0]
+        clears_bound(at, self.cells[at.wedge][0])
     }
 
     /// The approximate horizon at `at`'s azimuth: linear between wedge centres.
