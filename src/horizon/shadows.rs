@@ -100,11 +100,18 @@ pub const DEFAULT_SUN_SAMPLES: u32 = 32;
 /// The most disk samples a scene may ask for.
 pub const SUN_SAMPLES_MAX: u32 = 1024;
 
-/// Measured costs behind `auto` (CPU seconds, 128 wedges, 2026-11-24; see
-/// docs/performance.md): building a map, per facet (m1phobos 1.4 ms, Itokawa 12k 0.9 ms,
-/// the Haworth terrain 3 ms), and what a map spares over Sun-view rays per facet and
-/// step in the exact mode (m1phobos, 360 steps: 0.37 µs).
-const BUILD_S_PER_FACET: f64 = 1.5e-3;
+/// Measured costs behind `auto` and the build's announced time (CPU seconds, 128 wedges;
+/// see docs/performance.md). Building a map costs per facet a fixed part and a part that
+/// grows with the square root of the casting facets: a horizon is a line across the
+/// mesh, so the triangles that set it grow as √N. Fitted to the Itokawa builds (12,288
+/// facets 0.9 ms, 49,152 1.2 ms, 786,432 5.3 ms per facet; m1phobos's 32,070: 1.4 ms,
+/// the fit says 1.3); terrain, whose horizons are far and low, costs more (Haworth: 3 ms,
+/// the fit says 0.8). The saving: what a map spares over Sun-view rays per facet and step
+/// in the exact mode (m1phobos, 360 steps: 0.37 µs).
+fn build_s_per_facet(casters: usize) -> f64 {
+    0.3e-3 + 5.7e-6 * (casters as f64).sqrt()
+}
+
 const SAVED_S_PER_FACET_STEP: f64 = 0.37e-6;
 
 impl Shadows {
@@ -183,14 +190,15 @@ impl Shadows {
                         format!("cached in {} ({mode}); {size}", file.display()),
                     );
                 }
-                let break_even = (BUILD_S_PER_FACET / SAVED_S_PER_FACET_STEP).ceil() as usize;
+                let per_facet = build_s_per_facet(body.shadow_mesh().len());
+                let break_even = (per_facet / SAVED_S_PER_FACET_STEP).ceil() as usize;
                 if steps >= break_even {
                     (
                         true,
                         format!(
                             "{steps} steps ≥ {break_even}, where building it (about {:.0} s on \
                              one core) costs less than the rays it spares ({mode}); {size}",
-                            facets as f64 * BUILD_S_PER_FACET
+                            facets as f64 * per_facet
                         ),
                     )
                 } else {
@@ -267,7 +275,7 @@ impl Shadows {
             body.name,
             body.mesh.len(),
             self.azimuths,
-            body.mesh.len() as f64 * BUILD_S_PER_FACET
+            body.mesh.len() as f64 * build_s_per_facet(body.shadow_mesh().len())
         ));
         let started = Instant::now();
         let casters = body.shadow_mesh();
