@@ -133,8 +133,9 @@ pub struct Demand {
     /// Sets of per-facet statistics kept: 1 for the total, 3 with scattered light (total,
     /// direct, scattered), and more for spectral bands.
     pub stat_sets: f64,
-    /// Steps computed together (scattered light on one body batches them).
-    pub batch: f64,
+    /// Values per facet the block of steps computed together holds: steps per block
+    /// times buffers per step (`simulate::steps_per_batch`, `simulate::step_buffers`).
+    pub block_values: f64,
     /// Whether the per-step history is written.
     pub history: bool,
     /// Form-factor entries the scattered light stores (an upper bound from the pairs
@@ -276,7 +277,7 @@ impl Demand {
         );
         e.push(
             "per-step irradiance",
-            self.facets * 8.0 * (2.0 * self.batch + 2.0 + 3.0 * self.stat_sets),
+            self.facets * 8.0 * (self.block_values + 2.0 + 3.0 * self.stat_sets),
             "use a coarser mesh",
         );
         let cdf_rows = (self.reported() * self.bins).min(CDF_ROWS_PER_BATCH as f64);
@@ -340,7 +341,7 @@ mod tests {
             steps: 360.0,
             bins: 14_001.0,
             stat_sets: 1.0,
-            batch: 1.0,
+            block_values: 2.0,
             ..Demand::default()
         };
         let stats = d
@@ -359,7 +360,7 @@ mod tests {
             bodies: 1.0,
             steps: 1e30,
             stat_sets: 1.0,
-            batch: 1.0,
+            block_values: 2.0,
             ..Demand::default()
         };
         let budget = Budget {
@@ -380,7 +381,7 @@ mod tests {
             steps: 360.0,
             bins: 150.0,
             stat_sets: 1.0,
-            batch: 1.0,
+            block_values: 2.0,
             ..Demand::default()
         };
         let e = d.estimate();

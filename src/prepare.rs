@@ -107,6 +107,7 @@ pub fn prepare(scene: &Scene, budget: &Budget, timings: &mut Timings) -> Result<
             .iter()
             .map(|b| (b.shadow_mesh().len() - b.mesh.len()) as f64)
             .sum(),
+        block_values: block_values(scene, assembly.world.facet_count() as f64),
         ..scene_demand(scene)
     };
     budget.check(&demand.estimate())?;
@@ -210,12 +211,21 @@ fn scene_demand(scene: &Scene) -> Demand {
         stat_sets: 1.0
             + if scatter { 2.0 } else { 0.0 }
             + if bands > 0.0 { bands + 1.0 } else { 0.0 },
-        batch: crate::simulate::steps_per_batch(None, scatter) as f64,
+        block_values: block_values(scene, generated_facets(scene)),
         history: scene.output.history,
         form_factor_entries: 0.0,
         kernel_bytes: kernel_bytes(scene),
         horizon_map_bytes: 0.0,
     }
+}
+
+/// Values per facet the step loop's block of steps holds for `facets` facets.
+fn block_values(scene: &Scene, facets: f64) -> f64 {
+    let scattering = scene.scatter.as_ref().is_some_and(|s| s.enabled);
+    let bands = !scene.bands.is_empty();
+    let steps = crate::simulate::steps_per_batch(None, scattering, bands, facets as usize);
+    let steps = (steps as f64).min(scene.step_count()).max(1.0);
+    steps * crate::simulate::step_buffers(scattering, bands) as f64
 }
 
 /// The size of the scene's SPICE kernel files (a file that cannot be read counts 0 here:

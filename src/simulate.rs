@@ -155,12 +155,17 @@ pub fn simulate(
     let with_planets = scatter.as_ref().is_some_and(Scatter::has_planets);
     let mut acc = Accumulators::new(kept, bins, scatter.is_some(), with_planets);
     let mut shines: Vec<Vec<f64>> = Vec::new();
-    let batch = steps_per_batch(scatter.as_ref(), scatter.is_some());
+    let batch = steps_per_batch(scatter.as_ref(), scatter.is_some(), bands.is_some(), n)
+        .min(states.len())
+        .max(1);
     let mut directs = vec![vec![0.0; n]; batch];
-    let mut scattered = vec![vec![0.0; n]; batch];
+    let mut scattered = vec![vec![0.0; n]; if scatter.is_some() { batch } else { 0 }];
     let mut counts = StepCounts::default();
     progress.begin_steps(states.len() as u64);
     for chunk in states.chunks(batch) {
+        let directs = &mut directs[..chunk.len()];
+        let lanes = chunk.len().min(scattered.len());
+        let scattered = &mut scattered[..lanes];
         for (state, irradiance) in chunk.iter().zip(directs.iter_mut()) {
             if progress.cancelled() {
                 return Err(Error::Cancelled);
@@ -171,25 +176,21 @@ pub fn simulate(
             timings.time("scattered light", || {
                 let d: Vec<&[f64]> = directs.iter().map(Vec::as_slice).collect();
                 let mut s: Vec<&mut [f64]> = scattered.iter_mut().map(Vec::as_mut_slice).collect();
-                let lanes = chunk.len();
-                stage.step_many(chunk, &d[..lanes], &mut s[..lanes]);
+                stage.step_many(chunk, &d, &mut s);
                 shines = stage.take_planet_shine();
             });
         }
         if let Some(bands) = bands.as_deref_mut() {
             timings.time("spectral bands", || {
-                let d: Vec<&[f64]> = directs[..chunk.len()].iter().map(Vec::as_slice).collect();
+                let d: Vec<&[f64]> = directs.iter().map(Vec::as_slice).collect();
                 bands.add_steps(chunk, &d, scatter.as_mut())
             });
         }
-        for (k, ((state, irradiance), scattered)) in
-            chunk.iter().zip(&directs).zip(&scattered).enumerate()
-        {
-            if let Some(shine) = shines.get(k) {
-                timings.time("statistics", || acc.add_planet_step(shine));
-            }
-            let step = timings.time("statistics", || acc.add_step(irradiance, scattered));
-            timings.time("history", || on_step(state, step))?;
+        timings.time("statistics", || acc.add_steps(directs, scattered, &shines));
+        for (k, state) in chunk.iter().enumerate() {
+            timings.time("history", || {
+                on_step(state, acc.step(k, directs, scattered))
+            })?;
             progress.step_done();
         }
     }
@@ -256,35 +257,78 @@ fn build_seconds_one_core(facets: usize) -> f64 {
     3.0 * (facets as f64 / 50_000.0).powf(1.2)
 }
 
-/// Steps computed before their scattered light is solved: up to [`LANES`], solved side by
-/// side, when the scattered-light stage exchanges light through no inter-body block (one
-/// body, or bodies beside planets); otherwise one. Without `scatter` at hand (the memory
-/// estimate), the most a scattering run may take.
-pub fn steps_per_batch(scatter: Option<&Scatter>, scattering: bool) -> usize {
+/// Steps computed before their statistics are added, as one block (and, with scattered
+/// light, solved side by side): with scattered light up to [`LANES`] when the stage
+/// exchanges light through no inter-body block (one body, or bodies beside planets),
+/// otherwise one; without, as many as [`BLOCK_BYTES`] of per-step buffers hold, up to
+/// [`MAX_BLOCK_STEPS`]. Without `scatter` at hand (the memory estimate), the most a
+/// scattering run may take.
+pub fn steps_per_batch(
+    scatter: Option<&Scatter>,
+    scattering: bool,
+    bands: bool,
+    facets: usize,
+) -> usize {
     match scatter {
         Some(stage) if !stage.has_inter_body_pairs() => LANES,
+        Some(_) => 1,
         None if scattering => LANES,
-        _ => 1,
+        None => {
+            let step_bytes = facets.max(1) * 8 * step_buffers(false, bands);
+            (BLOCK_BYTES / step_bytes).clamp(1, MAX_BLOCK_STEPS)
+        }
     }
 }
 
-/// The statistics a run accumulates step by step: of the total, and with scattered light
-/// of its direct and scattered parts.
+/// Buffers of one value per facet a step of a block holds: its direct irradiance, with
+/// scattered light the scattered part, with bands each band's direct, scattered and
+/// total.
+pub fn step_buffers(scattering: bool, bands: bool) -> usize {
+    1 + usize::from(scattering) + if bands { 3 } else { 0 }
+}
+
+/// The per-step buffers a block of steps may hold without scattered light: a block of
+/// steps lets the statistics update each facet's moments and CDF counts for all of them
+/// at once (see [`FacetStats::add_steps`]); 128 MiB keeps 16 steps up to a million
+/// facets.
+const BLOCK_BYTES: usize = 128 << 20;
+
+/// The longest block: beyond it the statistics gain no more (`bench_stats`).
+const MAX_BLOCK_STEPS: usize = 16;
+
+/// The statistics a run accumulates block by block: of the total, and with scattered
+/// light of its direct and scattered parts.
 struct Accumulators {
     /// The facets statistics are kept for (those of the bodies that get outputs).
     kept: Selection,
     total_stats: FacetStats,
     /// With scattered light: (direct, scattered).
     part_stats: Option<(FacetStats, FacetStats)>,
-    /// The step's total irradiance when it is a sum of parts.
-    total: Vec<f64>,
     /// With planets: statistics of their light as it arrives.
     planet_stats: Option<FacetStats>,
-    /// The kept facets' direct, scattered and planet irradiance, when not every facet is
-    /// kept.
-    kept_direct: Vec<f64>,
-    kept_scattered: Vec<f64>,
-    kept_planet: Vec<f64>,
+    /// Per step of the block: the kept facets' direct, scattered and planet irradiance,
+    /// when not every facet is kept, and with scattered light the total.
+    kept_direct: Vec<Vec<f64>>,
+    kept_scattered: Vec<Vec<f64>>,
+    kept_planet: Vec<Vec<f64>>,
+    totals: Vec<Vec<f64>>,
+}
+
+/// The kept values of each step of a block (global order): each step's own values when
+/// every facet is kept, else gathered into `buffers`.
+fn pick_steps<'a>(
+    kept: &Selection,
+    values: &'a [Vec<f64>],
+    buffers: &'a mut Vec<Vec<f64>>,
+) -> Vec<&'a [f64]> {
+    if buffers.len() < values.len() {
+        buffers.resize_with(values.len(), Vec::new);
+    }
+    values
+        .iter()
+        .zip(buffers.iter_mut())
+        .map(|(v, b)| kept.pick(v, b))
+        .collect()
 }
 
 impl Accumulators {
@@ -292,50 +336,65 @@ impl Accumulators {
         let facets = kept.count();
         Accumulators {
             planet_stats: with_planets.then(|| FacetStats::new(facets, bins)),
-            kept_planet: Vec::new(),
             kept,
             total_stats: FacetStats::new(facets, bins),
             part_stats: with_parts
                 .then(|| (FacetStats::new(facets, bins), FacetStats::new(facets, bins))),
-            total: if with_parts {
-                vec![0.0; facets]
-            } else {
-                Vec::new()
-            },
             kept_direct: Vec::new(),
             kept_scattered: Vec::new(),
+            kept_planet: Vec::new(),
+            totals: Vec::new(),
         }
     }
 
-    /// Adds one step's planet light (global order), when planets are counted apart.
-    fn add_planet_step(&mut self, shine: &[f64]) {
+    /// Adds a block of consecutive steps: their direct and (with parts) scattered
+    /// irradiance, and with planets counted apart their planet light (global order).
+    fn add_steps(&mut self, directs: &[Vec<f64>], scattered: &[Vec<f64>], shines: &[Vec<f64>]) {
         if let Some(stats) = self.planet_stats.as_mut() {
-            stats.add_step(self.kept.pick(shine, &mut self.kept_planet));
+            stats.add_steps(&pick_steps(&self.kept, shines, &mut self.kept_planet));
         }
+        let direct = pick_steps(&self.kept, directs, &mut self.kept_direct);
+        let Some((direct_stats, scattered_stats)) = self.part_stats.as_mut() else {
+            self.total_stats.add_steps(&direct);
+            return;
+        };
+        let scattered = pick_steps(&self.kept, scattered, &mut self.kept_scattered);
+        self.totals.resize_with(direct.len(), Vec::new);
+        for ((total, d), s) in self.totals.iter_mut().zip(&direct).zip(&scattered) {
+            total.clear();
+            total.extend(d.iter().zip(*s).map(|(d, s)| d + s));
+        }
+        let totals: Vec<&[f64]> = self.totals.iter().map(Vec::as_slice).collect();
+        self.total_stats.add_steps(&totals);
+        direct_stats.add_steps(&direct);
+        scattered_stats.add_steps(&scattered);
     }
 
-    /// Adds one step's direct and (with parts) scattered irradiance (global order);
-    /// returns the kept facets' irradiance as the history sees it.
-    fn add_step<'a>(&'a mut self, direct: &'a [f64], scattered: &'a [f64]) -> StepIrradiance<'a> {
-        let direct = self.kept.pick(direct, &mut self.kept_direct);
-        let Some((direct_stats, scattered_stats)) = self.part_stats.as_mut() else {
-            self.total_stats.add_step(direct);
+    /// The kept facets' irradiance of step `k` of the block [`Accumulators::add_steps`]
+    /// last added, as the history sees it.
+    fn step<'a>(
+        &'a self,
+        k: usize,
+        directs: &'a [Vec<f64>],
+        scattered: &'a [Vec<f64>],
+    ) -> StepIrradiance<'a> {
+        let kept = |values: &'a [Vec<f64>], gathered: &'a [Vec<f64>]| {
+            if self.kept.is_all() {
+                values[k].as_slice()
+            } else {
+                gathered[k].as_slice()
+            }
+        };
+        let direct = kept(directs, &self.kept_direct);
+        if self.part_stats.is_none() {
             return StepIrradiance {
                 total: direct,
                 parts: None,
             };
-        };
-        let scattered = self.kept.pick(scattered, &mut self.kept_scattered);
-        self.total
-            .iter_mut()
-            .zip(direct.iter().zip(scattered))
-            .for_each(|(t, (d, s))| *t = d + s);
-        self.total_stats.add_step(&self.total);
-        direct_stats.add_step(direct);
-        scattered_stats.add_step(scattered);
+        }
         StepIrradiance {
-            total: &self.total,
-            parts: Some((direct, scattered)),
+            total: &self.totals[k],
+            parts: Some((direct, kept(scattered, &self.kept_scattered))),
         }
     }
 }

@@ -1,0 +1,32 @@
+#!/usr/bin/env bash
+# A year of hourly steps with a horizon map at scale: the 49,152-facet Itokawa model
+# subdivided LEVELS times (default 2: 786,432 facets), a spin scene of 730 spins × 12
+# steps (8,760 steps of 1.01 h), `shadows = "horizon"`, `horizon_mode = MODE` (default
+# approximate), Parquet tables only. `slim run` is timed REPEAT times (default 3) with
+# /usr/bin/time -v (wall time, peak memory) and each run's stage times from run.json.
+#
+# The map is kept in bench/results/horizon-year-cache between invocations (its key
+# follows the mesh, the settings and the map's source), so the first run of a fresh
+# clone builds it: about 36 minutes on 2 cores at 786k facets; later runs read it.
+#
+#   bench/horizon_year.sh [LEVELS] [REPEAT] [MODE] [OUT]    (from the repository root)
+set -euo pipefail
+cd "$(dirname "$0")/.."
+source bench/common.sh
+LEVELS=${1:-2} REPEAT=${2:-3} MODE=${3:-approximate}
+bench_init bench/results/horizon_year "${4:-}"
+export SLIM_CACHE_DIR
+SLIM_CACHE_DIR=$(realpath -m bench/results/horizon-year-cache)
+mesh=$(subdivided_itokawa "$LEVELS")
+spin_scene "itokawa-year-x4-$LEVELS" "$mesh" 12 false \
+  "shadows = \"horizon\"
+horizon_mode = \"$MODE\"" | sed 's/^steps_per_period = 12$/steps_per_period = 12\nperiods = 730/' >"$OUT/scene.toml"
+for r in $(seq 1 "$REPEAT"); do
+  /usr/bin/time -v "$B" run "$OUT/scene.toml" -o "$OUT/run-$r" --quiet 2>"$OUT/time-$r.txt"
+  wall=$(grep "Elapsed (wall" "$OUT/time-$r.txt" | awk '{print $NF}')
+  rss=$(grep "Maximum resident" "$OUT/time-$r.txt" | awk '{print $NF}')
+  stages=$(python3 -c "import json; r=json.load(open('$OUT/run-$r/run.json')); print(', '.join(f'{s} {t:.1f} s' for s, t in r['timings_s']))")
+  echo "run $r: wall $wall, peak $((rss / 1024)) MiB; stages: $stages"
+  rm -rf "$OUT/run-$r"/*.parquet
+done
+echo "machine: $(grep -m1 'model name' /proc/cpuinfo | cut -d: -f2 | xargs), $(nproc) cores, $(date -u +%F)"
