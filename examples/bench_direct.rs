@@ -4,7 +4,11 @@
 //! cargo run --release --example bench_direct -- [MESH] [--subdivide N] [--steps N]
 //!     [--tracer sunview|bvh|grid|both|all] [--threads N]
 //!     [--horizon exact|approximate [--azimuths A] [--sun point|disk] [--cache DIR]]
+//!     [--block K]
 //! ```
+//! Steps are computed in blocks of K (`Direct::compute_steps`), as `slim run` does:
+//! by default the block `slim run` takes for this mesh (16 steps up to a million facets);
+//! `--block 1` computes one step at a time.
 //! With `--horizon`, the step loop looks the Sun up in the body's horizon map (A wedges,
 //! default 128) instead of tracing every ray: `exact` traces only where the Sun is not
 //! above the wedge's upper bound, `approximate` traces nothing. The map is read from
@@ -49,16 +53,20 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         "--azimuths",
         "--sun",
         "--cache",
+        "--block",
     ]);
     options.apply_threads()?;
     let steps: usize = options.value("--steps", 360)?;
     let world = options.world(0)?;
+    let run_block = slim::simulate::steps_per_batch(None, false, false, world.facet_count());
+    let block: usize = options.value("--block", run_block)?;
     let states = common::spin_states(steps, DVec3::X)?;
     println!(
-        "mesh {} ({} facets), {} steps, {} threads",
+        "mesh {} ({} facets), {} steps in blocks of {}, {} threads",
         options.mesh().display(),
         world.facet_count(),
         steps,
+        block.max(1),
         rayon::current_num_threads()
     );
     println!(
@@ -75,20 +83,15 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 .map(|b| shadows.obtain(b, &Silent).map(|(map, _)| Some(map)))
                 .collect::<Result<Vec<_>, _>>()?;
             let direct = Direct::with_maps(&world, TracerKind::Bvh, maps, &shadows);
-            time_steps(
-                &format!("map {mode}"),
-                t0,
-                direct,
-                &states,
-                world.facet_count(),
-            )?;
+            let name = format!("map {mode}");
+            time_steps(&name, t0, direct, &states, world.facet_count(), block)?;
         }
         None => {
             for kind in tracers(&options)? {
                 let t0 = Instant::now();
                 let direct = Direct::new(&world, kind);
                 let name = format!("{kind:?}").to_lowercase();
-                time_steps(&name, t0, direct, &states, world.facet_count())?;
+                time_steps(&name, t0, direct, &states, world.facet_count(), block)?;
             }
         }
     }
@@ -115,20 +118,23 @@ fn horizon_shadows(options: &common::Options, mode: &str) -> Result<Shadows, Str
     })
 }
 
-/// Runs `direct` over `states` and prints its line (`t0`: when its setup began).
+/// Runs `direct` over `states` in blocks of `block` steps and prints its line (`t0`:
+/// when its setup began).
 fn time_steps(
     name: &str,
     t0: Instant,
     direct: Direct,
     states: &[slim::ephemeris::EpochState],
     facets: usize,
+    block: usize,
 ) -> Result<(), slim::Error> {
     let build = t0.elapsed().as_secs_f64();
-    let mut out = vec![0.0; facets];
+    let mut buffers = vec![vec![0.0; facets]; block.max(1)];
     let mut counts = StepCounts::default();
     let t1 = Instant::now();
-    for s in states {
-        counts += direct.compute(s, &mut out)?;
+    for chunk in states.chunks(block.max(1)) {
+        let mut outs: Vec<&mut [f64]> = buffers.iter_mut().map(Vec::as_mut_slice).collect();
+        counts += direct.compute_steps(chunk, &mut outs[..chunk.len()])?;
     }
     let loop_s = t1.elapsed().as_secs_f64();
     println!(

@@ -20,7 +20,7 @@ use crate::error::{Error, Result};
 use crate::horizon::bound::HorizonBound;
 use crate::horizon::disk::SolarDisk;
 use crate::horizon::eclipse::Ellipsoid;
-use crate::horizon::map::{HorizonMap, LocalHorizon};
+use crate::horizon::map::{HorizonMap, LocalHorizon, SkyPosition};
 use crate::horizon::{HorizonMode, Shadows, SunShape};
 use crate::trace::bvh::Bvh;
 use crate::trace::{self, ShadowQuery, Tracer, TracerKind};
@@ -192,15 +192,38 @@ impl<'w> Direct<'w> {
 
     /// Irradiance (W/m²) of every facet at `state`, written to `out` (global facet ids).
     pub fn compute(&self, state: &EpochState, out: &mut [f64]) -> Result<StepCounts> {
+        self.compute_steps(std::slice::from_ref(state), &mut [out])
+    }
+
+    /// Irradiance (W/m²) of every facet at each of `states`, written to the matching
+    /// `outs` (global facet ids); the same values as [`Direct::compute`] step by step.
+    /// Facets are lit for all the steps in one pass, so a horizon map's data and the
+    /// normals are read once per block of steps instead of once per step; each step's
+    /// shadow queries are then set up and traced one step at a time, as before.
+    pub fn compute_steps(
+        &self,
+        states: &[EpochState],
+        outs: &mut [&mut [f64]],
+    ) -> Result<StepCounts> {
+        assert_eq!(states.len(), outs.len(), "one output per step");
         let mut counts = StepCounts::default();
         for (b, body) in self.world.bodies.iter().enumerate() {
             let range = self.offsets[b]..self.offsets[b] + body.mesh.len();
+            let mut views: Vec<&mut [f64]> =
+                outs.iter_mut().map(|o| &mut o[range.clone()]).collect();
             if !self.lit[b] {
-                out[range].fill(0.0);
+                views.iter_mut().for_each(|v| v.fill(0.0));
                 continue;
             }
-            let queries = self.sunlight(b, state)?;
-            counts += self.illuminate_body(b, &queries, &mut out[range]);
+            let skies = states
+                .iter()
+                .map(|state| self.sky(b, state))
+                .collect::<Result<Vec<_>>>()?;
+            let facing = self.light_facing(b, &skies, &mut views);
+            for ((state, (lit, rays)), out) in states.iter().zip(facing).zip(views) {
+                counts += lit;
+                counts += self.shade(b, &self.sunlight(b, state)?, &rays, out);
+            }
         }
         Ok(counts)
     }
@@ -248,18 +271,26 @@ impl<'w> Direct<'w> {
         })
     }
 
+    /// Where body `b`'s Sun stands at this step.
+    fn sky(&self, b: usize, state: &EpochState) -> Result<Sky> {
+        let body = &self.world.bodies[b];
+        Ok(Sky {
+            sun: checked_sun(body, state, b)?,
+            flux: state.bodies[b].flux_w_m2,
+            radius: match self.sun {
+                SunShape::Point => 0.0,
+                SunShape::Disk => SolarDisk::angular_radius(state.bodies[b].sun_distance_m),
+            },
+        })
+    }
+
     /// Body `b`'s Sun, flux and shadow queries at this step (also used by the renderer
     /// for points that are not centroids).
     pub(crate) fn sunlight(&self, b: usize, state: &EpochState) -> Result<Sunlight<'_>> {
-        let body = &self.world.bodies[b];
-        let sun = checked_sun(body, state, b)?;
-        let radius = match self.sun {
-            SunShape::Point => 0.0,
-            SunShape::Disk => SolarDisk::angular_radius(state.bodies[b].sun_distance_m),
-        };
+        let Sky { sun, flux, radius } = self.sky(b, state)?;
         Ok(Sunlight {
             sun,
-            flux: state.bodies[b].flux_w_m2,
+            flux,
             radius,
             disk: self.disk,
             own: self.traces_own(b).then(|| self.tracers[b].toward(sun)),
@@ -331,11 +362,16 @@ impl<'w> Direct<'w> {
         }
     }
 
-    /// Irradiance of every facet of body `b` into `out`: first as if nothing blocked the
-    /// Sun, then the own body's shadow rays that the horizon bound does not spare, traced
-    /// as one batch, then the other bodies' shadows on what is still lit.
-    fn illuminate_body(&self, b: usize, light: &Sunlight<'_>, out: &mut [f64]) -> StepCounts {
-        let (mut counts, rays) = self.light_facing(b, light, out);
+    /// Darkens the facets of body `b` lit in `out` whose shadow `rays` through their own
+    /// body are blocked (traced as one batch), then those other bodies shadow.
+    fn shade(
+        &self,
+        b: usize,
+        light: &Sunlight<'_>,
+        rays: &[OwnRay],
+        out: &mut [f64],
+    ) -> StepCounts {
+        let mut counts = StepCounts::default();
         let mut by_self = vec![false; rays.len()];
         if let Some(own) = light.own.as_deref() {
             rays.par_iter()
@@ -353,124 +389,179 @@ impl<'w> Direct<'w> {
         counts
     }
 
-    /// Lights every facet of body `b` facing the Sun as if nothing of its own body blocked
-    /// it, except where a horizon map decides, and lists the own body's shadow rays to
-    /// trace: none when the body cannot shadow itself, none where the Sun stands above
-    /// the facet's horizon bound or the map is certain or decides alone.
+    /// Lights every facet of body `b` facing the Sun at each step (`skies[k]` into
+    /// `outs[k]`) as if nothing of its own body blocked it, except where a horizon map
+    /// decides, and lists per step the own body's shadow rays to trace: none when the body
+    /// cannot shadow itself, none where the Sun stands above the facet's horizon bound or
+    /// the map is certain or decides alone. A chunk of facets takes every step in turn
+    /// while its normals and map data are in cache.
     fn light_facing(
         &self,
         b: usize,
-        light: &Sunlight<'_>,
-        out: &mut [f64],
+        skies: &[Sky],
+        outs: &mut [&mut [f64]],
+    ) -> Vec<(StepCounts, Vec<OwnRay>)> {
+        const CHUNK: usize = 2048;
+        let mut chunks: Vec<Vec<&mut [f64]>> = Vec::new();
+        for out in outs.iter_mut() {
+            for (c, part) in out.chunks_mut(CHUNK).enumerate() {
+                if chunks.len() == c {
+                    chunks.push(Vec::with_capacity(skies.len()));
+                }
+                chunks[c].push(part);
+            }
+        }
+        let nothing = || {
+            skies
+                .iter()
+                .map(|_| (StepCounts::default(), Vec::new()))
+                .collect()
+        };
+        chunks
+            .into_par_iter()
+            .enumerate()
+            .map(|(c, steps)| {
+                let facets = Facets {
+                    body: b,
+                    first: c * CHUNK,
+                };
+                steps
+                    .into_iter()
+                    .zip(skies)
+                    .map(|(values, sky)| self.light_chunk(facets, sky, values))
+                    .collect::<Vec<_>>()
+            })
+            .reduce(nothing, |mut a, b| {
+                for ((ca, ra), (cb, rb)) in a.iter_mut().zip(b) {
+                    *ca += cb;
+                    ra.extend(rb);
+                }
+                a
+            })
+    }
+
+    /// [`Direct::light_facing`] for one step and one chunk of facets, numbered from
+    /// `facets.first`, whose values are `values`.
+    fn light_chunk(
+        &self,
+        facets: Facets,
+        sky: &Sky,
+        values: &mut [f64],
     ) -> (StepCounts, Vec<OwnRay>) {
-        const CHUNK: usize = 4096;
+        let Facets { body: b, first } = facets;
         let mesh = &self.world.bodies[b].mesh;
         let horizon = &self.horizons[b];
-        let traces_own = light.own.is_some();
+        let traces_own = self.traces_own(b);
         // A disk starts to rise above a facet's plane when its centre is ρ below it.
-        let facing = -light.radius.sin();
-        out.par_chunks_mut(CHUNK)
-            .enumerate()
-            .map(|(chunk, values)| {
-                let first = chunk * CHUNK;
-                let mut counts = StepCounts::default();
-                let mut rays = Vec::new();
-                // Facets whose map cells decide, with where the Sun stands in their sky.
-                let mut pending = Vec::new();
-                let normals = &mesh.normals[first..first + values.len()];
-                // The cosines first, in a loop of their own: most facets need nothing else.
-                for (e, normal) in values.iter_mut().zip(normals) {
-                    *e = normal.dot(light.sun);
-                }
-                for (k, e) in values.iter_mut().enumerate() {
-                    let i = first + k;
-                    let cos = *e;
-                    if cos <= facing {
-                        counts.night += 1;
-                        *e = 0.0;
-                        continue;
-                    }
-                    let cleared = match horizon {
-                        OwnHorizon::Map { map, exact } => {
-                            // A point Sun above the facet's whole horizon, or above the
-                            // octant of azimuth it stands in, needs no lookup.
-                            let at = match self.sun {
-                                SunShape::Point if map.above_all(i, cos) => None,
-                                SunShape::Point => map.locate(i, normals[k], light.sun, cos),
-                                SunShape::Disk => Some(map.position(normals[k], light.sun, cos)),
-                            };
-                            match at {
-                                // Its value holds the cosine until the lookup.
-                                Some(at) => {
-                                    pending.push((k, at));
-                                    continue;
-                                }
-                                None if *exact => counts.above_horizon += 1,
-                                None => counts.horizon_lookups += 1,
-                            }
-                            *e = light.flux * cos;
-                            continue;
-                        }
-                        // Only the facet's own plane.
-                        _ if self.sun == SunShape::Disk => {
-                            let plane = LocalHorizon {
-                                elevation: 0.0,
-                                slope: 0.0,
-                            };
-                            *e = light.flux * self.disk_share(cos, plane, light.radius);
-                            counts.shadowed += (*e == 0.0) as u64;
-                            continue;
-                        }
-                        OwnHorizon::Bound(bound) => bound.clears(i, cos),
-                        OwnHorizon::None if traces_own => false,
-                        OwnHorizon::None => {
-                            *e = light.flux * cos;
-                            continue;
-                        }
+        let facing = -sky.radius.sin();
+        let mut counts = StepCounts::default();
+        let mut rays = Vec::new();
+        // Facets whose map cells decide, with where the Sun stands in their sky.
+        let mut pending = Vec::new();
+        let normals = &mesh.normals[first..first + values.len()];
+        // The cosines first, in a loop of their own: most facets need nothing else.
+        for (e, normal) in values.iter_mut().zip(normals) {
+            *e = normal.dot(sky.sun);
+        }
+        for (k, e) in values.iter_mut().enumerate() {
+            let i = first + k;
+            let cos = *e;
+            if cos <= facing {
+                counts.night += 1;
+                *e = 0.0;
+                continue;
+            }
+            let cleared = match horizon {
+                OwnHorizon::Map { map, exact } => {
+                    // A point Sun above the facet's whole horizon, or above the octant of
+                    // azimuth it stands in, needs no lookup.
+                    let at = match self.sun {
+                        SunShape::Point if map.above_all(i, cos) => None,
+                        SunShape::Point => map.locate(i, normals[k], sky.sun, cos),
+                        SunShape::Disk => Some(map.position(normals[k], sky.sun, cos)),
                     };
-                    *e = light.flux * cos;
-                    if cleared {
-                        counts.above_horizon += 1;
-                    } else {
-                        rays.push(self.own_ray(b, i, cos));
-                    }
-                }
-                // The map's cells are read in a loop of their own: the reads do not wait
-                // on one another, so the memory serves several at once.
-                if let OwnHorizon::Map { map, exact } = horizon {
-                    for (k, at) in pending {
-                        let i = first + k;
-                        let e = &mut values[k];
-                        let cos = *e;
-                        *e = light.flux * cos;
-                        if self.sun == SunShape::Disk {
-                            counts.horizon_lookups += 1;
-                            let h = map.horizon(i, &at);
-                            *e = light.flux * self.disk_share(cos, h, light.radius);
-                            counts.shadowed += (*e == 0.0) as u64;
-                        } else if !exact {
-                            counts.horizon_lookups += 1;
-                            if at.elevation <= map.horizon(i, &at).elevation {
-                                *e = 0.0;
-                                counts.shadowed += 1;
-                            }
-                        } else if map.clears(i, &at) {
-                            counts.above_horizon += 1;
-                        } else {
-                            rays.push(self.own_ray(b, i, cos));
+                    match at {
+                        // Its value holds the cosine until the lookup.
+                        Some(at) => {
+                            pending.push((k, at));
+                            continue;
                         }
+                        None if *exact => counts.above_horizon += 1,
+                        None => counts.horizon_lookups += 1,
                     }
+                    *e = sky.flux * cos;
+                    continue;
                 }
-                (counts, rays)
-            })
-            .reduce(
-                || (StepCounts::default(), Vec::new()),
-                |(mut ca, mut ra), (cb, rb)| {
-                    ca += cb;
-                    ra.extend(rb);
-                    (ca, ra)
-                },
-            )
+                // Only the facet's own plane.
+                _ if self.sun == SunShape::Disk => {
+                    let plane = LocalHorizon {
+                        elevation: 0.0,
+                        slope: 0.0,
+                    };
+                    *e = sky.flux * self.disk_share(cos, plane, sky.radius);
+                    counts.shadowed += (*e == 0.0) as u64;
+                    continue;
+                }
+                OwnHorizon::Bound(bound) => bound.clears(i, cos),
+                OwnHorizon::None if traces_own => false,
+                OwnHorizon::None => {
+                    *e = sky.flux * cos;
+                    continue;
+                }
+            };
+            *e = sky.flux * cos;
+            if cleared {
+                counts.above_horizon += 1;
+            } else {
+                rays.push(self.own_ray(b, i, cos));
+            }
+        }
+        if let OwnHorizon::Map { map, exact } = horizon {
+            let lookups = Lookups {
+                map,
+                exact: *exact,
+                sky,
+            };
+            self.read_cells(facets, lookups, pending, values, &mut counts, &mut rays);
+        }
+        (counts, rays)
+    }
+
+    /// Decides the `pending` facets of a chunk from their map cells: lit, dark, the
+    /// disk's visible share, or (exact mode) a ray. The cells are read in a loop of their
+    /// own: the reads do not wait on one another, so the memory serves several at once.
+    fn read_cells(
+        &self,
+        facets: Facets,
+        lookups: Lookups<'_>,
+        pending: Vec<(usize, SkyPosition)>,
+        values: &mut [f64],
+        counts: &mut StepCounts,
+        rays: &mut Vec<OwnRay>,
+    ) {
+        let Lookups { map, exact, sky } = lookups;
+        for (k, at) in pending {
+            let i = facets.first + k;
+            let e = &mut values[k];
+            let cos = *e;
+            *e = sky.flux * cos;
+            if self.sun == SunShape::Disk {
+                counts.horizon_lookups += 1;
+                let h = map.horizon(i, &at);
+                *e = sky.flux * self.disk_share(cos, h, sky.radius);
+                counts.shadowed += (*e == 0.0) as u64;
+            } else if !exact {
+                counts.horizon_lookups += 1;
+                if at.elevation <= map.horizon(i, &at).elevation {
+                    *e = 0.0;
+                    counts.shadowed += 1;
+                }
+            } else if map.clears(i, &at) {
+                counts.above_horizon += 1;
+            } else {
+                rays.push(self.own_ray(facets.body, i, cos));
+            }
+        }
     }
 
     /// Darkens the facets of body `b` still lit in `out` that other bodies shadow: a
@@ -560,6 +651,33 @@ struct OwnRay {
     facet: u32,
     origin: DVec3,
     t_min: f64,
+}
+
+/// Where one body's Sun stands at one step: all that lighting its facets as if nothing
+/// blocked the Sun needs.
+#[derive(Debug, Clone, Copy)]
+struct Sky {
+    /// Unit vector toward the Sun's centre, body frame.
+    sun: DVec3,
+    /// Flux at the body, W/m².
+    flux: f64,
+    /// The Sun's angular radius, radians (0 for a point Sun).
+    radius: f64,
+}
+
+/// A chunk of body `body`'s facets, numbered from `first` (body-local ids).
+#[derive(Debug, Clone, Copy)]
+struct Facets {
+    body: usize,
+    first: usize,
+}
+
+/// What the cell reads of a chunk's facets need: the map, its mode, and the Sun.
+#[derive(Clone, Copy)]
+struct Lookups<'a> {
+    map: &'a HorizonMap,
+    exact: bool,
+    sky: &'a Sky,
 }
 
 /// One body's Sun at one step with the shadow queries that serve it.

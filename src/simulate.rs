@@ -166,12 +166,13 @@ pub fn simulate(
         let directs = &mut directs[..chunk.len()];
         let lanes = chunk.len().min(scattered.len());
         let scattered = &mut scattered[..lanes];
-        for (state, irradiance) in chunk.iter().zip(directs.iter_mut()) {
-            if progress.cancelled() {
-                return Err(Error::Cancelled);
-            }
-            counts += timings.time("direct irradiance", || direct.compute(state, irradiance))?;
+        if progress.cancelled() {
+            return Err(Error::Cancelled);
         }
+        let mut outs: Vec<&mut [f64]> = directs.iter_mut().map(Vec::as_mut_slice).collect();
+        counts += timings.time("direct irradiance", || {
+            direct.compute_steps(chunk, &mut outs)
+        })?;
         if let Some(stage) = scatter.as_mut() {
             timings.time("scattered light", || {
                 let d: Vec<&[f64]> = directs.iter().map(Vec::as_slice).collect();

@@ -1341,6 +1341,97 @@ fn convex_body_casts_no_rays() {
     assert!(!inspect(&itokawa).convex);
 }
 
+/// The step loop computes steps in blocks (`Direct::compute_steps`): every facet of a
+/// block must get the bits it gets step by step, with the same counters, for rays, the
+/// BVH's bound, exact and approximate maps and a disk Sun, with a second body casting
+/// shadows on the first at some of the steps.
+#[test]
+fn blocks_of_steps_light_every_facet_as_single_steps() {
+    let itokawa = load_km("data/shapes/itokawa/itokawa_16.obj");
+    let world = World {
+        bodies: vec![
+            Body::new("itokawa", itokawa.clone(), false),
+            Body::new("moonlet", sphere(2, 120.0), true),
+        ],
+    };
+    // Suns around the equator, and one through the moonlet onto Itokawa.
+    let suns: Vec<DVec3> = (0..13)
+        .map(|k| elevated((k as f64 * 0.5).cos(), (k as f64 * 0.5).sin(), 0.2))
+        .collect();
+    let eph = fixed(
+        &suns,
+        1000.0,
+        vec![Pose::IDENTITY, at(DVec3::new(900.0, 0.0, 120.0))],
+    );
+    let states = epoch_states(&eph).expect("states");
+    let map = || {
+        let bvh = slim::trace::bvh::Bvh::build(&itokawa);
+        HorizonMap::build(&itokawa, itokawa.len(), &bvh, 64, &|| false).expect("map")
+    };
+    let with = |mode, sun| Shadows {
+        mode,
+        sun,
+        ..Shadows::default()
+    };
+    let setups = [
+        ("sunview rays", Direct::new(&world, TracerKind::Sunview)),
+        ("bvh bound", Direct::new(&world, TracerKind::Bvh)),
+        (
+            "exact map",
+            Direct::with_maps(
+                &world,
+                TracerKind::Sunview,
+                vec![Some(map()), None],
+                &with(HorizonMode::Exact, SunShape::Point),
+            ),
+        ),
+        (
+            "approximate map",
+            Direct::with_maps(
+                &world,
+                TracerKind::Sunview,
+                vec![Some(map()), None],
+                &with(HorizonMode::Approximate, SunShape::Point),
+            ),
+        ),
+        (
+            "disk Sun",
+            Direct::with_maps(
+                &world,
+                TracerKind::Sunview,
+                vec![Some(map()), None],
+                &with(HorizonMode::Exact, SunShape::Disk),
+            ),
+        ),
+    ];
+    let n = world.facet_count();
+    for (name, direct) in setups {
+        let mut single_counts = StepCounts::default();
+        let single: Vec<Vec<f64>> = states
+            .iter()
+            .map(|state| {
+                let mut e = vec![f64::NAN; n];
+                single_counts += direct.compute(state, &mut e).expect("compute");
+                e
+            })
+            .collect();
+        let mut block_counts = StepCounts::default();
+        let mut blocked = vec![vec![f64::NAN; n]; states.len()];
+        for (chunk, outs) in states.chunks(5).zip(blocked.chunks_mut(5)) {
+            let mut outs: Vec<&mut [f64]> = outs.iter_mut().map(Vec::as_mut_slice).collect();
+            block_counts += direct.compute_steps(chunk, &mut outs).expect("compute");
+        }
+        assert_eq!(block_counts, single_counts, "{name}: counters");
+        for (k, (a, b)) in blocked.iter().zip(&single).enumerate() {
+            for i in 0..n {
+                assert_eq!(a[i].to_bits(), b[i].to_bits(), "{name}: step {k} facet {i}");
+            }
+        }
+        // The comparison is not vacuous: shadows and the moonlet's shadow occur.
+        assert!(single_counts.shadowed > 0, "{name}: nothing shadowed");
+    }
+}
+
 // ---------------------------------------------------------------------------------------
 // 6. The Sun as a disk
 
