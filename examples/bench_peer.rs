@@ -3,15 +3,19 @@
 //!
 //! ```text
 //! cargo run --release --example bench_peer -- [MESH] [--subdivide N] [--folded]
-//!     [--steps N] [--threads N] [--tracer sunview|bvh] --out DIR
+//!     [--steps N] [--threads N] [--tracer sunview|bvh|map-exact|map-approximate]
+//!     [--cache DIR] --out DIR
 //! ```
 //! In: a mesh file in km (default: the 49,152-facet Itokawa model) or `--folded` (the
 //! bilobed test shape of `examples/common/folded.rs`), optionally subdivided (×4 facets
 //! per level); `--steps` states over one spin about z with the Sun along +x in the
 //! equator plane, as `bench_direct` uses. Only the step loop is timed, with the per-step
 //! tracer build included (`--tracer sunview`, the default) or the tracer built once with
-//! its horizon bound before the loop (`--tracer bvh`, reported as `direct_new_s`); the
-//! exports happen after it.
+//! its horizon bound before the loop (`--tracer bvh`, reported as `direct_new_s`), or a
+//! horizon map of 128 wedges looked up instead of tracing (`map-exact`: rays only where
+//! the map is not certain, the same classification as the tracers; `map-approximate`:
+//! no rays), its build (or its read from `--cache DIR`) in `direct_new_s`. The
+//! exports happen after the loop.
 //!
 //! Out, in DIR: `.npy` files (NumPy format 1.0, little-endian, C order) and `slim.json`.
 //! - `vertices.npy` f64 (V, 3), metres; `triangles.npy` u32 (F, 3), 0-based;
@@ -30,14 +34,23 @@
 mod common;
 
 use glam::DVec3;
+use slim::horizon::shadows::{HorizonMode, ShadowMethod, Shadows};
 use slim::illum::{Direct, StepCounts};
+use slim::progress::Silent;
 use slim::trace::TracerKind;
 use slim::world::World;
 use std::io::{BufWriter, Write};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-const VALUE_FLAGS: &[&str] = &["--subdivide", "--steps", "--threads", "--out", "--tracer"];
+const VALUE_FLAGS: &[&str] = &[
+    "--subdivide",
+    "--steps",
+    "--threads",
+    "--out",
+    "--tracer",
+    "--cache",
+];
 const SWITCHES: &[&str] = &["--folded"];
 
 /// Memory figures of this process at one moment, MB.
@@ -90,6 +103,27 @@ fn vec3_bytes(values: &[DVec3]) -> Vec<u8> {
 }
 
 /// The body: `--folded` or the mesh file, subdivided by `--subdivide`.
+/// The direct stage with a horizon map of the body (built, or read from `--cache DIR`)
+/// in `mode`; the map's few rays go to the BVH.
+fn with_map<'w>(
+    world: &'w World,
+    mode: HorizonMode,
+    options: &common::Options,
+) -> Result<Direct<'w>, Box<dyn std::error::Error>> {
+    let shadows = Shadows {
+        method: ShadowMethod::Horizon,
+        mode,
+        cache_dir: options.optional("--cache")?,
+        ..Shadows::default()
+    };
+    let maps = world
+        .bodies
+        .iter()
+        .map(|b| shadows.obtain(b, &Silent).map(|(map, _)| Some(map)))
+        .collect::<Result<Vec<_>, _>>()?;
+    Ok(Direct::with_maps(world, TracerKind::Bvh, maps, &shadows))
+}
+
 fn build_world(options: &common::Options) -> Result<(World, String), Box<dyn std::error::Error>> {
     let levels: u32 = options.value("--subdivide", 0)?;
     if options.has("--folded") {
@@ -145,14 +179,20 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
     let threads = rayon::current_num_threads();
     println!("slim: {label}: {facets} facets, {steps} steps, {threads} threads");
 
-    let kind = match options.value("--tracer", "sunview".to_string())?.as_str() {
-        "sunview" => TracerKind::Sunview,
-        "bvh" => TracerKind::Bvh,
-        t => return Err(format!("unknown --tracer {t} (sunview, bvh)").into()),
-    };
+    let tracer: String = options.value("--tracer", "sunview".to_string())?;
     let before_build = Memory::now();
     let build_t0 = Instant::now();
-    let direct = Direct::new(&world, kind);
+    let direct = match tracer.as_str() {
+        "sunview" => Direct::new(&world, TracerKind::Sunview),
+        "bvh" => Direct::new(&world, TracerKind::Bvh),
+        "map-exact" => with_map(&world, HorizonMode::Exact, &options)?,
+        "map-approximate" => with_map(&world, HorizonMode::Approximate, &options)?,
+        t => {
+            return Err(
+                format!("unknown --tracer {t} (sunview, bvh, map-exact, map-approximate)").into(),
+            )
+        }
+    };
     let build_s = build_t0.elapsed().as_secs_f64();
     let after_build = Memory::now();
     let min_height: Vec<f64> = (0..facets).map(|i| direct.t_min(0, i, 1.0)).collect();
@@ -250,7 +290,7 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
     )?;
 
     let summary = summary(&Summary {
-        tracer: kind,
+        tracer: &tracer,
         label: &label,
         world: &world,
         steps,
@@ -282,7 +322,7 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
 
 /// What `slim.json` is made from.
 struct Summary<'a> {
-    tracer: TracerKind,
+    tracer: &'a str,
     label: &'a str,
     world: &'a World,
     steps: usize,
@@ -307,7 +347,7 @@ fn summary(s: &Summary<'_>) -> serde_json::Value {
     let body = &s.world.bodies[0];
     let min_ms = s.step_ms.iter().copied().fold(f64::INFINITY, f64::min);
     serde_json::json!({
-        "tracer": format!("{:?}", s.tracer).to_lowercase(),
+        "tracer": s.tracer,
         "shape": s.label,
         "facets": body.mesh.len(),
         "vertices": body.mesh.vertices.len(),

@@ -219,13 +219,28 @@ impl<'w> Direct<'w> {
                 .iter()
                 .map(|state| self.sky(b, state))
                 .collect::<Result<Vec<_>>>()?;
-            let facing = self.light_facing(b, &skies, &mut views);
-            for ((state, (lit, rays)), out) in states.iter().zip(facing).zip(views) {
-                counts += lit;
-                counts += self.shade(b, &self.sunlight(b, state)?, &rays, out);
+            // A body that traces most of its lit facets would hold a block's rays at once
+            // (hundreds of MB at a million facets); it takes its steps one by one.
+            let block = if self.traces_most(b) { 1 } else { states.len() };
+            for ((states, skies), views) in states
+                .chunks(block)
+                .zip(skies.chunks(block))
+                .zip(views.chunks_mut(block))
+            {
+                let facing = self.light_facing(b, skies, views);
+                for ((state, (lit, rays)), out) in states.iter().zip(facing).zip(views) {
+                    counts += lit;
+                    counts += self.shade(b, &self.sunlight(b, state)?, &rays, out);
+                }
             }
         }
         Ok(counts)
+    }
+
+    /// Whether body `b` traces a ray for most of its facets that face the Sun: it shadows
+    /// itself and has no horizon map, which would decide all but a few of them.
+    fn traces_most(&self, b: usize) -> bool {
+        self.traces_own(b) && !matches!(self.horizons[b], OwnHorizon::Map { .. })
     }
 
     /// Irradiance (W/m²) at `state` of a few facets, each given as (body index, local

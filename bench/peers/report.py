@@ -150,14 +150,16 @@ def main():
         "1T/2T: slim with 1 or 2 rayon threads; Embree (embreex, rtcOccluded1 per ray) on "
         "one thread, pinned to one CPU.",
         "ms/step: mean over the steps; slim's includes its per-step tracer build (sunview; "
-        "the bvh tracer and its horizon bound are built once, 'slim setup s'), "
+        "the bvh tracer and its horizon bound are built once, 'slim setup s'; so is a "
+        "horizon map, map-exact and map-approximate, unless read from the cache), "
         "Embree's is queries only (its BVH is built once, column 'Embree BVH build s').",
         "slim 2T speed-up = slim 1T ms / slim 2T ms. Embree/slim 1T > 1: slim faster.",
         "Memory: slim's RSS growth while building its tracer (built once) and over the "
         "step loop (per-step structures); Embree's RSS growth over geometry upload + BVH "
         "build.",
         "Disagreements: traced facet-steps where the two classify differently; each refereed"
-        " one is settled by an f64 Möller–Trumbore test against all other facets.",
+        " one is settled by an f64 Möller–Trumbore test against all other facets "
+        "(map-approximate decides from the map alone: its disagreements are its error).",
     ]
     if not all(r["slim_1t_2t_identical"] for r in rows):
         notes.append("WARNING: slim's 1- and 2-thread classifications differ for: "
