@@ -22,7 +22,10 @@ spin_scene "itokawa-year-x4-$LEVELS" "$mesh" 12 false \
   "shadows = \"horizon\"
 horizon_mode = \"$MODE\"" | sed 's/^steps_per_period = 12$/steps_per_period = 12\nperiods = 730/' >"$OUT/scene.toml"
 for r in $(seq 1 "$REPEAT"); do
-  /usr/bin/time -v "$B" run "$OUT/scene.toml" -o "$OUT/run-$r" --quiet 2>"$OUT/time-$r.txt"
+  if ! /usr/bin/time -v "$B" run "$OUT/scene.toml" -o "$OUT/run-$r" --quiet 2>"$OUT/time-$r.txt"; then
+    cat "$OUT/time-$r.txt" >&2
+    exit 1
+  fi
   wall=$(grep "Elapsed (wall" "$OUT/time-$r.txt" | awk '{print $NF}')
   rss=$(grep "Maximum resident" "$OUT/time-$r.txt" | awk '{print $NF}')
   stages=$(python3 -c "import json; r=json.load(open('$OUT/run-$r/run.json')); print(', '.join(f'{s} {t:.1f} s' for s, t in r['timings_s']))")
