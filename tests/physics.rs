@@ -1364,45 +1364,25 @@ fn blocks_of_steps_light_every_facet_as_single_steps() {
         vec![Pose::IDENTITY, at(DVec3::new(900.0, 0.0, 120.0))],
     );
     let states = epoch_states(&eph).expect("states");
-    let map = || {
+    let mapped = |mode, sun| {
         let bvh = slim::trace::bvh::Bvh::build(&itokawa);
-        HorizonMap::build(&itokawa, itokawa.len(), &bvh, 64, &|| false).expect("map")
-    };
-    let with = |mode, sun| Shadows {
-        mode,
-        sun,
-        ..Shadows::default()
+        let map = HorizonMap::build(&itokawa, itokawa.len(), &bvh, 64, &|| false).expect("map");
+        let shadows = Shadows {
+            mode,
+            sun,
+            ..Shadows::default()
+        };
+        Direct::with_maps(&world, TracerKind::Sunview, vec![Some(map), None], &shadows)
     };
     let setups = [
         ("sunview rays", Direct::new(&world, TracerKind::Sunview)),
         ("bvh bound", Direct::new(&world, TracerKind::Bvh)),
-        (
-            "exact map",
-            Direct::with_maps(
-                &world,
-                TracerKind::Sunview,
-                vec![Some(map()), None],
-                &with(HorizonMode::Exact, SunShape::Point),
-            ),
-        ),
+        ("exact map", mapped(HorizonMode::Exact, SunShape::Point)),
         (
             "approximate map",
-            Direct::with_maps(
-                &world,
-                TracerKind::Sunview,
-                vec![Some(map()), None],
-                &with(HorizonMode::Approximate, SunShape::Point),
-            ),
+            mapped(HorizonMode::Approximate, SunShape::Point),
         ),
-        (
-            "disk Sun",
-            Direct::with_maps(
-                &world,
-                TracerKind::Sunview,
-                vec![Some(map()), None],
-                &with(HorizonMode::Exact, SunShape::Disk),
-            ),
-        ),
+        ("disk Sun", mapped(HorizonMode::Exact, SunShape::Disk)),
     ];
     let n = world.facet_count();
     for (name, direct) in setups {
