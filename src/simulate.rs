@@ -307,29 +307,18 @@ struct Accumulators {
     part_stats: Option<(FacetStats, FacetStats)>,
     /// With planets: statistics of their light as it arrives.
     planet_stats: Option<FacetStats>,
-    /// Per step of the block: the kept facets' direct, scattered and planet irradiance,
-    /// when not every facet is kept, and with scattered light the total.
-    kept_direct: Vec<Vec<f64>>,
-    kept_scattered: Vec<Vec<f64>>,
-    kept_planet: Vec<Vec<f64>>,
+    /// With scattered light, per step of the block: the total (global order).
     totals: Vec<Vec<f64>>,
+    /// The kept facets' direct, scattered and total irradiance of the step the history
+    /// sees, when not every facet is kept.
+    kept_direct: Vec<f64>,
+    kept_scattered: Vec<f64>,
+    kept_total: Vec<f64>,
 }
 
-/// The kept values of each step of a block (global order): each step's own values when
-/// every facet is kept, else gathered into `buffers`.
-fn pick_steps<'a>(
-    kept: &Selection,
-    values: &'a [Vec<f64>],
-    buffers: &'a mut Vec<Vec<f64>>,
-) -> Vec<&'a [f64]> {
-    if buffers.len() < values.len() {
-        buffers.resize_with(values.len(), Vec::new);
-    }
-    values
-        .iter()
-        .zip(buffers.iter_mut())
-        .map(|(v, b)| kept.pick(v, b))
-        .collect()
+/// Slices of a block's buffers.
+fn slices(buffers: &[Vec<f64>]) -> Vec<&[f64]> {
+    buffers.iter().map(Vec::as_slice).collect()
 }
 
 impl Accumulators {
@@ -341,10 +330,10 @@ impl Accumulators {
             total_stats: FacetStats::new(facets, bins),
             part_stats: with_parts
                 .then(|| (FacetStats::new(facets, bins), FacetStats::new(facets, bins))),
+            totals: Vec::new(),
             kept_direct: Vec::new(),
             kept_scattered: Vec::new(),
-            kept_planet: Vec::new(),
-            totals: Vec::new(),
+            kept_total: Vec::new(),
         }
     }
 
@@ -352,41 +341,32 @@ impl Accumulators {
     /// irradiance, and with planets counted apart their planet light (global order).
     fn add_steps(&mut self, directs: &[Vec<f64>], scattered: &[Vec<f64>], shines: &[Vec<f64>]) {
         if let Some(stats) = self.planet_stats.as_mut() {
-            stats.add_steps(&pick_steps(&self.kept, shines, &mut self.kept_planet));
+            stats.add_steps_of(&slices(shines), &self.kept);
         }
-        let direct = pick_steps(&self.kept, directs, &mut self.kept_direct);
         let Some((direct_stats, scattered_stats)) = self.part_stats.as_mut() else {
-            self.total_stats.add_steps(&direct);
+            self.total_stats.add_steps_of(&slices(directs), &self.kept);
             return;
         };
-        let scattered = pick_steps(&self.kept, scattered, &mut self.kept_scattered);
-        self.totals.resize_with(direct.len(), Vec::new);
-        for ((total, d), s) in self.totals.iter_mut().zip(&direct).zip(&scattered) {
+        self.totals.resize_with(directs.len(), Vec::new);
+        for ((total, d), s) in self.totals.iter_mut().zip(directs).zip(scattered) {
             total.clear();
-            total.extend(d.iter().zip(*s).map(|(d, s)| d + s));
+            total.extend(d.iter().zip(s).map(|(d, s)| d + s));
         }
-        let totals: Vec<&[f64]> = self.totals.iter().map(Vec::as_slice).collect();
-        self.total_stats.add_steps(&totals);
-        direct_stats.add_steps(&direct);
-        scattered_stats.add_steps(&scattered);
+        self.total_stats
+            .add_steps_of(&slices(&self.totals), &self.kept);
+        direct_stats.add_steps_of(&slices(directs), &self.kept);
+        scattered_stats.add_steps_of(&slices(scattered), &self.kept);
     }
 
     /// The kept facets' irradiance of step `k` of the block [`Accumulators::add_steps`]
     /// last added, as the history sees it.
     fn step<'a>(
-        &'a self,
+        &'a mut self,
         k: usize,
         directs: &'a [Vec<f64>],
         scattered: &'a [Vec<f64>],
     ) -> StepIrradiance<'a> {
-        let kept = |values: &'a [Vec<f64>], gathered: &'a [Vec<f64>]| {
-            if self.kept.is_all() {
-                values[k].as_slice()
-            } else {
-                gathered[k].as_slice()
-            }
-        };
-        let direct = kept(directs, &self.kept_direct);
+        let direct = self.kept.pick(&directs[k], &mut self.kept_direct);
         if self.part_stats.is_none() {
             return StepIrradiance {
                 total: direct,
@@ -394,8 +374,11 @@ impl Accumulators {
             };
         }
         StepIrradiance {
-            total: &self.totals[k],
-            parts: Some((direct, kept(scattered, &self.kept_scattered))),
+            total: self.kept.pick(&self.totals[k], &mut self.kept_total),
+            parts: Some((
+                direct,
+                self.kept.pick(&scattered[k], &mut self.kept_scattered),
+            )),
         }
     }
 }

@@ -367,9 +367,20 @@ impl Selection {
         Selection::new(picked, self.facets)
     }
 
-    /// Whether every facet is selected.
-    pub fn is_all(&self) -> bool {
-        self.ranges.is_none()
+    /// The selected facets as runs of consecutive global ids.
+    fn runs(&self) -> Runs {
+        let mut runs = Vec::new();
+        let mut local = 0;
+        match &self.ranges {
+            None => runs.push((0, 0..self.facets)),
+            Some(ranges) => {
+                for r in ranges.iter().filter(|r| !r.is_empty()) {
+                    runs.push((local, r.clone()));
+                    local += r.len();
+                }
+            }
+        }
+        Runs(runs)
     }
 
     /// Number of selected facets.
@@ -388,6 +399,22 @@ impl Selection {
             buffer.extend_from_slice(&values[r.clone()]);
         }
         buffer
+    }
+}
+
+/// A [`Selection`] as runs of consecutive global ids: (the first's number among the
+/// selected, its global ids).
+struct Runs(Vec<(usize, std::ops::Range<usize>)>);
+
+impl Runs {
+    /// The global ids of the selected facets numbered `locals` among the selected, in
+    /// order.
+    fn globals(&self, locals: std::ops::Range<usize>) -> impl Iterator<Item = usize> + '_ {
+        self.0.iter().flat_map(move |(first, ids)| {
+            let from = locals.start.max(*first);
+            let to = locals.end.min(first + ids.len());
+            (from..to.max(from)).map(move |local| ids.start + (local - first))
+        })
     }
 }
 
@@ -435,16 +462,29 @@ impl FacetStats {
     }
 
     /// Adds consecutive steps: `steps[k][i]` is facet i's value in W/m² at the k-th of
-    /// them. Each facet takes its steps in order while its moments sit in registers and
-    /// its CDF counts in cache, so a block of steps moves a fraction of the memory that
-    /// as many single steps move (at 786k facets the counts alone are hundreds of MB);
-    /// the result is bit-identical to adding the steps one by one.
+    /// them.
     pub fn add_steps(&mut self, steps: &[&[f64]]) {
-        let facets = self.moments.len();
+        self.add_steps_of(steps, &Selection::all(self.moments.len()));
+    }
+
+    /// Adds consecutive steps of values given for more facets than these statistics keep:
+    /// `steps[k][g]` is the value in W/m² of facet g (global ids) at the k-th step, and
+    /// these statistics keep the facets of `kept`, in its order. Each facet takes its
+    /// steps in order while its moments sit in registers and its CDF counts in cache, so
+    /// a block of steps moves a fraction of the memory that as many single steps move (at
+    /// 786k facets the counts alone are hundreds of MB); the result is bit-identical to
+    /// adding the steps one by one.
+    pub fn add_steps_of(&mut self, steps: &[&[f64]], kept: &Selection) {
+        assert_eq!(
+            kept.count(),
+            self.moments.len(),
+            "statistics of the kept facets"
+        );
         assert!(
-            steps.iter().all(|s| s.len() == facets),
+            steps.iter().all(|s| s.len() == kept.facets),
             "one value per facet"
         );
+        let runs = kept.runs();
         let first_step = self.steps;
         self.steps += steps.len() as u64;
         let (bins, per_unit) = (self.bins, 1.0 / self.unit);
@@ -453,15 +493,13 @@ impl FacetStats {
             .zip(self.hist.par_chunks_mut(FACETS_PER_TASK * bins.count))
             .enumerate()
             .for_each(|(task, (moments, hist))| {
-                let offset = task * FACETS_PER_TASK;
-                for (i, (m, h)) in moments
-                    .iter_mut()
-                    .zip(hist.chunks_mut(bins.count))
-                    .enumerate()
-                {
+                let first = task * FACETS_PER_TASK;
+                let globals = runs.globals(first..first + moments.len());
+                let facets = moments.iter_mut().zip(hist.chunks_mut(bins.count));
+                for ((m, h), g) in facets.zip(globals) {
                     let mut running = *m;
                     for (k, step) in steps.iter().enumerate() {
-                        let e = step[offset + i];
+                        let e = step[g];
                         running.add(e, first_step + k as u64, per_unit);
                         h[bins.index(e)] += 1;
                     }
@@ -702,6 +740,33 @@ mod tests {
             blocked.longest_dark_steps(facets - 1),
             longest_dark_by_scan(&data.iter().map(|s| s[facets - 1]).collect::<Vec<_>>())
         );
+    }
+
+    #[test]
+    fn kept_facets_of_global_steps_equal_their_values_gathered() {
+        // Two runs of kept facets across a task boundary, out of more in all.
+        let facets = 2 * FACETS_PER_TASK + 40;
+        let ranges = vec![
+            3..FACETS_PER_TASK + 7,
+            FACETS_PER_TASK + 20..2 * FACETS_PER_TASK + 31,
+        ];
+        let kept = Selection::new(ranges.clone(), facets);
+        let bins = Bins::covering(10.0, 200.0);
+        let data = series(facets, 23);
+        let mut of_global = FacetStats::new(kept.count(), bins);
+        for block in data.chunks(6) {
+            let steps: Vec<&[f64]> = block.iter().map(Vec::as_slice).collect();
+            of_global.add_steps_of(&steps, &kept);
+        }
+        let mut gathered = FacetStats::new(kept.count(), bins);
+        for step in &data {
+            let values: Vec<f64> = ranges
+                .iter()
+                .flat_map(|r| step[r.clone()].iter().copied())
+                .collect();
+            gathered.add_step(&values);
+        }
+        assert_eq!(of_global, gathered);
     }
 
     /// A small deterministic generator (xorshift), so the test needs no crate.
