@@ -1,7 +1,8 @@
-//! Illum: direct solar irradiance on every facet at one epoch (SLIM paper, section 6.1).
+//! Illum: direct solar irradiance on every facet at one epoch, or at each of a block of
+//! epochs (SLIM paper, section 6.1).
 //!
-//! In: the [`World`], one [`EpochState`] (Sun direction and flux per body, poses) and a
-//! tracer per body (with horizon maps where the run uses them). Out: `E_i = S · max(0,
+//! In: the [`World`], one [`EpochState`] or a block of them (Sun direction and flux per
+//! body, poses) and a tracer per body (with horizon maps where the run uses them). Out: `E_i = S · max(0,
 //! n_i · s)` in W/m² for every facet (global ids), or 0 when the ray from the facet
 //! centroid toward the Sun is blocked by any facet of any body. With the Sun as a disk,
 //! `E_i = S · f · sin ē` ([`crate::horizon::disk`]) times the share of the disk no other

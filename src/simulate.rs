@@ -6,8 +6,13 @@
 //! [`Simulation`] — streaming statistics of the total irradiance (W/m²) per facet of the
 //! bodies that get outputs (in [`World::output_offsets`] order), and with scattered light
 //! of its direct and scattered parts; each step's irradiance of those facets is handed to
-//! a callback as it is computed, e.g. to stream history. Bodies with `outputs = false`
-//! cast shadows and scatter light but keep no statistics.
+//! a callback in step order, e.g. to stream history. Bodies with `outputs = false` cast
+//! shadows and scatter light but keep no statistics.
+//!
+//! Steps go through in blocks ([`steps_per_batch`]: up to 16 steps without scattered
+//! light, as many as are solved side by side with it), so that lighting and statistics
+//! read each facet's data once per block rather than once per step; results do not
+//! depend on the block.
 
 use crate::bands::Bands;
 use crate::ephemeris::EpochState;
