@@ -692,6 +692,7 @@ impl FacetStats {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::TestRng;
 
     fn series(facets: usize, steps: usize) -> Vec<Vec<f64>> {
         (0..steps)
@@ -726,11 +727,11 @@ mod tests {
         let data = series(facets, 61);
         let mut single = FacetStats::new(facets, bins);
         data.iter().for_each(|e| single.add_step(e));
-        let mut seed = 0x2545_f491_4f6c_dd1d;
+        let mut rng = TestRng::new(0x2545_f491_4f6c_dd1d);
         let mut blocked = FacetStats::new(facets, bins);
         let mut k = 0;
         while k < data.len() {
-            let len = (1 + random(&mut seed) as usize % 17).min(data.len() - k);
+            let len = (1 + rng.next_u64() as usize % 17).min(data.len() - k);
             let block: Vec<&[f64]> = data[k..k + len].iter().map(Vec::as_slice).collect();
             blocked.add_steps(&block);
             k += len;
@@ -769,29 +770,21 @@ mod tests {
         assert_eq!(of_global, gathered);
     }
 
-    /// A small deterministic generator (xorshift), so the test needs no crate.
-    fn random(state: &mut u64) -> u64 {
-        *state ^= *state << 13;
-        *state ^= *state >> 7;
-        *state ^= *state << 17;
-        *state
-    }
-
     #[test]
     fn any_partition_merged_in_any_tree_is_bit_identical_to_one_pass() {
         let bins = Bins::covering(25.0, 1400.0);
-        let mut seed = 0x9e37_79b9_7f4a_7c15;
+        let mut rng = TestRng::new(0x9e37_79b9_7f4a_7c15);
         // Values with every magnitude from 1e-9 to the flux, zeros and exact thresholds.
         let data: Vec<Vec<f64>> = (0..257)
             .map(|_| {
                 (0..9)
-                    .map(|_| match random(&mut seed) % 5 {
+                    .map(|_| match rng.next_u64() % 5 {
                         0 => 0.0,
-                        1 => 25.0 * (random(&mut seed) % 57) as f64,
+                        1 => 25.0 * (rng.next_u64() % 57) as f64,
                         _ => {
-                            1400.0 * (random(&mut seed) >> 11) as f64
+                            1400.0 * (rng.next_u64() >> 11) as f64
                                 / (1u64 << 53) as f64
-                                / 10f64.powi((random(&mut seed) % 12) as i32)
+                                / 10f64.powi((rng.next_u64() % 12) as i32)
                         }
                     })
                     .collect()
@@ -801,9 +794,9 @@ mod tests {
         data.iter().for_each(|e| whole.add_step(e));
         for trial in 0..40 {
             // Cut the steps at random points into 1 to 20 parts.
-            let parts = 1 + random(&mut seed) as usize % 20;
+            let parts = 1 + rng.next_u64() as usize % 20;
             let mut cuts: Vec<usize> = (1..parts)
-                .map(|_| random(&mut seed) as usize % data.len())
+                .map(|_| rng.next_u64() as usize % data.len())
                 .collect();
             cuts.extend([0, data.len()]);
             cuts.sort_unstable();
@@ -817,7 +810,7 @@ mod tests {
                 .collect();
             // Merge neighbours chosen at random until one is left: every tree shape.
             while pieces.len() > 1 {
-                let k = random(&mut seed) as usize % (pieces.len() - 1);
+                let k = rng.next_u64() as usize % (pieces.len() - 1);
                 let right = pieces.remove(k + 1);
                 pieces[k].merge(&right);
             }
@@ -988,7 +981,7 @@ mod tests {
                     ((e / width).ceil() as usize).min(bins.count - 1)
                 }
             };
-            let mut seed = 0x1234_5678_9abc_def1;
+            let mut rng = TestRng::new(0x1234_5678_9abc_def1);
             let mut values = vec![
                 0.0,
                 -0.0,
@@ -1007,7 +1000,7 @@ mod tests {
                     f64::from_bits(on.to_bits() + 1),
                     f64::from_bits(on.to_bits().saturating_sub(1)),
                 ]);
-                values.push((random(&mut seed) >> 11) as f64 / (1u64 << 53) as f64 * 1400.0);
+                values.push(rng.unit() * 1400.0);
             }
             for e in values {
                 assert_eq!(bins.index(e), reference(e), "width {width}, value {e:e}");
