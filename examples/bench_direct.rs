@@ -25,7 +25,6 @@ mod common;
 use glam::DVec3;
 use slim::horizon::shadows::{HorizonMode, ShadowMethod, Shadows, SunShape, DEFAULT_AZIMUTHS};
 use slim::illum::{Direct, StepCounts};
-use slim::progress::Silent;
 use slim::trace::TracerKind;
 use std::time::Instant;
 
@@ -77,12 +76,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         Some(mode) => {
             let shadows = horizon_shadows(&options, &mode)?;
             let t0 = Instant::now();
-            let maps = world
-                .bodies
-                .iter()
-                .map(|b| shadows.obtain(b, &Silent).map(|(map, _)| Some(map)))
-                .collect::<Result<Vec<_>, _>>()?;
-            let direct = Direct::with_maps(&world, TracerKind::Bvh, maps, &shadows);
+            let direct = common::mapped_direct(&world, &shadows)?;
             let name = format!("map {mode}");
             time_steps(&name, t0, direct, &states, world.facet_count(), block)?;
         }

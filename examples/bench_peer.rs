@@ -36,7 +36,6 @@ mod common;
 use glam::DVec3;
 use slim::horizon::shadows::{HorizonMode, ShadowMethod, Shadows};
 use slim::illum::{Direct, StepCounts};
-use slim::progress::Silent;
 use slim::trace::TracerKind;
 use slim::world::World;
 use std::io::{BufWriter, Write};
@@ -103,8 +102,8 @@ fn vec3_bytes(values: &[DVec3]) -> Vec<u8> {
 }
 
 /// The body: `--folded` or the mesh file, subdivided by `--subdivide`.
-/// The direct stage with a horizon map of the body (built, or read from `--cache DIR`)
-/// in `mode`; the map's few rays go to the BVH.
+/// The direct stage with a horizon map of the body in `mode` (built, or read from
+/// `--cache DIR`).
 fn with_map<'w>(
     world: &'w World,
     mode: HorizonMode,
@@ -116,12 +115,7 @@ fn with_map<'w>(
         cache_dir: options.optional("--cache")?,
         ..Shadows::default()
     };
-    let maps = world
-        .bodies
-        .iter()
-        .map(|b| shadows.obtain(b, &Silent).map(|(map, _)| Some(map)))
-        .collect::<Result<Vec<_>, _>>()?;
-    Ok(Direct::with_maps(world, TracerKind::Bvh, maps, &shadows))
+    Ok(common::mapped_direct(world, &shadows)?)
 }
 
 fn build_world(options: &common::Options) -> Result<(World, String), Box<dyn std::error::Error>> {

@@ -7,6 +7,8 @@ pub mod folded;
 use glam::DVec3;
 use slim::ephemeris::spin::{Spin, SpinModel};
 use slim::ephemeris::EpochState;
+use slim::horizon::Shadows;
+use slim::illum::Direct;
 use slim::mesh::{generate::subdivide, inspect::inspect, read_mesh, LengthUnit, Mesh, RawMesh};
 use slim::prepare::epoch_states;
 use slim::world::{Body, World};
@@ -148,6 +150,26 @@ pub fn spin_states(steps: usize, sun_dir: DVec3) -> Result<Vec<EpochState>, slim
             position_m: DVec3::ZERO,
         }],
     })
+}
+
+/// The direct stage with a horizon map of every body, built or read from the cache as
+/// `shadows` says; the few rays a map leaves go to the BVH, as in `slim run`.
+pub fn mapped_direct<'w>(world: &'w World, shadows: &Shadows) -> Result<Direct<'w>, slim::Error> {
+    let maps = world
+        .bodies
+        .iter()
+        .map(|b| {
+            shadows
+                .obtain(b, &slim::progress::Silent)
+                .map(|(map, _)| Some(map))
+        })
+        .collect::<Result<Vec<_>, _>>()?;
+    Ok(Direct::with_maps(
+        world,
+        slim::trace::TracerKind::Bvh,
+        maps,
+        shadows,
+    ))
 }
 
 /// Peak resident memory of this process, MB (Linux; 0 elsewhere).
