@@ -112,6 +112,11 @@ fn build_s_per_facet(casters: usize) -> f64 {
     0.3e-3 + 5.7e-6 * (casters as f64).sqrt()
 }
 
+/// CPU seconds the map of `body` takes to build (its facets against all it casts from).
+fn build_seconds(body: &Body) -> f64 {
+    body.mesh.len() as f64 * build_s_per_facet(body.shadow_mesh().len())
+}
+
 const SAVED_S_PER_FACET_STEP: f64 = 0.37e-6;
 
 impl Shadows {
@@ -198,7 +203,7 @@ impl Shadows {
                         format!(
                             "{steps} steps ≥ {break_even}, where building it (about {:.0} s on \
                              one core) costs less than the rays it spares ({mode}); {size}",
-                            facets as f64 * per_facet
+                            build_seconds(body)
                         ),
                     )
                 } else {
@@ -275,7 +280,7 @@ impl Shadows {
             body.name,
             body.mesh.len(),
             self.azimuths,
-            body.mesh.len() as f64 * build_s_per_facet(body.shadow_mesh().len())
+            build_seconds(body)
         ));
         let started = Instant::now();
         let casters = body.shadow_mesh();
