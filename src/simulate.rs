@@ -180,16 +180,14 @@ pub fn simulate(
         })?;
         if let Some(stage) = scatter.as_mut() {
             timings.time("scattered light", || {
-                let d: Vec<&[f64]> = directs.iter().map(Vec::as_slice).collect();
                 let mut s: Vec<&mut [f64]> = scattered.iter_mut().map(Vec::as_mut_slice).collect();
-                stage.step_many(chunk, &d, &mut s);
+                stage.step_many(chunk, &slices(directs), &mut s);
                 shines = stage.take_planet_shine();
             });
         }
         if let Some(bands) = bands.as_deref_mut() {
             timings.time("spectral bands", || {
-                let d: Vec<&[f64]> = directs.iter().map(Vec::as_slice).collect();
-                bands.add_steps(chunk, &d, scatter.as_mut())
+                bands.add_steps(chunk, &slices(directs), scatter.as_mut())
             });
         }
         timings.time("statistics", || acc.add_steps(directs, scattered, &shines));
