@@ -12,26 +12,25 @@
 //! and prints nanoseconds per facet and step; every block size must give statistics
 //! identical to one step at a time (checked).
 
+// Shared by several benchmarks; each uses part of it.
+#[allow(dead_code)]
+mod common;
+
 use slim::stats::{Bins, FacetStats};
 use std::time::Instant;
 
 fn main() -> Result<(), String> {
-    let (mut facets, mut steps, mut blocks) = (786_432usize, 240usize, vec![1usize, 4, 8, 16, 32]);
-    let mut args = std::env::args().skip(1);
-    while let Some(flag) = args.next() {
-        let value = args.next().ok_or(format!("{flag} needs a value"))?;
-        let bad = |e: std::num::ParseIntError| format!("{flag} {value}: {e}");
-        match flag.as_str() {
-            "--facets" => facets = value.parse().map_err(bad)?,
-            "--steps" => steps = value.parse().map_err(bad)?,
-            "--blocks" => {
-                blocks = value
-                    .split(',')
-                    .map(|b| b.parse().map_err(bad))
-                    .collect::<Result<_, _>>()?
-            }
-            _ => return Err(format!("unknown option {flag}")),
-        }
+    let options = common::Options::from_env(&["--facets", "--steps", "--blocks"]);
+    options.check(&[])?;
+    let facets: usize = options.value("--facets", 786_432)?;
+    let steps: usize = options.value("--steps", 240)?;
+    let blocks = options
+        .value("--blocks", "1,4,8,16,32".to_string())?
+        .split(',')
+        .map(|b| b.parse().map_err(|e| format!("--blocks {b}: {e}")))
+        .collect::<Result<Vec<usize>, _>>()?;
+    if blocks.contains(&0) {
+        return Err("--blocks: a block holds at least one step".into());
     }
     let peak = 1361.0 / 1.21;
     let series: Vec<Vec<f64>> = (0..12)
