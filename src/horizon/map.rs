@@ -28,7 +28,8 @@
 //! horizontal kept (a point on a ridge sees down its flanks) and no facet left out.
 
 use super::geometry::{
-    arc_max_sin, directions_max_sin, distance_to_triangle, rounding_widening, signed_box_bound,
+    arc_max_sin, directions_max_sin, distance_to_triangle, polygon_max_sin, rounding_widening,
+    signed_box_bound,
 };
 use crate::mesh::Mesh;
 use crate::trace::bvh::Bvh;
@@ -410,6 +411,8 @@ struct Wedges {
     edges: Vec<(f64, f64)>,
     /// cos, sin of the centre azimuths 2π(k+½)/A.
     centres: Vec<(f64, f64)>,
+    /// The centre azimuths as `atan2` gives them back from `centres` (radians).
+    centre_azimuths: Vec<f64>,
 }
 
 impl Wedges {
@@ -418,10 +421,12 @@ impl Wedges {
             let phi = TAU * x / count as f64;
             (phi.cos(), phi.sin())
         };
+        let centres: Vec<(f64, f64)> = (0..count).map(|k| at(k as f64 + 0.5)).collect();
         Wedges {
             count,
             edges: (0..=count).map(|k| at(k as f64)).collect(),
-            centres: (0..count).map(|k| at(k as f64 + 0.5)).collect(),
+            centre_azimuths: centres.iter().map(|&(cos, sin)| sin.atan2(cos)).collect(),
+            centres,
         }
     }
 
@@ -461,13 +466,27 @@ impl Span {
     fn of(rel: &[DVec3], t1: DVec3, t2: DVec3) -> Span {
         let first = (rel[0].dot(t1), rel[0].dot(t2));
         let phi0 = first.1.atan2(first.0);
-        let (mut lo, mut hi) = (0.0f64, 0.0f64);
-        for p in &rel[1..] {
+        // Each point's turn from the first, as (cos, sin) up to a common factor. The
+        // extremes are found by a pseudo-angle that orders turns as `atan2` does, so
+        // only they need `atan2` (a box has eight corners).
+        let turns = rel[1..].iter().map(|p| {
             let (x, y) = (p.dot(t1), p.dot(t2));
-            let turn = (first.0 * y - first.1 * x).atan2(first.0 * x + first.1 * y);
-            lo = lo.min(turn);
-            hi = hi.max(turn);
+            // `+ 0.0` turns a −0 sine into +0, so that a turn of exactly π is π for the
+            // pseudo-angle and for `atan2` alike.
+            (first.0 * x + first.1 * y, first.0 * y - first.1 * x + 0.0)
+        });
+        let (mut lo, mut hi) = ((0.0, (1.0, 0.0)), (0.0, (1.0, 0.0)));
+        for turn in turns {
+            let order = pseudo_angle(turn);
+            if order < lo.0 {
+                lo = (order, turn);
+            }
+            if order > hi.0 {
+                hi = (order, turn);
+            }
         }
+        let angle = |(_, (c, s)): (f64, (f64, f64))| f64::atan2(s, c);
+        let (lo, hi) = (angle(lo), angle(hi));
         if hi - lo >= std::f64::consts::PI {
             return Span::All;
         }
@@ -493,6 +512,22 @@ impl Span {
                 phi <= hi
             }
         }
+    }
+}
+
+/// A number that orders directions `(cos, sin)` (any length) by their angle in
+/// `(−π, π]` as `atan2` does: in `[−1, 1]` on the right half, beyond it on the left
+/// (`−2` toward `−π`, `2` at `π`); 0 for the zero vector, as `atan2(0, 0)`.
+fn pseudo_angle((x, y): (f64, f64)) -> f64 {
+    let r = x.abs() + y.abs();
+    if r == 0.0 {
+        return 0.0;
+    }
+    let p = y / r;
+    match (x >= 0.0, y >= 0.0) {
+        (true, _) => p,
+        (false, true) => 2.0 - p,
+        (false, false) => -2.0 - p,
     }
 }
 
@@ -736,18 +771,23 @@ impl<'a> FacetSky<'a> {
             return;
         }
         let near_zenith = overlap >= 0.25 * self.wedges.width();
-        for k in self.wedges.covering(span.widened(overlap)) {
-            let sin = if near_zenith {
+        let overlap_turn = (overlap.cos(), overlap.sin());
+        let reach = span.widened(overlap);
+        // A triangle whose widened span meets one wedge lies inside it with room to
+        // spare, so the wedge's clip leaves it whole: its highest point is `top`.
+        let in_one_wedge = self.wedges.covering(reach).nth(1).is_none();
+        for k in self.wedges.covering(reach) {
+            let sin = if near_zenith || in_one_wedge {
                 Some(top)
             } else {
-                self.clipped_max_sin(&rel, k, overlap)
+                self.clipped_max_sin(&rel, k, overlap_turn)
             };
             let Some(sin) = sin else {
                 continue;
             };
             self.upper[k] = self.upper[k].max((sin + margin).min(1.0));
             let (cos_c, sin_c) = self.wedges.centres[k];
-            if span.holds(sin_c.atan2(cos_c)) {
+            if span.holds(self.wedges.centre_azimuths[k]) {
                 let u = self.t1 * cos_c + self.t2 * sin_c;
                 let m = self.t2 * cos_c - self.t1 * sin_c;
                 let sin = half_plane_max_sin(&rel, self.n, u, m, self.floor);
@@ -765,13 +805,14 @@ impl<'a> FacetSky<'a> {
     }
 
     /// The largest elevation sine of the part of the triangle `rel` (relative to the
-    /// viewpoint) in wedge `k` widened by `overlap` radians; `None` when none of it is.
-    fn clipped_max_sin(&self, rel: &[DVec3; 3], k: usize, overlap: f64) -> Option<f64> {
+    /// viewpoint) in wedge `k` widened by an overlap of `(cos, sin)` on both sides;
+    /// `None` when none of it is.
+    fn clipped_max_sin(&self, rel: &[DVec3; 3], k: usize, overlap: (f64, f64)) -> Option<f64> {
         let (t1, t2) = (self.t1, self.t2);
         let in_plane = |(cos, sin): (f64, f64)| (t1 * cos + t2 * sin, t2 * cos - t1 * sin);
         let (u_lo, m_lo) = in_plane(self.wedges.edges[k]);
         let (u_hi, m_hi) = in_plane(self.wedges.edges[k + 1]);
-        let (co, so) = (overlap.cos(), overlap.sin());
+        let (co, so) = overlap;
         // Azimuth ≥ lower edge − overlap, and ≤ upper edge + overlap.
         let above_lo = m_lo * co + u_lo * so;
         let below_hi = -(m_hi * co - u_hi * so);
@@ -786,11 +827,7 @@ impl<'a> FacetSky<'a> {
             0 => None,
             1 => Some(self.n.dot(dirs[0])),
             2 => Some(arc_max_sin(self.n, dirs[0], dirs[1])),
-            _ => Some(
-                (1..dirs.len() - 1)
-                    .map(|j| directions_max_sin(self.n, [dirs[0], dirs[j], dirs[j + 1]]))
-                    .fold(f64::NEG_INFINITY, f64::max),
-            ),
+            _ => Some(polygon_max_sin(self.n, dirs)),
         }
     }
 
@@ -889,12 +926,21 @@ impl Polygon {
 
     /// Keeps the part with `p·keep ≥ 0`.
     fn clip(&mut self, keep: DVec3) {
-        let src = self.clone();
+        let n = self.len;
+        let mut heights = [0.0; 8];
+        for (h, p) in heights.iter_mut().zip(self.points()) {
+            *h = p.dot(keep);
+        }
+        if heights[..n].iter().all(|&h| h >= 0.0) {
+            // Nothing to cut: the common case, which need not copy the corners.
+            return;
+        }
+        let src = self.pts;
         self.len = 0;
-        let n = src.len;
         for j in 0..n {
-            let (a, b) = (src.pts[j], src.pts[(j + 1) % n]);
-            let (da, db) = (a.dot(keep), b.dot(keep));
+            let k = (j + 1) % n;
+            let (a, b) = (src[j], src[k]);
+            let (da, db) = (heights[j], heights[k]);
             if da >= 0.0 {
                 self.push(a);
             }
@@ -1076,17 +1122,46 @@ mod tests {
         assert_eq!(atan2_within(0.0, 0.0), 0.0);
     }
     #[test]
+    fn pseudo_angles_order_turns_as_atan2_does() {
+        // Axes, signed zeros, the half-turn and random directions of every size: any two
+        // turns are ordered alike by both (ties of `atan2` allowed either way).
+        let mut rng = TestRng::new(11);
+        let mut turns = vec![
+            (1.0, 0.0),
+            (0.0, 1.0),
+            (-1.0, 0.0),
+            (-1.0, -0.0 + 0.0),
+            (0.0, -1.0),
+            (1.0, -0.0),
+            (0.0, 0.0),
+            (-1.0, 1e-300),
+            (-1.0, -1e-300),
+        ];
+        turns.extend((0..400).map(|_| {
+            let a = TAU * rng.unit() - PI;
+            let scale = 10f64.powf(12.0 * rng.unit() - 6.0);
+            (scale * a.cos(), scale * a.sin())
+        }));
+        for &p in &turns {
+            for &q in &turns {
+                let (ap, aq) = (p.1.atan2(p.0), q.1.atan2(q.0));
+                if ap < aq {
+                    assert!(pseudo_angle(p) <= pseudo_angle(q), "{p:?} {q:?}");
+                }
+                if pseudo_angle(p) < pseudo_angle(q) {
+                    assert!(ap <= aq, "{p:?} {q:?}");
+                }
+            }
+        }
+    }
+
+    #[test]
     fn ceilings_only_clear_suns_the_cells_clear() {
         // Random maps (some wedge counts not divisible by 8) and random Suns: wherever a
         // ceiling decides, the Sun's own wedge clears and it stands above the
         // interpolated horizon; and the octants' wedges hold each azimuth's neighbours.
-        let mut seed = 0x2545_F491_4F6C_DD1Du64;
-        let mut random = move || {
-            seed ^= seed << 13;
-            seed ^= seed >> 7;
-            seed ^= seed << 17;
-            (seed >> 11) as f64 / (1u64 << 53) as f64
-        };
+        let mut rng = TestRng::new(0x2545_F491_4F6C_DD1D);
+        let mut random = move || rng.unit();
         let (mut decided, mut looked_up) = (0, 0);
         for azimuths in [8u32, 12, 128, 131] {
             let facets = 50;
