@@ -777,17 +777,22 @@ impl<'a> FacetSky<'a> {
         // spare, so the wedge's clip leaves it whole: its highest point is `top`.
         let in_one_wedge = self.wedges.covering(reach).nth(1).is_none();
         for k in self.wedges.covering(reach) {
-            let sin = if near_zenith || in_one_wedge {
-                Some(top)
-            } else {
-                self.clipped_max_sin(&rel, k, overlap_turn)
-            };
-            let Some(sin) = sin else {
-                continue;
-            };
-            self.upper[k] = self.upper[k].max((sin + margin).min(1.0));
+            // Nothing of the triangle rises above `top`: a wedge whose bounds are already
+            // that high needs no clipping and no cut.
+            if top + margin > self.upper[k] {
+                let sin = if near_zenith || in_one_wedge {
+                    Some(top)
+                } else {
+                    self.clipped_max_sin(&rel, k, overlap_turn)
+                };
+                let Some(sin) = sin else {
+                    // None of it in the wedge, so none on its centre's half-plane either.
+                    continue;
+                };
+                self.upper[k] = self.upper[k].max((sin + margin).min(1.0));
+            }
             let (cos_c, sin_c) = self.wedges.centres[k];
-            if span.holds(self.wedges.centre_azimuths[k]) {
+            if top > self.centre[k] && span.holds(self.wedges.centre_azimuths[k]) {
                 let u = self.t1 * cos_c + self.t2 * sin_c;
                 let m = self.t2 * cos_c - self.t1 * sin_c;
                 let sin = half_plane_max_sin(&rel, self.n, u, m, self.floor);
