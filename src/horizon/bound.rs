@@ -49,30 +49,25 @@ impl HorizonBound {
     /// The bound of facets `0..receivers` of `mesh`, using `bvh` (built over all of
     /// `mesh`, whose other facets only cast shadows).
     pub fn new(mesh: &Mesh, receivers: usize, bvh: &Bvh) -> HorizonBound {
+        // Runs of neighbouring facets (file order is spatially coherent in shape models)
+        // are bounded in turn, each seeded with the triangle that set the previous one's
+        // bound: it is likely high here too, and the higher the first value, the more of
+        // the tree the search prunes.
+        const RUN: usize = 64;
         let widening = rounding_widening(mesh);
         let sin_max = (0..receivers)
+            .step_by(RUN)
+            .collect::<Vec<_>>()
             .into_par_iter()
-            .map(|i| {
-                let (c, n) = (mesh.centroids[i], mesh.normals[i]);
-                if n == DVec3::ZERO || mesh.areas[i] <= 0.0 {
-                    return 1.0;
-                }
-                let best = Cell::new(0.0f64);
-                bvh.search(
-                    |lo, hi| {
-                        let bound = box_bound(c, n, lo, hi, widening);
-                        (bound > best.get() + SEARCH_SLACK).then_some(bound)
-                    },
-                    |id, tri| {
-                        if id as usize != i {
-                            let threshold = best.get() + SEARCH_SLACK;
-                            let value = triangle_bound(c, n, tri, widening, threshold);
-                            best.set(best.get().max(value));
-                        }
-                    },
-                );
-                let found = best.get();
-                (found + SEARCH_SLACK).min(1.0)
+            .flat_map_iter(|start| {
+                let mut seed = None;
+                (start..(start + RUN).min(receivers))
+                    .map(|i| {
+                        let (bound, setter) = facet_bound(mesh, bvh, i, widening, seed);
+                        seed = setter;
+                        bound
+                    })
+                    .collect::<Vec<_>>()
             })
             .collect();
         HorizonBound { sin_max }
@@ -89,6 +84,43 @@ impl HorizonBound {
     pub fn sin_max(&self) -> &[f64] {
         &self.sin_max
     }
+}
+
+/// Facet `i`'s bound, and the triangle that set it (`None`: nothing rose above the
+/// plane). The `seed` triangle is taken first.
+fn facet_bound(
+    mesh: &Mesh,
+    bvh: &Bvh,
+    i: usize,
+    widening: f64,
+    seed: Option<u32>,
+) -> (f64, Option<u32>) {
+    let (c, n) = (mesh.centroids[i], mesh.normals[i]);
+    if n == DVec3::ZERO || mesh.areas[i] <= 0.0 {
+        return (1.0, None);
+    }
+    let best = Cell::new((0.0f64, None));
+    let take = |id: u32, tri: &[DVec3; 3]| {
+        if id as usize != i {
+            let (high, _) = best.get();
+            let value = triangle_bound(c, n, tri, widening, high + SEARCH_SLACK);
+            if value > high {
+                best.set((value, Some(id)));
+            }
+        }
+    };
+    if let Some(id) = seed {
+        take(id, &mesh.corners(id as usize));
+    }
+    bvh.search(
+        |lo, hi| {
+            let bound = box_bound(c, n, lo, hi, widening);
+            (bound > best.get().0 + SEARCH_SLACK).then_some(bound)
+        },
+        take,
+    );
+    let (found, setter) = best.get();
+    ((found + SEARCH_SLACK).min(1.0), setter)
 }
 
 #[cfg(test)]
