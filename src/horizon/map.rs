@@ -666,6 +666,8 @@ struct FacetSky<'a> {
     setter: Vec<u32>,
     /// The lowest centre horizon of all wedges.
     lowest_anywhere: f64,
+    /// The highest centre horizon of all wedges.
+    highest_anywhere: f64,
     /// The lowest elevation sine kept: 0 for a facet (its own plane hides what is below),
     /// −1 for a point above the surface.
     floor: f64,
@@ -685,6 +687,7 @@ impl<'a> FacetSky<'a> {
             centre: vec![floor; wedges.count],
             setter: vec![u32::MAX; wedges.count],
             lowest_anywhere: floor,
+            highest_anywhere: floor,
             floor,
         }
     }
@@ -700,6 +703,10 @@ impl<'a> FacetSky<'a> {
         let bound = self.box_bound(lo, hi);
         if bound <= self.lowest(Span::All) {
             return None;
+        }
+        if bound > self.highest_anywhere {
+            // Above every wedge's centre horizon: whatever azimuths the box spans.
+            return Some(bound);
         }
         let (lo, hi) = (lo - self.widening, hi + self.widening);
         let corners: [DVec3; 8] = std::array::from_fn(|k| {
@@ -799,6 +806,7 @@ impl<'a> FacetSky<'a> {
                 if sin > self.centre[k] {
                     let was_lowest = self.centre[k] == self.lowest_anywhere;
                     self.centre[k] = sin;
+                    self.highest_anywhere = self.highest_anywhere.max(sin);
                     self.setter[k] = id;
                     if was_lowest {
                         self.lowest_anywhere =
