@@ -7,7 +7,7 @@
 #
 # The map is kept in bench/results/horizon-year-cache between invocations (its key
 # follows the mesh, the settings and the map's source), so the first run of a fresh
-# clone builds it: about 36 minutes on 2 cores at 786k facets; later runs read it.
+# clone builds it: about 24 minutes on 2 cores at 786k facets; later runs read it.
 #
 #   bench/horizon_year.sh [LEVELS] [REPEAT] [MODE] [OUT]    (from the repository root)
 set -euo pipefail
