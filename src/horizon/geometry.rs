@@ -288,8 +288,8 @@ mod tests {
     #[test]
     fn polygon_maximum_matches_a_dense_sampling() {
         // Convex polygons of 4 to 7 corners (on an ellipse in a random plane, the shapes
-        // a triangle clipped to a wedge takes): the maximum over the corners' directions
-        // is never below a sampled point, and near the best one.
+        // a triangle clipped to a wedge takes): the computed maximum is never below a
+        // sampled point of the polygon, and near the best one.
         let mut rng = TestRng::new(23);
         let mut compared = 0;
         for _ in 0..600 {
