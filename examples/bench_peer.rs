@@ -101,7 +101,6 @@ fn vec3_bytes(values: &[DVec3]) -> Vec<u8> {
     f64_bytes(values.iter().flat_map(|v| v.to_array()))
 }
 
-/// The body: `--folded` or the mesh file, subdivided by `--subdivide`.
 /// The direct stage with a horizon map of the body in `mode` (built, or read from
 /// `--cache DIR`).
 fn with_map<'w>(
@@ -118,6 +117,7 @@ fn with_map<'w>(
     Ok(common::mapped_direct(world, &shadows)?)
 }
 
+/// The body: `--folded` or the mesh file, subdivided by `--subdivide`.
 fn build_world(options: &common::Options) -> Result<(World, String), Box<dyn std::error::Error>> {
     let levels: u32 = options.value("--subdivide", 0)?;
     if options.has("--folded") {

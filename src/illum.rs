@@ -2,11 +2,11 @@
 //! epochs (SLIM paper, section 6.1).
 //!
 //! In: the [`World`], one [`EpochState`] or a block of them (Sun direction and flux per
-//! body, poses) and a tracer per body (with horizon maps where the run uses them). Out: `E_i = S · max(0,
-//! n_i · s)` in W/m² for every facet (global ids), or 0 when the ray from the facet
-//! centroid toward the Sun is blocked by any facet of any body. With the Sun as a disk,
-//! `E_i = S · f · sin ē` ([`crate::horizon::disk`]) times the share of the disk no other
-//! body hides: a generated ellipsoid's in closed form ([`crate::horizon::eclipse`]), a
+//! body, poses) and a tracer per body (with horizon maps where the run uses them).
+//! Out: `E_i = S · max(0, n_i · s)` in W/m² for every facet (global ids), or 0 when the
+//! ray from the facet centroid toward the Sun is blocked by any facet of any body. With
+//! the Sun as a disk, `E_i = S · f · sin ē` ([`crate::horizon::disk`]) times the share
+//! of the disk no other body hides: a generated ellipsoid's in closed form ([`crate::horizon::eclipse`]), a
 //! mesh's by `sun_samples` rays through the disk. Bodies whose light nothing reads
 //! ([`Direct::only_for`]) get 0 and still cast shadows.
 //!

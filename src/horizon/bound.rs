@@ -25,10 +25,10 @@
 //! little faster than the facet count. Memory: 8 bytes per facet.
 
 use super::geometry::{box_bound, rounding_widening, triangle_bound};
+use super::map::in_seeded_runs;
 use crate::mesh::Mesh;
 use crate::trace::bvh::Bvh;
 use glam::DVec3;
-use rayon::prelude::*;
 use std::cell::Cell;
 
 /// How far above the highest horizon found the bound may lie (sine): the search skips
@@ -50,27 +50,13 @@ impl HorizonBound {
     /// The bound of facets `0..receivers` of `mesh`, using `bvh` (built over all of
     /// `mesh`, whose other facets only cast shadows).
     pub fn new(mesh: &Mesh, receivers: usize, bvh: &Bvh) -> HorizonBound {
-        // Runs of neighbouring facets (file order is spatially coherent in shape models)
-        // are bounded in turn, each seeded with the triangle that set the previous one's
-        // bound: it is likely high here too, and the higher the first value, the more of
-        // the tree the search prunes.
-        const RUN: usize = 64;
+        // Each facet is seeded with the triangle that set its neighbour's bound: it is
+        // likely high here too, and the higher the first value, the more of the tree the
+        // search prunes.
         let widening = rounding_widening(mesh);
-        let sin_max = (0..receivers)
-            .step_by(RUN)
-            .collect::<Vec<_>>()
-            .into_par_iter()
-            .flat_map_iter(|start| {
-                let mut seed = None;
-                (start..(start + RUN).min(receivers))
-                    .map(|i| {
-                        let (bound, setter) = facet_bound(mesh, bvh, i, widening, seed);
-                        seed = setter;
-                        bound
-                    })
-                    .collect::<Vec<_>>()
-            })
-            .collect();
+        let sin_max = in_seeded_runs(0..receivers, |i, &seed| {
+            facet_bound(mesh, bvh, i, widening, seed)
+        });
         HorizonBound { sin_max }
     }
 

@@ -107,7 +107,6 @@ impl HorizonMap {
         cancelled: &(dyn Fn() -> bool + Sync),
     ) -> Option<HorizonMap> {
         const BATCH: usize = 4096;
-        const RUN: usize = 64;
         let azimuths = azimuths.clamp(AZIMUTHS_MIN, AZIMUTHS_MAX);
         let wedges = Wedges::new(azimuths as usize);
         let widening = rounding_widening(mesh);
@@ -117,25 +116,10 @@ impl HorizonMap {
                 return None;
             }
             let end = (first + BATCH).min(receivers);
-            // Runs of neighbouring facets (in file order, which is spatially coherent in
-            // shape models and terrain) are built in turn, each seeded with the triangles
-            // that set the previous one's horizon.
-            let rows: Vec<Vec<[u16; 2]>> = (first..end)
-                .step_by(RUN)
-                .collect::<Vec<_>>()
-                .into_par_iter()
-                .flat_map_iter(|start| {
-                    let mut seeds = Vec::new();
-                    (start..(start + RUN).min(end))
-                        .map(|i| {
-                            let (row, setters) =
-                                facet_horizon(mesh, bvh, i, &wedges, widening, &seeds);
-                            seeds = setters;
-                            row
-                        })
-                        .collect::<Vec<_>>()
-                })
-                .collect();
+            // Each facet is seeded with the triangles that set its neighbour's horizon.
+            let rows = in_seeded_runs(first..end, |i, seeds: &Vec<u32>| {
+                facet_horizon(mesh, bvh, i, &wedges, widening, seeds)
+            });
             rows.into_iter().for_each(|r| cells.extend(r));
         }
         Some(HorizonMap::with_ceilings(azimuths, cells))
@@ -531,6 +515,35 @@ fn pseudo_angle((x, y): (f64, f64)) -> f64 {
     }
 }
 
+/// Neighbouring facets taken in turn, so that each search starts from what the last one
+/// found: `each(i, seed)` for every facet `i` of `facets`, in parallel runs of 64
+/// neighbours (in file order, which is spatially coherent in shape models and terrain).
+/// Within a run, each facet's `seed` is what the facet before it handed on; the first
+/// gets `S::default()`. The results come in facet order. A seed can only speed a search
+/// up: it is one more candidate, taken first.
+pub(super) fn in_seeded_runs<T: Send, S: Default>(
+    facets: std::ops::Range<usize>,
+    each: impl Fn(usize, &S) -> (T, S) + Sync,
+) -> Vec<T> {
+    const RUN: usize = 64;
+    facets
+        .clone()
+        .step_by(RUN)
+        .collect::<Vec<_>>()
+        .into_par_iter()
+        .flat_map_iter(|start| {
+            let mut seed = S::default();
+            (start..(start + RUN).min(facets.end))
+                .map(|i| {
+                    let (result, next) = each(i, &seed);
+                    seed = next;
+                    result
+                })
+                .collect::<Vec<_>>()
+        })
+        .collect()
+}
+
 /// One facet's row of the map, and the triangles that set its horizon. Triangles in
 /// `seeds` (a neighbour's horizon setters) are taken first: they are likely high here
 /// too, and the higher the horizon found early, the more of the tree is pruned.
@@ -798,8 +811,8 @@ impl<'a> FacetSky<'a> {
                 };
                 self.upper[k] = self.upper[k].max((sin + margin).min(1.0));
             }
-            let (cos_c, sin_c) = self.wedges.centres[k];
             if top > self.centre[k] && span.holds(self.wedges.centre_azimuths[k]) {
+                let (cos_c, sin_c) = self.wedges.centres[k];
                 let u = self.t1 * cos_c + self.t2 * sin_c;
                 let m = self.t2 * cos_c - self.t1 * sin_c;
                 let sin = half_plane_max_sin(&rel, self.n, u, m, self.floor);
