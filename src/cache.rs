@@ -83,12 +83,33 @@ pub fn mesh_content(h: &mut Sha256, mesh: &Mesh) {
 
 /// Adds to a key the source text of the code that builds a kind of file, so that any
 /// change to that code (a developer's as well as a release's) builds the file again
-/// instead of reading one the old code wrote.
+/// instead of reading one the old code wrote. A file's unit-test module is left out: a
+/// test changes what is checked, not what is built, and should not cost every cached
+/// file a rebuild (about 25 minutes for a 786k-facet horizon map).
 pub fn code(h: &mut Sha256, sources: &[&str]) {
     for text in sources {
-        h.update((text.len() as u64).to_le_bytes());
-        h.update(text.as_bytes());
+        for part in without_unit_tests(text) {
+            h.update((part.len() as u64).to_le_bytes());
+            h.update(part.as_bytes());
+        }
     }
+}
+
+/// Source `text` without its `#[cfg(test)] mod tests { … }` block: the parts before and
+/// after it. The block ends at the first line after its opening that is a lone `}`, as
+/// rustfmt lays it out; a text without such a block is kept whole.
+fn without_unit_tests(text: &str) -> [&str; 2] {
+    const OPEN: &str = "\n#[cfg(test)]\nmod tests {\n";
+    let Some(start) = text.find(OPEN) else {
+        return [text, ""];
+    };
+    let body = &text[start + OPEN.len()..];
+    let end = match body.find("\n}\n") {
+        Some(at) => at + 3,
+        None if body.ends_with("\n}") => body.len(),
+        None => return [text, ""],
+    };
+    [&text[..start], &body[end..]]
 }
 
 /// The file for `key` of this kind in `dir`.
@@ -235,6 +256,45 @@ impl<'a> Reader<'a> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    fn key_of(source: &str) -> [u8; 32] {
+        let mut h = Sha256::new();
+        code(&mut h, &[source]);
+        h.finalize().into()
+    }
+
+    #[test]
+    fn the_code_key_ignores_unit_tests_but_not_the_code_around_them() {
+        let with = |code: &str, test: &str, after: &str| {
+            format!("{code}\n#[cfg(test)]\nmod tests {{\n    fn t() {{ {test} }}\n}}\n{after}")
+        };
+        let base = key_of(&with("fn a() {}", "x", ""));
+        assert_eq!(key_of(&with("fn a() {}", "y", "")), base, "a test edit");
+        assert_ne!(
+            key_of(&with("fn b() {}", "x", "")),
+            base,
+            "code before the tests"
+        );
+        assert_ne!(
+            key_of(&with("fn a() {}", "x", "fn c() {}")),
+            base,
+            "code after them"
+        );
+        // Without a tests module (or an unclosed one) every byte counts.
+        assert_ne!(key_of("fn a() {}"), key_of("fn a() { }"));
+        let unclosed = "fn a() {}\n#[cfg(test)]\nmod tests {\n    fn t() {}";
+        assert_ne!(key_of(unclosed), key_of(&unclosed.replace("t()", "u()")));
+        // Each file's parts are delimited, so text cannot move between them unnoticed.
+        let mut h = Sha256::new();
+        code(&mut h, &["fn a() {}", "fn b() {}"]);
+        let mut moved = Sha256::new();
+        code(&mut moved, &["fn a() {}fn b", "() {}"]);
+        assert_ne!(h.finalize(), moved.finalize());
+        // On this very file the tests module is found and nothing follows it.
+        let [code, after] = without_unit_tests(include_str!("cache.rs"));
+        assert!(code.trim_end().ends_with("\n}") && !code.contains("fn the_code_key_ignores"));
+        assert_eq!(after, "");
+    }
 
     const KIND: Kind = Kind {
         magic: b"SLIMTST\0",

@@ -14,9 +14,9 @@
 //! | 4·A·F | per facet, per wedge: upper and centre elevation, u16 quanta of 90°/65535 |
 //!
 //! The content key is the SHA-256 of the format version, the source of the code that
-//! builds a map (the map, its geometry, this file, the tree and the ray predicate: changed
-//! code never reads an old map), A, the receiving facets, every vertex (f64 m) and every
-//! triangle.
+//! builds a map (the map, its geometry, this file, the tree and the ray predicate, unit
+//! tests left out: changed code never reads an old map), A, the receiving facets, every
+//! vertex (f64 m) and every triangle.
 
 use super::map::HorizonMap;
 use crate::cache::{self, Kind, Lookup, Reader};

@@ -11,8 +11,8 @@
 //! (f64), the capped rows (u64), then the matrix as [`Csr::encode`] writes it. The
 //! content key is the SHA-256 of the format version, the source of the code that builds
 //! a block (this stage, the form factors, visibility, storage, the tree and the ray
-//! predicate: changed code never reads an old block), the near-field settings, and the
-//! mesh's facet count, vertices (f64 m) and triangles.
+//! predicate, unit tests left out: changed code never reads an old block), the
+//! near-field settings, and the mesh's facet count, vertices (f64 m) and triangles.
 
 use super::csr::Csr;
 use super::form_factor::NearField;
