@@ -2,9 +2,8 @@
 //!
 //! ```text
 //! cargo run --release --example bench_direct -- [MESH] [--subdivide N] [--steps N]
-//!     [--tracer sunview|bvh|grid|both|all] [--threads N]
-//!     [--horizon exact|approximate [--azimuths A] [--sun point|disk] [--cache DIR]]
-//!     [--block K]
+//!     [--tracer sunview|bvh|grid|both|all] [--threads N] [--sun point|disk]
+//!     [--horizon exact|approximate [--azimuths A] [--cache DIR]] [--block K]
 //! ```
 //! Steps are computed in blocks of K (`Direct::compute_steps`), as `slim run` does:
 //! by default the block `slim run` takes for this mesh (16 steps up to a million facets);
@@ -13,6 +12,9 @@
 //! default 128) instead of tracing every ray: `exact` traces only where the Sun is not
 //! above the wedge's upper bound, `approximate` traces nothing. The map is read from
 //! `--cache DIR` when there, else built (and stored there); its time is the `build s`.
+//! `--sun disk` takes the Sun as a disk: its visible share from the map, or without
+//! `--horizon` from rays toward 32 points of the disk wherever the facet's plane or
+//! (`bvh`) its horizon bound leaves the disk in doubt.
 //! Default: the 49,152-facet Itokawa model, 360 steps over one spin, Sun in the equator
 //! plane, both tracers. `--subdivide 2` splits every facet into 16 (786,432 facets).
 //! Only the step loop is timed (the Sun-view build per step included; mesh loading and the
@@ -81,9 +83,14 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             time_steps(&name, t0, direct, &states, world.facet_count(), block)?;
         }
         None => {
+            let shadows = Shadows {
+                sun: sun_shape(&options)?,
+                ..Shadows::default()
+            };
             for kind in tracers(&options)? {
                 let t0 = Instant::now();
-                let direct = Direct::new(&world, kind);
+                let none = world.bodies.iter().map(|_| None).collect();
+                let direct = Direct::with_maps(&world, kind, none, &shadows);
                 let name = format!("{kind:?}").to_lowercase();
                 time_steps(&name, t0, direct, &states, world.facet_count(), block)?;
             }
@@ -102,14 +109,19 @@ fn horizon_shadows(options: &common::Options, mode: &str) -> Result<Shadows, Str
             m => return Err(format!("unknown horizon mode {m}")),
         },
         azimuths: options.value("--azimuths", DEFAULT_AZIMUTHS)?,
-        sun: match options.value("--sun", "point".to_string())?.as_str() {
-            "point" => SunShape::Point,
-            "disk" => SunShape::Disk,
-            s => return Err(format!("unknown Sun shape {s}")),
-        },
+        sun: sun_shape(options)?,
         cache_dir: options.optional("--cache")?,
         ..Shadows::default()
     })
+}
+
+/// The Sun `--sun point|disk` asks for (default point).
+fn sun_shape(options: &common::Options) -> Result<SunShape, String> {
+    match options.value("--sun", "point".to_string())?.as_str() {
+        "point" => Ok(SunShape::Point),
+        "disk" => Ok(SunShape::Disk),
+        s => Err(format!("unknown Sun shape {s}")),
+    }
 }
 
 /// Runs `direct` over `states` in blocks of `block` steps and prints its line (`t0`:

@@ -67,7 +67,7 @@ pub struct Direct<'w> {
     sun: SunShape,
     disk: SolarDisk,
     /// Equal-flux points of the disk (units of its radius) that sample the share a mesh
-    /// of another body hides.
+    /// hides: another body's, or the body's own where no horizon map decides.
     disk_samples: Vec<(f64, f64)>,
     min_height_m: Vec<Vec<f64>>,
     offsets: Vec<usize>,
@@ -388,19 +388,72 @@ impl<'w> Direct<'w> {
         out: &mut [f64],
     ) -> StepCounts {
         let mut counts = StepCounts::default();
-        let mut by_self = vec![false; rays.len()];
-        if let Some(own) = light.own.as_deref() {
-            rays.par_iter()
-                .zip(&mut by_self)
-                .for_each(|(r, dark)| *dark = own.blocked(r.origin, r.t_min, Some(r.facet)));
-            counts.rays += rays.len() as u64;
-        }
-        for (r, _) in rays.iter().zip(&by_self).filter(|(_, &d)| d) {
-            out[r.facet as usize] = 0.0;
-            counts.shadowed += 1;
+        match (light.own.as_deref(), self.sun) {
+            (None, _) => {}
+            (Some(own), SunShape::Point) => {
+                let mut by_self = vec![false; rays.len()];
+                rays.par_iter()
+                    .zip(&mut by_self)
+                    .for_each(|(r, dark)| *dark = own.blocked(r.origin, r.t_min, Some(r.facet)));
+                counts.rays += rays.len() as u64;
+                for (r, _) in rays.iter().zip(&by_self).filter(|(_, &d)| d) {
+                    out[r.facet as usize] = 0.0;
+                    counts.shadowed += 1;
+                }
+            }
+            (Some(_), SunShape::Disk) => counts += self.shade_disk(b, light, rays, out),
         }
         if !light.foreign.is_empty() {
             counts += self.shade_by_others(b, light, out);
+        }
+        counts
+    }
+
+    /// Scales the facets of `rays` in `out`, which hold the share of a disk Sun above
+    /// their planes, by the share of the disk's samples above their planes that their
+    /// own body leaves in view, each sample weighted by its `n·s` (the flux it brings).
+    /// A facet the disk only grazes, with no sample above its plane, keeps its share.
+    /// The samples are taken one at a time, so that one direction's shadow queries (a
+    /// Sun-view grid) are held at once, as for a point Sun.
+    fn shade_disk(
+        &self,
+        b: usize,
+        light: &Sunlight<'_>,
+        rays: &[OwnRay],
+        out: &mut [f64],
+    ) -> StepCounts {
+        let mut counts = StepCounts::default();
+        if rays.is_empty() {
+            return counts;
+        }
+        let normals = &self.world.bodies[b].mesh.normals;
+        // Per ray, the n·s of the samples above its plane, and of those in view.
+        let mut seen = vec![0.0; rays.len()];
+        let mut clear = vec![0.0; rays.len()];
+        for &offset in &self.disk_samples {
+            let s = disk_point(light.sun, light.radius, offset);
+            let query = self.tracers[b].toward(s);
+            counts.rays += (rays.par_iter().zip(&mut seen).zip(&mut clear))
+                .map(|((r, seen), clear)| {
+                    let cos = normals[r.facet as usize].dot(s);
+                    if cos <= 0.0 {
+                        return 0;
+                    }
+                    *seen += cos;
+                    let t_min = self.t_min(b, r.facet as usize, cos);
+                    if !query.blocked(r.origin, t_min, Some(r.facet)) {
+                        *clear += cos;
+                    }
+                    1
+                })
+                .sum::<u64>();
+        }
+        for ((r, seen), clear) in rays.iter().zip(seen).zip(clear) {
+            let e = &mut out[r.facet as usize];
+            if seen > 0.0 {
+                *e *= clear / seen;
+            }
+            counts.shadowed += (*e == 0.0) as u64;
         }
         counts
     }
@@ -508,14 +561,25 @@ impl<'w> Direct<'w> {
                     *e = sky.flux * cos;
                     continue;
                 }
-                // Only the facet's own plane.
+                // The facet's own plane; then, unless nothing else can rise into the
+                // disk, its samples' rays (`shade`).
                 _ if self.sun == SunShape::Disk => {
                     let plane = LocalHorizon {
                         elevation: 0.0,
                         slope: 0.0,
                     };
                     *e = sky.flux * self.disk_share(cos, plane, sky.radius);
-                    counts.shadowed += (*e == 0.0) as u64;
+                    let cleared = match horizon {
+                        OwnHorizon::Bound(bound) => bound.clears(i, lowest_sin(cos, sky.radius)),
+                        _ => !traces_own,
+                    };
+                    if *e == 0.0 {
+                        counts.shadowed += 1;
+                    } else if !cleared {
+                        rays.push(self.own_ray(b, i, cos.max(f64::MIN_POSITIVE)));
+                    } else if traces_own {
+                        counts.above_horizon += 1;
+                    }
                     continue;
                 }
                 OwnHorizon::Bound(bound) => bound.clears(i, cos),
@@ -781,6 +845,13 @@ fn disk_point(sun: DVec3, radius: f64, offset: (f64, f64)) -> DVec3 {
     let e1 = sun.any_orthonormal_vector();
     let e2 = sun.cross(e1);
     (sun + radius.tan() * (offset.0 * e1 + offset.1 * e2)).normalize()
+}
+
+/// The sine of the elevation above a facet's plane of the lowest point of a disk of
+/// angular `radius` whose centre stands at `sin_elevation` (`n·s`).
+fn lowest_sin(sin_elevation: f64, radius: f64) -> f64 {
+    let e = sin_elevation.clamp(-1.0, 1.0).asin();
+    (e - radius).sin()
 }
 
 /// The body's Sun direction at this step, checked to be a finite unit vector.

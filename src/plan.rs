@@ -45,6 +45,14 @@ impl Plan {
                      get E = 0 and no shadow ray"
                 .into(),
         }];
+        let rays = match scene.run.sun {
+            SunShape::Point => "one shadow ray per facet facing the Sun".to_string(),
+            SunShape::Disk => format!(
+                "shadow rays toward {} points of the disk (run.sun_samples) per facet that \
+                 sees part of it",
+                scene.run.sun_samples
+            ),
+        };
         for body in &world.bodies {
             decisions.push(if body.convex {
                 Decision {
@@ -59,8 +67,8 @@ impl Plan {
                     stage: format!("self-shadowing of '{}'", body.name),
                     runs: true,
                     reason: format!(
-                        "the mesh and its surroundings ({} facets that only cast shadows): one \
-                         shadow ray per facet facing the Sun",
+                        "the mesh and its surroundings ({} facets that only cast shadows): \
+                         {rays}",
                         body.shadow_mesh().len() - body.mesh.len()
                     ),
                 }
@@ -68,9 +76,7 @@ impl Plan {
                 Decision {
                     stage: format!("self-shadowing of '{}'", body.name),
                     runs: true,
-                    reason: "the mesh is not convex (or not closed): one shadow ray per facet \
-                             facing the Sun"
-                        .into(),
+                    reason: format!("the mesh is not convex (or not closed): {rays}"),
                 }
             });
         }

@@ -113,7 +113,7 @@ fn facet_bound(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::mesh::generate::icosphere;
+    use crate::mesh::generate::{floor_and_wall, icosphere};
     use crate::mesh::LengthUnit;
 
     /// A floor (two triangles, z = 0) and a vertical wall of height `h` along x = `wall_x`,
@@ -123,7 +123,7 @@ mod tests {
     #[test]
     fn a_wall_beside_a_floor_is_the_floors_horizon() {
         let (h, wall_x, half) = (3.0, 4.0, 50.0);
-        let mesh = super::super::floor_and_wall(h, wall_x, half);
+        let mesh = Mesh::from_raw(floor_and_wall(h, wall_x, half), LengthUnit::M);
         let bound = HorizonBound::new(&mesh, mesh.len(), &Bvh::build(&mesh));
         for i in 0..2 {
             let c = mesh.centroids[i];

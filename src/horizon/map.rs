@@ -980,7 +980,7 @@ impl Polygon {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::mesh::generate::height_field;
+    use crate::mesh::generate::{floor_and_wall, height_field};
     use crate::mesh::LengthUnit;
     use crate::trace::TracerKind;
     use crate::TestRng;
@@ -996,7 +996,7 @@ mod tests {
     #[test]
     fn a_wall_matches_its_closed_form_in_every_wedge_that_sees_it() {
         let (h, d, half) = (3.0, 4.0, 1e4);
-        let m = super::super::floor_and_wall(h, d, half);
+        let m = Mesh::from_raw(floor_and_wall(h, d, half), LengthUnit::M);
         assert_eq!(tangent_frame(DVec3::Z).0, DVec3::X);
         let a = 64;
         let map = build(&m, a);

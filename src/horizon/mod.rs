@@ -19,25 +19,3 @@ pub mod map;
 pub mod shadows;
 
 pub use shadows::{HorizonMode, ShadowMethod, Shadows, SunShape};
-
-/// A floor (two triangles at z = 0 around the origin, facing +z) and a vertical wall of
-/// height `h` along x = `wall_x`, from y = −`half` to `half` (metres): the closed-form
-/// horizon the bound's and the maps' tests check.
-#[cfg(test)]
-fn floor_and_wall(h: f64, wall_x: f64, half: f64) -> crate::mesh::Mesh {
-    use glam::DVec3;
-    let raw = crate::mesh::RawMesh {
-        vertices: vec![
-            DVec3::new(-1.0, -1.0, 0.0),
-            DVec3::new(1.0, -1.0, 0.0),
-            DVec3::new(1.0, 1.0, 0.0),
-            DVec3::new(-1.0, 1.0, 0.0),
-            DVec3::new(wall_x, -half, 0.0),
-            DVec3::new(wall_x, half, 0.0),
-            DVec3::new(wall_x, half, h),
-            DVec3::new(wall_x, -half, h),
-        ],
-        triangles: vec![[0, 1, 2], [0, 2, 3], [4, 5, 6], [4, 6, 7]],
-    };
-    crate::mesh::Mesh::from_raw(raw, crate::mesh::LengthUnit::M)
-}

@@ -103,6 +103,26 @@ pub fn height_field(
     }
 }
 
+/// A floor (two triangles at z = 0 on the square −1..1, facing +z) and a vertical wall of
+/// height `h` along x = `wall_x`, from y = −`half` to `half`: seen from a point of the
+/// floor at x, the wall's top is a horizon of elevation atan(h / (wall_x − x)) toward
+/// +x, a closed form for horizon and shadow tests.
+pub fn floor_and_wall(h: f64, wall_x: f64, half: f64) -> RawMesh {
+    RawMesh {
+        vertices: vec![
+            DVec3::new(-1.0, -1.0, 0.0),
+            DVec3::new(1.0, -1.0, 0.0),
+            DVec3::new(1.0, 1.0, 0.0),
+            DVec3::new(-1.0, 1.0, 0.0),
+            DVec3::new(wall_x, -half, 0.0),
+            DVec3::new(wall_x, half, 0.0),
+            DVec3::new(wall_x, half, h),
+            DVec3::new(wall_x, -half, h),
+        ],
+        triangles: vec![[0, 1, 2], [0, 2, 3], [4, 5, 6], [4, 6, 7]],
+    }
+}
+
 /// Splits every facet into four at its edge midpoints (shared midpoints are shared
 /// vertices, so a closed mesh stays closed). Facet count ×4, shape unchanged.
 pub fn subdivide(mesh: &RawMesh) -> RawMesh {
