@@ -18,7 +18,7 @@
 
 use crate::ephemeris::EpochState;
 use crate::error::{Error, Result};
-use crate::horizon::bound::HorizonBound;
+use crate::horizon::bound::{ConeView, HorizonBound};
 use crate::horizon::disk::SolarDisk;
 use crate::horizon::eclipse::Ellipsoid;
 use crate::horizon::map::{HorizonMap, LocalHorizon, SkyPosition};
@@ -28,6 +28,7 @@ use crate::trace::{self, ShadowQuery, Tracer, TracerKind};
 use crate::world::{Body, FrameTransform, World};
 use glam::DVec3;
 use rayon::prelude::*;
+use std::sync::Arc;
 
 /// Counts of what one step did.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
@@ -80,8 +81,9 @@ pub struct Direct<'w> {
 enum OwnHorizon {
     /// Nothing: a ray per facet facing the Sun.
     None,
-    /// The horizon bound of the BVH tracer: no ray for a Sun above it.
-    Bound(HorizonBound),
+    /// The horizon bound of the BVH tracer: no ray for a Sun above it; with the tree
+    /// (shared with the tracer), what a facet sees of a disk Sun's cone.
+    Bound { bound: HorizonBound, bvh: Arc<Bvh> },
     /// A horizon map: no ray where it is certain (`exact`), or none at all.
     Map { map: HorizonMap, exact: bool },
 }
@@ -139,10 +141,10 @@ impl<'w> Direct<'w> {
                     OwnHorizon::Map { map, exact },
                 ),
                 (None, TracerKind::Bvh) if !b.convex => {
-                    let bvh = Bvh::build(b.shadow_mesh());
-                    let bound =
-                        OwnHorizon::Bound(HorizonBound::new(b.shadow_mesh(), b.mesh.len(), &bvh));
-                    (Box::new(bvh) as Box<dyn Tracer + 'w>, bound)
+                    let bvh = Arc::new(Bvh::build(b.shadow_mesh()));
+                    let bound = HorizonBound::new(b.shadow_mesh(), b.mesh.len(), &bvh);
+                    let tracer = Box::new(Arc::clone(&bvh)) as Box<dyn Tracer + 'w>;
+                    (tracer, OwnHorizon::Bound { bound, bvh })
                 }
                 (None, _) => (trace::build(kind, b.shadow_mesh()), OwnHorizon::None),
             })
@@ -427,6 +429,20 @@ impl<'w> Direct<'w> {
             return counts;
         }
         let normals = &self.world.bodies[b].mesh.normals;
+        let decided = self.cone_views(b, light, rays);
+        let rays: Vec<OwnRay> = rays
+            .iter()
+            .zip(decided)
+            .filter_map(|(r, view)| match view {
+                ConeView::Clear => None,
+                ConeView::Covered => {
+                    out[r.facet as usize] = 0.0;
+                    counts.shadowed += 1;
+                    None
+                }
+                ConeView::Partial => Some(*r),
+            })
+            .collect();
         // Per ray, the n·s of the samples above its plane, and of those in view.
         let mut seen = vec![0.0; rays.len()];
         let mut clear = vec![0.0; rays.len()];
@@ -456,6 +472,30 @@ impl<'w> Direct<'w> {
             counts.shadowed += (*e == 0.0) as u64;
         }
         counts
+    }
+
+    /// What the facets of `rays` see of the disk Sun's cone through their own body: with
+    /// the BVH tracer's bound and tree, most are found clear or covered by one facet,
+    /// which spares their samples' rays; without, every one is [`ConeView::Partial`].
+    fn cone_views(&self, b: usize, light: &Sunlight<'_>, rays: &[OwnRay]) -> Vec<ConeView> {
+        let OwnHorizon::Bound { bound, bvh } = &self.horizons[b] else {
+            return vec![ConeView::Partial; rays.len()];
+        };
+        let body = &self.world.bodies[b];
+        rays.par_iter()
+            .map(|r| {
+                let i = r.facet as usize;
+                // The samples' rays count hits beyond their `t_min`, the farthest for the
+                // disk's lowest point; a disk reaching below the plane is never covered.
+                let lowest = lowest_sin(body.mesh.normals[i].dot(light.sun), light.radius);
+                let beyond = match lowest > 0.0 {
+                    true => self.t_min(b, i, lowest),
+                    false => f64::INFINITY,
+                };
+                let cone = (light.sun, light.radius);
+                bound.cone_view(body.shadow_mesh(), bvh, i, cone, beyond)
+            })
+            .collect()
     }
 
     /// Lights every facet of body `b` facing the Sun at each step (`skies[k]` into
@@ -570,7 +610,9 @@ impl<'w> Direct<'w> {
                     };
                     *e = sky.flux * self.disk_share(cos, plane, sky.radius);
                     let cleared = match horizon {
-                        OwnHorizon::Bound(bound) => bound.clears(i, lowest_sin(cos, sky.radius)),
+                        OwnHorizon::Bound { bound, .. } => {
+                            bound.clears(i, lowest_sin(cos, sky.radius))
+                        }
                         _ => !traces_own,
                     };
                     if *e == 0.0 {
@@ -582,7 +624,7 @@ impl<'w> Direct<'w> {
                     }
                     continue;
                 }
-                OwnHorizon::Bound(bound) => bound.clears(i, cos),
+                OwnHorizon::Bound { bound, .. } => bound.clears(i, cos),
                 OwnHorizon::None if traces_own => false,
                 OwnHorizon::None => {
                     *e = sky.flux * cos;
@@ -727,6 +769,7 @@ impl<'w> Direct<'w> {
 
 /// A shadow ray of a facet toward the Sun, to be traced through its own body: from the
 /// facet's centroid (body frame, metres), hits farther than `t_min` on any other facet.
+#[derive(Clone, Copy)]
 struct OwnRay {
     facet: u32,
     origin: DVec3,

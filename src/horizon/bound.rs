@@ -24,7 +24,9 @@
 //! that set its neighbour's bound; about 1.5 s per 49k facets on one core, growing a
 //! little faster than the facet count. Memory: 8 bytes per facet.
 
-use super::geometry::{box_bound, rounding_widening, triangle_bound};
+use super::geometry::{
+    box_bound, box_meets_cone, distance_to_triangle, rounding_widening, triangle_bound,
+};
 use super::map::in_seeded_runs;
 use crate::mesh::Mesh;
 use crate::trace::bvh::Bvh;
@@ -44,6 +46,20 @@ const SIN_MARGIN: f64 = 1e-9;
 #[derive(Debug, Clone)]
 pub struct HorizonBound {
     sin_max: Vec<f64>,
+    /// How far triangles are widened against the exact predicate's rounding (m).
+    widening: f64,
+}
+
+/// What a facet's centroid sees of a narrow cone of directions (a disk Sun).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ConeView {
+    /// No other facet reaches into the cone: every ray within it is clear.
+    Clear,
+    /// One facet covers the whole cone beyond the distance asked for: every ray within
+    /// it is blocked.
+    Covered,
+    /// Anything else: facets reach in without one covering it all.
+    Partial,
 }
 
 impl HorizonBound {
@@ -57,7 +73,50 @@ impl HorizonBound {
         let sin_max = in_seeded_runs(0..receivers, |i, &seed| {
             facet_bound(mesh, bvh, i, widening, seed)
         });
-        HorizonBound { sin_max }
+        HorizonBound { sin_max, widening }
+    }
+
+    /// What facet `i`'s centroid sees of the cone of directions within `half_angle`
+    /// (radians) of the unit `axis`, through the other facets of `mesh` (the one `bvh`
+    /// and the bound were built over): [`ConeView::Covered`] only by a facet farther
+    /// than `beyond` metres. Exact up to the rounding of the ray predicate, which every
+    /// triangle is widened by (so a clear cone is clear, a covered one covered, for the
+    /// tracers' rays).
+    pub fn cone_view(
+        &self,
+        mesh: &Mesh,
+        bvh: &Bvh,
+        i: usize,
+        cone: (DVec3, f64),
+        beyond: f64,
+    ) -> ConeView {
+        let (axis, half_angle) = cone;
+        let c = mesh.centroids[i];
+        let (cos_half, sin_half) = (half_angle.cos(), half_angle.sin());
+        let (reached, covered) = (Cell::new(false), Cell::new(false));
+        // A triangle's elevation sine above the plane across `axis` is the cosine of its
+        // least angle from `axis`: what the bound's geometry computes exactly.
+        let tan_half = half_angle.tan();
+        bvh.search(
+            |lo, hi| {
+                let meets = box_meets_cone(c, (axis, tan_half), lo, hi, self.widening);
+                (!covered.get() && meets).then_some(0.0)
+            },
+            |id, tri| {
+                if id as usize == i || covered.get() {
+                    return;
+                }
+                if triangle_bound(c, axis, tri, self.widening, cos_half) > cos_half {
+                    reached.set(true);
+                    covered.set(covers(c, (axis, sin_half), tri, self.widening, beyond));
+                }
+            },
+        );
+        match (reached.get(), covered.get()) {
+            (false, _) => ConeView::Clear,
+            (true, true) => ConeView::Covered,
+            (true, false) => ConeView::Partial,
+        }
     }
 
     /// True when a Sun at `sin_elevation` (n·s) above facet `i`'s plane is higher than
@@ -110,11 +169,35 @@ fn facet_bound(
     ((found + SEARCH_SLACK).min(1.0), setter)
 }
 
+/// True if triangle `tri`, shrunk by `widening`, covers every direction from `c` within
+/// the angle of sine `sin_half` of the unit `axis`, and lies farther than `beyond`
+/// metres: the axis is inside each of the three planes through `c` and an edge by more
+/// than that angle.
+fn covers(c: DVec3, cone: (DVec3, f64), tri: &[DVec3; 3], widening: f64, beyond: f64) -> bool {
+    let (axis, sin_half) = cone;
+    let gap = distance_to_triangle(c, tri) - widening;
+    if gap.is_nan() || gap <= beyond {
+        return false;
+    }
+    let u = tri.map(|p| (p - c).normalize());
+    let orientation = u[0].dot(u[1].cross(u[2]));
+    if orientation == 0.0 || !orientation.is_finite() {
+        return false;
+    }
+    // The widening, seen from `c`, as an angle (its sine) to keep from each edge.
+    let margin = sin_half + widening / gap;
+    (0..3).all(|k| {
+        let inward = u[k].cross(u[(k + 1) % 3]).normalize_or_zero() * orientation.signum();
+        axis.dot(inward) > margin
+    })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::mesh::generate::{floor_and_wall, icosphere};
     use crate::mesh::LengthUnit;
+    use crate::trace::Tracer;
 
     /// A floor (two triangles, z = 0) and a vertical wall of height `h` along x = `wall_x`,
     /// wide enough that the top edge's nearest point is straight across from the floor
@@ -137,6 +220,85 @@ mod tests {
             assert!(bound.clears(i, got + 2.0 * SIN_MARGIN));
             assert!(!bound.clears(i, expected - 1e-6));
         }
+    }
+
+    /// From the floor, cones toward the wall: above its top (clear), inside its upper
+    /// triangle (covered), across its top edge or the diagonal between its two
+    /// triangles (partial), and inside it but nearer than asked (partial).
+    #[test]
+    fn a_wall_covers_a_cone_inside_one_of_its_triangles_only() {
+        let (h, wall_x, half) = (3.0, 4.0, 50.0);
+        let mesh = Mesh::from_raw(floor_and_wall(h, wall_x, half), LengthUnit::M);
+        let bvh = Bvh::build(&mesh);
+        let bound = HorizonBound::new(&mesh, mesh.len(), &bvh);
+        let c = mesh.centroids[0];
+        let d = wall_x - c.x;
+        // Toward the wall at height z above the floor, straight across.
+        let toward = |z: f64| DVec3::new(d, 0.0, z).normalize();
+        let rho = 0.005;
+        let view = |z: f64, beyond: f64| bound.cone_view(&mesh, &bvh, 0, (toward(z), rho), beyond);
+        assert_eq!(view(h + 0.1, 0.0), ConeView::Clear);
+        assert_eq!(view(h - 0.2, 0.0), ConeView::Covered);
+        assert_eq!(view(h, 0.0), ConeView::Partial);
+        // The diagonal from (x, −half, 0) to (x, half, h) crosses y = c.y here.
+        let diagonal = h * (c.y + half) / (2.0 * half);
+        assert_eq!(view(diagonal, 0.0), ConeView::Partial);
+        assert_eq!(view(diagonal + 0.2, 0.0), ConeView::Covered);
+        assert_eq!(view(h - 0.2, d + 0.5), ConeView::Partial);
+    }
+
+    /// On rough terrain, a cone said clear has every ray within it unblocked, and one said
+    /// covered every ray blocked, by the BVH's rays (the disk Sun's samples' tracer):
+    /// rays on a polar grid of the cone out to 0.999 of its half-angle.
+    #[test]
+    fn cone_views_agree_with_rays_through_the_cone() {
+        let raw =
+            crate::mesh::generate::height_field((14, 14), (-10.0, 10.0), (-10.0, 10.0), |x, y| {
+                2.5 * (x / 2.3).sin() * (y / 3.1).cos() + 0.3 * x
+            });
+        let mesh = Mesh::from_raw(raw, LengthUnit::M);
+        let bvh = Bvh::build(&mesh);
+        let bound = HorizonBound::new(&mesh, mesh.len(), &bvh);
+        let mut rng = crate::TestRng::new(11);
+        let mut seen = [0usize; 3];
+        for _ in 0..600 {
+            let i = 60 + (rng.unit() * 270.0) as usize;
+            let n = mesh.normals[i];
+            let half = 0.002 + 0.05 * rng.unit();
+            let axis = (n * 0.1 + DVec3::new(rng.unit() - 0.5, rng.unit() - 0.5, rng.unit() * 0.6))
+                .normalize();
+            let view = bound.cone_view(&mesh, &bvh, i, (axis, half), 1e-6);
+            seen[view as usize] += 1;
+            if view == ConeView::Partial {
+                continue;
+            }
+            let (e1, e2) = (
+                axis.any_orthonormal_vector(),
+                axis.cross(axis.any_orthonormal_vector()),
+            );
+            for ring in [0.0, 0.3, 0.6, 0.9, 0.999] {
+                for k in 0..16 {
+                    let a = k as f64 * std::f64::consts::TAU / 16.0;
+                    let off = half.tan() * ring;
+                    let dir = (axis + off * (a.cos() * e1 + a.sin() * e2)).normalize();
+                    if n.dot(dir) <= 0.0 {
+                        continue;
+                    }
+                    let blocked = bvh
+                        .toward(dir)
+                        .blocked(mesh.centroids[i], 1e-6, Some(i as u32));
+                    assert_eq!(
+                        blocked,
+                        view == ConeView::Covered,
+                        "facet {i}, {view:?}, ring {ring}, k {k}"
+                    );
+                }
+            }
+        }
+        assert!(
+            seen.iter().all(|&k| k >= 20),
+            "clear, covered, partial: {seen:?}"
+        );
     }
 
     #[test]

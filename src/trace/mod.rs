@@ -51,6 +51,13 @@ impl<T: Tracer + ?Sized> Tracer for &T {
     }
 }
 
+/// So does a shared one (a tree the direct stage also searches for other queries).
+impl<T: Tracer + ?Sized> Tracer for std::sync::Arc<T> {
+    fn toward(&self, dir: DVec3) -> Box<dyn ShadowQuery + '_> {
+        (**self).toward(dir)
+    }
+}
+
 /// Which tracer a run uses.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
 #[serde(rename_all = "lowercase")]
