@@ -31,7 +31,7 @@ use super::map::in_seeded_runs;
 use crate::mesh::Mesh;
 use crate::trace::bvh::Bvh;
 use glam::DVec3;
-use std::cell::Cell;
+use std::cell::{Cell, RefCell};
 
 /// How far above the highest horizon found the bound may lie (sine): the search skips
 /// whatever cannot rise more than this above it, which keeps it to the few hundred
@@ -93,10 +93,25 @@ impl HorizonBound {
         let (axis, half_angle) = cone;
         let c = mesh.centroids[i];
         let (cos_half, sin_half) = (half_angle.cos(), half_angle.sin());
-        let (reached, covered) = (Cell::new(false), Cell::new(false));
+        let covered = Cell::new(false);
+        // The triangles reaching into the cone.
+        let reaching = RefCell::new(Vec::new());
         // A triangle's elevation sine above the plane across `axis` is the cosine of its
         // least angle from `axis`: what the bound's geometry computes exactly.
         let tan_half = half_angle.tan();
+        let cover = |pieces: &[&[DVec3; 3]], outline: &[DVec3]| {
+            let gap = pieces
+                .iter()
+                .map(|t| distance_to_triangle(c, t))
+                .fold(f64::INFINITY, f64::min);
+            gap - self.widening > beyond
+                && covers(
+                    c,
+                    (axis, sin_half),
+                    outline,
+                    self.widening / (gap - self.widening),
+                )
+        };
         bvh.search(
             |lo, hi| {
                 let meets = box_meets_cone(c, (axis, tan_half), lo, hi, self.widening);
@@ -107,15 +122,28 @@ impl HorizonBound {
                     return;
                 }
                 if triangle_bound(c, axis, tri, self.widening, cos_half) > cos_half {
-                    reached.set(true);
-                    covered.set(covers(c, (axis, sin_half), tri, self.widening, beyond));
+                    covered.set(cover(&[tri], tri));
+                    reaching.borrow_mut().push(*tri);
                 }
             },
         );
-        match (reached.get(), covered.get()) {
-            (false, _) => ConeView::Clear,
-            (true, true) => ConeView::Covered,
-            (true, false) => ConeView::Partial,
+        let reaching = reaching.into_inner();
+        if reaching.is_empty() {
+            return ConeView::Clear;
+        }
+        // Two triangles sharing an edge that crosses the cone cover it together when,
+        // seen from the centroid, they make a convex quadrilateral around it.
+        let paired = covered.get()
+            || (reaching.len() <= PAIRED_MAX
+                && reaching.iter().enumerate().any(|(k, a)| {
+                    reaching[k + 1..].iter().any(|b| {
+                        quadrilateral(a, b).is_some_and(|outline| cover(&[a, b], &outline))
+                    })
+                }));
+        if paired {
+            ConeView::Covered
+        } else {
+            ConeView::Partial
         }
     }
 
@@ -169,27 +197,42 @@ fn facet_bound(
     ((found + SEARCH_SLACK).min(1.0), setter)
 }
 
-/// True if triangle `tri`, shrunk by `widening`, covers every direction from `c` within
-/// the angle of sine `sin_half` of the unit `axis`, and lies farther than `beyond`
-/// metres: the axis is inside each of the three planes through `c` and an edge by more
-/// than that angle.
-fn covers(c: DVec3, cone: (DVec3, f64), tri: &[DVec3; 3], widening: f64, beyond: f64) -> bool {
+/// Most triangles reaching into a cone whose pairs are tried as a cover.
+const PAIRED_MAX: usize = 8;
+
+/// True if the convex polygon `outline` (corners in order around it), seen from `c`,
+/// covers every direction within the angle of sine `sin_half` of the unit `axis`, with
+/// `spare` (a sine) more to each edge: the axis lies inside each plane through `c` and
+/// an edge by more than both. The corners must lie less than 90° from the axis, so that
+/// their directions keep their order on the plane tangent there, where turning the same
+/// way at every corner makes the polygon convex.
+fn covers(c: DVec3, cone: (DVec3, f64), outline: &[DVec3], spare: f64) -> bool {
     let (axis, sin_half) = cone;
-    let gap = distance_to_triangle(c, tri) - widening;
-    if gap.is_nan() || gap <= beyond {
+    let u: Vec<DVec3> = outline.iter().map(|&p| (p - c).normalize()).collect();
+    let k = u.len();
+    let turn = |j: usize| u[j].dot(u[(j + 1) % k].cross(u[(j + 2) % k]));
+    let orientation = turn(0);
+    if orientation == 0.0 || !orientation.is_finite() || u.iter().any(|d| axis.dot(*d) <= 0.0) {
         return false;
     }
-    let u = tri.map(|p| (p - c).normalize());
-    let orientation = u[0].dot(u[1].cross(u[2]));
-    if orientation == 0.0 || !orientation.is_finite() {
-        return false;
-    }
-    // The widening, seen from `c`, as an angle (its sine) to keep from each edge.
-    let margin = sin_half + widening / gap;
-    (0..3).all(|k| {
-        let inward = u[k].cross(u[(k + 1) % 3]).normalize_or_zero() * orientation.signum();
-        axis.dot(inward) > margin
-    })
+    (1..k).all(|j| turn(j) * orientation > 0.0)
+        && (0..k).all(|j| {
+            let inward = u[j].cross(u[(j + 1) % k]).normalize_or_zero() * orientation.signum();
+            axis.dot(inward) > sin_half + spare
+        })
+}
+
+/// The outline of triangles `a` and `b` when they share exactly one edge: its ends and
+/// the two other corners, in order around the quadrilateral.
+fn quadrilateral(a: &[DVec3; 3], b: &[DVec3; 3]) -> Option<[DVec3; 4]> {
+    let shared = |p: &DVec3| b.contains(p);
+    let apex = (0..3).filter(|&k| !shared(&a[k])).collect::<Vec<_>>();
+    let [k] = apex[..] else {
+        return None;
+    };
+    let (p, q) = (a[(k + 1) % 3], a[(k + 2) % 3]);
+    let other = b.iter().find(|v| **v != p && **v != q)?;
+    Some([a[k], p, *other, q])
 }
 
 #[cfg(test)]
@@ -223,10 +266,11 @@ mod tests {
     }
 
     /// From the floor, cones toward the wall: above its top (clear), inside its upper
-    /// triangle (covered), across its top edge or the diagonal between its two
-    /// triangles (partial), and inside it but nearer than asked (partial).
+    /// triangle (covered), across the diagonal between its two triangles (covered by the
+    /// pair), across its top edge (partial), and inside it but nearer than asked
+    /// (partial).
     #[test]
-    fn a_wall_covers_a_cone_inside_one_of_its_triangles_only() {
+    fn a_wall_covers_cones_inside_it_but_not_across_its_top() {
         let (h, wall_x, half) = (3.0, 4.0, 50.0);
         let mesh = Mesh::from_raw(floor_and_wall(h, wall_x, half), LengthUnit::M);
         let bvh = Bvh::build(&mesh);
@@ -242,7 +286,7 @@ mod tests {
         assert_eq!(view(h, 0.0), ConeView::Partial);
         // The diagonal from (x, −half, 0) to (x, half, h) crosses y = c.y here.
         let diagonal = h * (c.y + half) / (2.0 * half);
-        assert_eq!(view(diagonal, 0.0), ConeView::Partial);
+        assert_eq!(view(diagonal, 0.0), ConeView::Covered);
         assert_eq!(view(diagonal + 0.2, 0.0), ConeView::Covered);
         assert_eq!(view(h - 0.2, d + 0.5), ConeView::Partial);
     }
