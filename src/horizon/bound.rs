@@ -24,9 +24,7 @@
 //! that set its neighbour's bound; about 1.5 s per 49k facets on one core, growing a
 //! little faster than the facet count. Memory: 8 bytes per facet.
 
-use super::geometry::{
-    box_bound, box_meets_cone, distance_to_triangle, rounding_widening, triangle_bound,
-};
+use super::geometry::{box_bound, distance_to_triangle, rounding_widening, triangle_bound};
 use super::map::in_seeded_runs;
 use crate::mesh::Mesh;
 use crate::trace::bvh::Bvh;
@@ -112,21 +110,15 @@ impl HorizonBound {
                     self.widening / (gap - self.widening),
                 )
         };
-        bvh.search(
-            |lo, hi| {
-                let meets = box_meets_cone(c, (axis, tan_half), lo, hi, self.widening);
-                (!covered.get() && meets).then_some(0.0)
-            },
-            |id, tri| {
-                if id as usize == i || covered.get() {
-                    return;
-                }
-                if triangle_bound(c, axis, tri, self.widening, cos_half) > cos_half {
-                    covered.set(cover(&[tri], tri));
-                    reaching.borrow_mut().push(*tri);
-                }
-            },
-        );
+        // The tree's boxes are padded far beyond the widening (`Bvh`'s box margin).
+        bvh.near_cone(c, axis, tan_half, |id, tri| {
+            if id as usize != i && triangle_bound(c, axis, tri, self.widening, cos_half) > cos_half
+            {
+                covered.set(cover(&[tri], tri));
+                reaching.borrow_mut().push(*tri);
+            }
+            covered.get()
+        });
         let reaching = reaching.into_inner();
         if reaching.is_empty() {
             return ConeView::Clear;

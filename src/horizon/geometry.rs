@@ -32,38 +32,6 @@ pub(crate) fn box_bound(c: DVec3, n: DVec3, lo: DVec3, hi: DVec3, widening: f64)
     signed_box_bound(c, n, lo, hi, widening).max(0.0)
 }
 
-/// Whether the box `lo..hi` widened by `widening` may reach into the cone of directions
-/// from `c` within the angle of tangent `tan_half` of the unit `axis`. Every point of the
-/// cone inside the box lies within (its distance from `c`) · `tan_half` of the ray from
-/// `c` along `axis`, so the ray meets the box grown by its farthest corner's distance
-/// times `tan_half` whenever the cone meets the box.
-pub(crate) fn box_meets_cone(
-    c: DVec3,
-    cone: (DVec3, f64),
-    lo: DVec3,
-    hi: DVec3,
-    widening: f64,
-) -> bool {
-    let (axis, tan_half) = cone;
-    let far = (lo - c).abs().max((hi - c).abs()).length();
-    let grow = widening + far * tan_half;
-    let (lo, hi) = (lo - grow - c, hi + grow - c);
-    // The ray `t · axis`, t ≥ 0, against the slabs of the grown box.
-    let (mut near, mut exit) = (0.0f64, f64::INFINITY);
-    for k in 0..3 {
-        if axis[k] == 0.0 {
-            if lo[k] > 0.0 || hi[k] < 0.0 {
-                return false;
-            }
-            continue;
-        }
-        let (a, b) = (lo[k] / axis[k], hi[k] / axis[k]);
-        near = near.max(a.min(b));
-        exit = exit.min(a.max(b));
-    }
-    near <= exit
-}
-
 /// [`box_bound`] below the plane too (down to −1): a box wholly below it is bounded by
 /// its highest rise over its farthest corner's distance.
 pub(crate) fn signed_box_bound(c: DVec3, n: DVec3, lo: DVec3, hi: DVec3, widening: f64) -> f64 {

@@ -218,7 +218,8 @@ impl Shadows {
     /// What a map spares per facet and step over rays: for a disk Sun the rays toward its
     /// samples, each about as dear as a point Sun's one ray (each is a direction of its
     /// own; `bench_direct --sun disk`, 49k Itokawa on 2026-11-26: 30× the point Sun's
-    /// time per step with the Sun-view tracer, 27× with `bvh`, for 32 samples).
+    /// time per step with the Sun-view tracer, for 32 samples; 12× with `bvh`, whose
+    /// bound and cones spare most rays, is not modelled).
     fn saved_s_per_facet_step(&self) -> f64 {
         match self.sun {
             SunShape::Point => SAVED_S_PER_FACET_STEP,

@@ -418,6 +418,105 @@ impl Bvh {
     }
 }
 
+impl Bvh {
+    /// Every facet of every leaf that the cone of directions from `apex` within the angle
+    /// of tangent `tan_half` of the unit `axis` may reach (mesh frame, metres), to
+    /// `visit(facet id, corners)`, until it returns `true`. The boxes are tested in
+    /// `f32` as for shadow rays ([`ConeSlab`]), their margin keeping the tests
+    /// conservative.
+    pub(crate) fn near_cone(
+        &self,
+        apex: DVec3,
+        axis: DVec3,
+        tan_half: f64,
+        mut visit: impl FnMut(u32, &[DVec3; 3]) -> bool,
+    ) {
+        if self.quads.is_empty() {
+            return;
+        }
+        let from = apex - self.centre;
+        // A little above the cone's own slope, for the rounding of the slopes in `f32`.
+        let slope = tan_half * (1.0 + 1e-6);
+        let slab = ConeSlab::new(from, axis, slope, 2.0 * (from.length() + self.radius));
+        let mut stack = [0u32; STACK];
+        let mut top = 1;
+        while top > 0 {
+            top -= 1;
+            let quad = &self.quads[stack[top] as usize];
+            let mut lanes = slab.hits(quad);
+            while lanes != 0 {
+                let k = lanes.trailing_zeros() as usize;
+                lanes &= lanes - 1;
+                if !quad.leaf[k] {
+                    stack[top] = quad.child[k];
+                    top += 1;
+                    continue;
+                }
+                let leaf = &self.leaves[quad.child[k] as usize];
+                for (lane, &id) in leaf.ids.iter().enumerate() {
+                    if id != u32::MAX && visit(id, &self.tris[leaf.first as usize + lane].corners) {
+                        return;
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// A cone as the `f32` box tests see it: from `origin` (relative to the tree's centre)
+/// along `dir`, over `0 ≤ t ≤ t1`, every point within `t · g` of the axis on every
+/// coordinate (a square cross-section holding the round one). Per coordinate a box's
+/// interval `[lo, hi]` is reached at `t` when `lo − t·g ≤ o + t·d ≤ hi + t·g`: two
+/// linear bounds on `t`, each a lower or an upper bound by the sign of `d ± g`.
+struct ConeSlab {
+    origin: [Vec4; 3],
+    /// Per coordinate, `1/(d + g)` and `1/(d − g)`.
+    widening: [Vec4; 3],
+    narrowing: [Vec4; 3],
+    /// Per coordinate, whether each bound is a lower bound (`d + g > 0`, `d − g < 0`).
+    lo_from_below: [bool; 3],
+    hi_from_below: [bool; 3],
+    t1: Vec4,
+}
+
+impl ConeSlab {
+    fn new(origin: DVec3, dir: DVec3, g: f64, t1: f64) -> ConeSlab {
+        let splat = |x: f64| Vec4::splat(x as f32);
+        ConeSlab {
+            origin: origin.to_array().map(splat),
+            widening: dir.to_array().map(|d| splat(1.0 / (d + g))),
+            narrowing: dir.to_array().map(|d| splat(1.0 / (d - g))),
+            lo_from_below: dir.to_array().map(|d| d + g > 0.0),
+            hi_from_below: dir.to_array().map(|d| d - g < 0.0),
+            t1: Vec4::splat(round_up(t1)),
+        }
+    }
+
+    /// Bit `k` set when the cone may reach into child `k`'s box. A NaN (0·∞, for
+    /// `d ± g = 0` and a face through the origin) is the first operand of `max` or
+    /// `min`, which then return the second: it drops out, widening the range. The
+    /// unused lanes' boxes, at +∞, stay beyond `t1`.
+    #[inline]
+    fn hits(&self, quad: &Quad) -> u32 {
+        let (mut near, mut far) = (Vec4::ZERO, self.t1);
+        for axis in 0..3 {
+            let a = (quad.lo[axis] - self.origin[axis]) * self.widening[axis];
+            let b = (quad.hi[axis] - self.origin[axis]) * self.narrowing[axis];
+            if self.lo_from_below[axis] {
+                near = a.max(near);
+            } else {
+                far = a.min(far);
+            }
+            if self.hi_from_below[axis] {
+                near = b.max(near);
+            } else {
+                far = b.min(far);
+            }
+        }
+        near.cmple(far).bitmask()
+    }
+}
+
 /// A segment prepared for the box tests, the screen and the exact facet tests.
 struct Segment {
     screened: Screened,
