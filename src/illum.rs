@@ -412,11 +412,7 @@ impl<'w> Direct<'w> {
     }
 
     /// Scales the facets of `rays` in `out`, which hold the share of a disk Sun above
-    /// their planes, by the share of the disk's samples above their planes that their
-    /// own body leaves in view, each sample weighted by its `n·s` (the flux it brings).
-    /// A facet the disk only grazes, with no sample above its plane, keeps its share.
-    /// The samples are taken one at a time, so that one direction's shadow queries (a
-    /// Sun-view grid) are held at once, as for a point Sun.
+    /// their planes, by the share their own body leaves in view ([`Direct::own_disk_shares`]).
     fn shade_disk(
         &self,
         b: usize,
@@ -424,33 +420,51 @@ impl<'w> Direct<'w> {
         rays: &[OwnRay],
         out: &mut [f64],
     ) -> StepCounts {
+        let (shares, mut counts) = self.own_disk_shares(b, light, rays);
+        for (r, share) in rays.iter().zip(shares) {
+            let e = &mut out[r.facet as usize];
+            *e *= share;
+            counts.shadowed += (*e == 0.0) as u64;
+        }
+        counts
+    }
+
+    /// Per ray of `rays`, the share of a disk Sun above its facet's plane that the
+    /// facet's own body leaves in view: 1 or 0 where the cone tells ([`Direct::cone_views`]),
+    /// else the share of the disk's samples above the plane whose rays are clear, each
+    /// weighted by its `n·s` (the flux it brings); 1 for a facet the disk only grazes,
+    /// with no sample above its plane. The samples are taken one at a time, so that one
+    /// direction's shadow queries (a Sun-view grid) are held at once, as for a point Sun.
+    fn own_disk_shares(
+        &self,
+        b: usize,
+        light: &Sunlight<'_>,
+        rays: &[OwnRay],
+    ) -> (Vec<f64>, StepCounts) {
         let mut counts = StepCounts::default();
         if rays.is_empty() {
-            return counts;
+            return (Vec::new(), counts);
         }
         let normals = &self.world.bodies[b].mesh.normals;
-        let decided = self.cone_views(b, light, rays);
-        let rays: Vec<OwnRay> = rays
-            .iter()
-            .zip(decided)
-            .filter_map(|(r, view)| match view {
-                ConeView::Clear => None,
-                ConeView::Covered => {
-                    out[r.facet as usize] = 0.0;
-                    counts.shadowed += 1;
-                    None
-                }
-                ConeView::Partial => Some(*r),
+        let views = self.cone_views(b, light, rays);
+        let mut shares: Vec<f64> = (views.iter())
+            .map(|view| match view {
+                ConeView::Covered => 0.0,
+                ConeView::Clear | ConeView::Partial => 1.0,
             })
             .collect();
-        // Per ray, the n·s of the samples above its plane, and of those in view.
-        let mut seen = vec![0.0; rays.len()];
-        let mut clear = vec![0.0; rays.len()];
+        let partial: Vec<usize> = (0..rays.len())
+            .filter(|&k| views[k] == ConeView::Partial)
+            .collect();
+        // Per partial ray, the n·s of the samples above its plane, and of those in view.
+        let mut seen = vec![0.0; partial.len()];
+        let mut clear = vec![0.0; partial.len()];
         for &offset in &self.disk_samples {
             let s = disk_point(light.sun, light.radius, offset);
             let query = self.tracers[b].toward(s);
-            counts.rays += (rays.par_iter().zip(&mut seen).zip(&mut clear))
-                .map(|((r, seen), clear)| {
+            counts.rays += (partial.par_iter().zip(&mut seen).zip(&mut clear))
+                .map(|((&k, seen), clear)| {
+                    let r = &rays[k];
                     let cos = normals[r.facet as usize].dot(s);
                     if cos <= 0.0 {
                         return 0;
@@ -464,14 +478,12 @@ impl<'w> Direct<'w> {
                 })
                 .sum::<u64>();
         }
-        for ((r, seen), clear) in rays.iter().zip(seen).zip(clear) {
-            let e = &mut out[r.facet as usize];
+        for ((k, seen), clear) in partial.into_iter().zip(seen).zip(clear) {
             if seen > 0.0 {
-                *e *= clear / seen;
+                shares[k] = clear / seen;
             }
-            counts.shadowed += (*e == 0.0) as u64;
         }
-        counts
+        (shares, counts)
     }
 
     /// What the facets of `rays` see of the disk Sun's cone through their own body: with
@@ -604,17 +616,8 @@ impl<'w> Direct<'w> {
                 // The facet's own plane; then, unless nothing else can rise into the
                 // disk, its samples' rays (`shade`).
                 _ if self.sun == SunShape::Disk => {
-                    let plane = LocalHorizon {
-                        elevation: 0.0,
-                        slope: 0.0,
-                    };
-                    *e = sky.flux * self.disk_share(cos, plane, sky.radius);
-                    let cleared = match horizon {
-                        OwnHorizon::Bound { bound, .. } => {
-                            bound.clears(i, lowest_sin(cos, sky.radius))
-                        }
-                        _ => !traces_own,
-                    };
+                    *e = sky.flux * self.disk_share(cos, PLANE, sky.radius);
+                    let cleared = self.disk_clears_own(b, i, cos, sky.radius);
                     if *e == 0.0 {
                         counts.shadowed += 1;
                     } else if !cleared {
@@ -691,23 +694,12 @@ impl<'w> Direct<'w> {
     /// share of it they hide (taken as independent of the share the facet's own horizon
     /// hides, which is exact whenever only one of them cuts the disk).
     fn shade_by_others(&self, b: usize, light: &Sunlight<'_>, out: &mut [f64]) -> StepCounts {
-        let mesh = &self.world.bodies[b].mesh;
         out.par_iter_mut()
             .enumerate()
             .filter(|(_, e)| **e > 0.0)
             .map(|(i, e)| {
                 let mut counts = StepCounts::default();
-                // A disk can light a facet whose plane hides the Sun's centre.
-                let cos = mesh.normals[i].dot(light.sun).max(1e-6);
-                let t_min = self.t_min(b, i, cos);
-                let point = mesh.centroids[i];
-                match self.sun {
-                    SunShape::Point if light.blocked_by_others(point, t_min, &mut counts) => {
-                        *e = 0.0
-                    }
-                    SunShape::Point => {}
-                    SunShape::Disk => *e *= light.visible_past_others(point, t_min, &mut counts),
-                }
+                self.dim_by_others(b, i, light, e, &mut counts);
                 counts.shadowed += (*e == 0.0) as u64;
                 counts
             })
@@ -717,8 +709,69 @@ impl<'w> Direct<'w> {
             })
     }
 
+    /// Dims `e`, the irradiance of facet `i` of body `b`, by what other bodies hide of
+    /// the Sun: all of it for a point Sun whose ray they block, their share of a disk.
+    fn dim_by_others(
+        &self,
+        b: usize,
+        i: usize,
+        light: &Sunlight<'_>,
+        e: &mut f64,
+        counts: &mut StepCounts,
+    ) {
+        let mesh = &self.world.bodies[b].mesh;
+        // A disk can light a facet whose plane hides the Sun's centre.
+        let cos = mesh.normals[i].dot(light.sun).max(1e-6);
+        let t_min = self.t_min(b, i, cos);
+        let point = mesh.centroids[i];
+        match self.sun {
+            SunShape::Point if light.blocked_by_others(point, t_min, counts) => *e = 0.0,
+            SunShape::Point => {}
+            SunShape::Disk => *e *= light.visible_past_others(point, t_min, counts),
+        }
+    }
+
+    /// Irradiance of facet `i` of body `b` under a disk Sun, as the step loop gives it:
+    /// the share above its plane or its map's horizon, then the share its own body's
+    /// rays leave, then other bodies'.
+    fn facet_disk_irradiance(
+        &self,
+        b: usize,
+        i: usize,
+        light: &Sunlight<'_>,
+        counts: &mut StepCounts,
+    ) -> f64 {
+        let normal = self.world.bodies[b].mesh.normals[i];
+        let cos = normal.dot(light.sun);
+        if cos <= -light.radius.sin() {
+            counts.night += 1;
+            return 0.0;
+        }
+        let mut e = match &self.horizons[b] {
+            OwnHorizon::Map { map, .. } => {
+                let horizon = map.horizon(i, &map.position(normal, light.sun, cos));
+                light.flux * self.disk_share(cos, horizon, light.radius)
+            }
+            _ => light.flux * self.disk_share(cos, PLANE, light.radius),
+        };
+        let own_rays = !matches!(self.horizons[b], OwnHorizon::Map { .. })
+            && !self.disk_clears_own(b, i, cos, light.radius);
+        if e > 0.0 && own_rays {
+            let ray = self.own_ray(b, i, cos.max(f64::MIN_POSITIVE));
+            let (shares, traced) = self.own_disk_shares(b, light, &[ray]);
+            e *= shares[0];
+            *counts += traced;
+        }
+        if e > 0.0 && !light.foreign.is_empty() {
+            self.dim_by_others(b, i, light, &mut e, counts);
+        }
+        counts.shadowed += (e == 0.0) as u64;
+        e
+    }
+
     /// Irradiance of facet `i` of body `b`: zero when it faces away from the Sun or the
-    /// ray from its centroid is blocked by its own body or another.
+    /// ray from its centroid is blocked by its own body or another; a disk Sun's share
+    /// ([`Direct::facet_disk_irradiance`]).
     fn facet_irradiance(
         &self,
         b: usize,
@@ -726,6 +779,9 @@ impl<'w> Direct<'w> {
         light: &Sunlight<'_>,
         counts: &mut StepCounts,
     ) -> f64 {
+        if self.sun == SunShape::Disk {
+            return self.facet_disk_irradiance(b, i, light, counts);
+        }
         let mesh = &self.world.bodies[b].mesh;
         let cos = mesh.normals[i].dot(light.sun);
         if cos <= 0.0 {
@@ -738,6 +794,16 @@ impl<'w> Direct<'w> {
             0.0
         } else {
             light.flux * cos
+        }
+    }
+
+    /// Whether nothing of body `b` but facet `i`'s own plane can hide part of a disk Sun
+    /// of angular `radius` whose centre stands at `sin_elevation` (`n·s`) above it: the
+    /// body cannot shadow itself, or the BVH tracer's bound lies below the disk.
+    fn disk_clears_own(&self, b: usize, i: usize, sin_elevation: f64, radius: f64) -> bool {
+        match &self.horizons[b] {
+            OwnHorizon::Bound { bound, .. } => bound.clears(i, lowest_sin(sin_elevation, radius)),
+            _ => !self.traces_own(b),
         }
     }
 
@@ -889,6 +955,12 @@ fn disk_point(sun: DVec3, radius: f64, offset: (f64, f64)) -> DVec3 {
     let e2 = sun.cross(e1);
     (sun + radius.tan() * (offset.0 * e1 + offset.1 * e2)).normalize()
 }
+
+/// A facet's own plane as its horizon: elevation 0 at every azimuth.
+const PLANE: LocalHorizon = LocalHorizon {
+    elevation: 0.0,
+    slope: 0.0,
+};
 
 /// The sine of the elevation above a facet's plane of the lowest point of a disk of
 /// angular `radius` whose centre stands at `sin_elevation` (`n·s`).

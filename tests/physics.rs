@@ -1412,6 +1412,71 @@ fn blocks_of_steps_light_every_facet_as_single_steps() {
     }
 }
 
+/// `Direct::compute_facets` (a few facets asked for, as the service's place queries do)
+/// gives each facet the bits the step loop gives it under a disk Sun: its own body's
+/// samples' rays (with the BVH's cones, and with the Sun-view tracer), or its map's
+/// horizon, and a second body's mesh hiding part of the disk.
+#[test]
+fn facets_asked_for_get_the_step_loops_bits_under_a_disk_sun() {
+    let itokawa = load_km("data/shapes/itokawa/itokawa_16.obj");
+    let world = World {
+        bodies: vec![
+            Body::new("itokawa", itokawa.clone(), false),
+            Body::new("moonlet", sphere(2, 120.0), true),
+        ],
+    };
+    let suns: Vec<DVec3> = (0..9)
+        .map(|k| elevated((k as f64 * 0.7).cos(), (k as f64 * 0.7).sin(), 0.2))
+        .collect();
+    let eph = fixed(
+        &suns,
+        1000.0,
+        vec![Pose::IDENTITY, at(DVec3::new(900.0, 0.0, 120.0))],
+    );
+    let states = epoch_states(&eph).expect("states");
+    let shadows = Shadows {
+        sun: SunShape::Disk,
+        ..Shadows::default()
+    };
+    let map = || {
+        let bvh = slim::trace::bvh::Bvh::build(&itokawa);
+        HorizonMap::build(&itokawa, itokawa.len(), &bvh, 64, &|| false).expect("map")
+    };
+    let setups = [
+        ("bvh rays", TracerKind::Bvh, None),
+        ("sunview rays", TracerKind::Sunview, None),
+        ("map", TracerKind::Sunview, Some(map())),
+    ];
+    // A sample: the Sun-view tracer builds a grid per disk sample for every facet asked.
+    let facets: Vec<(usize, usize)> = (0..itokawa.len())
+        .step_by(29)
+        .map(|i| (0, i))
+        .chain([(1, 3)])
+        .collect();
+    let offset = itokawa.len();
+    for (name, kind, map) in setups {
+        let direct = Direct::with_maps(&world, kind, vec![map, None], &shadows);
+        let (mut dark, mut partly) = (0, 0);
+        for state in &states {
+            let mut all = vec![f64::NAN; world.facet_count()];
+            direct.compute(state, &mut all).expect("compute");
+            let few = direct.compute_facets(state, &facets).expect("facets");
+            for (&(b, i), got) in facets.iter().zip(few) {
+                let want = all[if b == 0 { i } else { offset + i }];
+                assert_eq!(got.to_bits(), want.to_bits(), "{name}: body {b} facet {i}");
+                let full = 1000.0 * world.bodies[b].mesh.normals[i].dot(state.bodies[b].sun_dir);
+                dark += (want == 0.0 && full > 0.0) as usize;
+                partly += (want > 0.0 && want < 0.999 * full) as usize;
+            }
+        }
+        // Not vacuous: some facets facing the Sun are dark, some partly lit.
+        assert!(
+            dark > 0 && partly > 0,
+            "{name}: {dark} dark, {partly} partly lit"
+        );
+    }
+}
+
 // ---------------------------------------------------------------------------------------
 // 6. The Sun as a disk
 

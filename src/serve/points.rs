@@ -402,10 +402,10 @@ fn start_engine(dir: PathBuf, scene: SceneText, budget: Budget) -> ApiResult<mps
 struct Engine<'w> {
     world: &'w World,
     ephemeris: &'w dyn Ephemeris,
+    /// The trees with the scene's Sun (point or disk): facets' light as the scene's step
+    /// loop gives it, and other bodies' shadows on panels (an eclipse by the Earth seen
+    /// from the Moon).
     direct: Direct<'w>,
-    /// The same trees with the scene's Sun (point or disk): other bodies' shadows on
-    /// panels (an eclipse by the Earth seen from the Moon).
-    beyond: Direct<'w>,
     /// Each body's tree over its shadow mesh (with its surroundings): the facets' shadow
     /// rays, and the horizons of panels and facets.
     bvhs: &'w [Bvh],
@@ -525,8 +525,7 @@ impl<'w> Engine<'w> {
         Engine {
             world,
             ephemeris,
-            direct: Direct::with_tracers(world, tracers(), &Shadows::default()),
-            beyond: Direct::with_tracers(world, tracers(), &light.shadows),
+            direct: Direct::with_tracers(world, tracers(), &light.shadows),
             bvhs,
             disk: (light.shadows.sun == SunShape::Disk).then_some(light.shadows.disk),
             albedo: light.albedo,
@@ -610,7 +609,6 @@ impl<'w> Engine<'w> {
         }
         let work = StepWork {
             direct: &self.direct,
-            beyond: &self.beyond,
             disk: self.disk.as_ref(),
             facets,
             sites: &sites,
@@ -760,7 +758,6 @@ impl Terrain {
 /// What every step of a query needs, shared by the threads that compute the steps.
 struct StepWork<'a> {
     direct: &'a Direct<'a>,
-    beyond: &'a Direct<'a>,
     disk: Option<&'a SolarDisk>,
     facets: Vec<(usize, usize)>,
     sites: &'a [Option<(Site<'a>, Panel)>],
@@ -816,7 +813,7 @@ impl StepWork<'_> {
                 .then(|| -> ApiResult<PanelLight> {
                     let light = site.sunlight(panel, sun.sun_dir, sun.flux_w_m2, disk);
                     let share = self
-                        .beyond
+                        .direct
                         .share_past_others(r.body, state, site.point())
                         .map_err(|e| ApiError::unprocessable("bad_scene", e.to_string()))?;
                     Ok(light.dimmed(share))
