@@ -1341,12 +1341,10 @@ fn convex_body_casts_no_rays() {
     assert!(!inspect(&itokawa).convex);
 }
 
-/// The step loop computes steps in blocks (`Direct::compute_steps`): every facet of a
-/// block must get the bits it gets step by step, with the same counters, for rays, the
-/// BVH's bound, exact and approximate maps and a disk Sun, with a second body casting
-/// shadows on the first at some of the steps.
-#[test]
-fn blocks_of_steps_light_every_facet_as_single_steps() {
+/// Itokawa (ICQ q = 16, 3,072 facets, km) with a 120 m moonlet 900 m away,
+/// and `suns` Sun directions `turn` radians apart around the equator, 0.2 above it:
+/// some of them through the moonlet onto Itokawa.
+fn itokawa_and_moonlet(suns: usize, turn: f64) -> (Mesh, World, Vec<slim::ephemeris::EpochState>) {
     let itokawa = load_km("data/shapes/itokawa/itokawa_16.obj");
     let world = World {
         bodies: vec![
@@ -1354,9 +1352,8 @@ fn blocks_of_steps_light_every_facet_as_single_steps() {
             Body::new("moonlet", sphere(2, 120.0), true),
         ],
     };
-    // Suns around the equator, and one through the moonlet onto Itokawa.
-    let suns: Vec<DVec3> = (0..13)
-        .map(|k| elevated((k as f64 * 0.5).cos(), (k as f64 * 0.5).sin(), 0.2))
+    let suns: Vec<DVec3> = (0..suns)
+        .map(|k| elevated((k as f64 * turn).cos(), (k as f64 * turn).sin(), 0.2))
         .collect();
     let eph = fixed(
         &suns,
@@ -1364,6 +1361,16 @@ fn blocks_of_steps_light_every_facet_as_single_steps() {
         vec![Pose::IDENTITY, at(DVec3::new(900.0, 0.0, 120.0))],
     );
     let states = epoch_states(&eph).expect("states");
+    (itokawa, world, states)
+}
+
+/// The step loop computes steps in blocks (`Direct::compute_steps`): every facet of a
+/// block must get the bits it gets step by step, with the same counters, for rays, the
+/// BVH's bound, exact and approximate maps and a disk Sun, with a second body casting
+/// shadows on the first at some of the steps.
+#[test]
+fn blocks_of_steps_light_every_facet_as_single_steps() {
+    let (itokawa, world, states) = itokawa_and_moonlet(13, 0.5);
     let mapped = |mode, sun| {
         let bvh = slim::trace::bvh::Bvh::build(&itokawa);
         let map = HorizonMap::build(&itokawa, itokawa.len(), &bvh, 64, &|| false).expect("map");
@@ -1418,22 +1425,7 @@ fn blocks_of_steps_light_every_facet_as_single_steps() {
 /// horizon, and a second body's mesh hiding part of the disk.
 #[test]
 fn facets_asked_for_get_the_step_loops_bits_under_a_disk_sun() {
-    let itokawa = load_km("data/shapes/itokawa/itokawa_16.obj");
-    let world = World {
-        bodies: vec![
-            Body::new("itokawa", itokawa.clone(), false),
-            Body::new("moonlet", sphere(2, 120.0), true),
-        ],
-    };
-    let suns: Vec<DVec3> = (0..9)
-        .map(|k| elevated((k as f64 * 0.7).cos(), (k as f64 * 0.7).sin(), 0.2))
-        .collect();
-    let eph = fixed(
-        &suns,
-        1000.0,
-        vec![Pose::IDENTITY, at(DVec3::new(900.0, 0.0, 120.0))],
-    );
-    let states = epoch_states(&eph).expect("states");
+    let (itokawa, world, states) = itokawa_and_moonlet(9, 0.7);
     let shadows = Shadows {
         sun: SunShape::Disk,
         ..Shadows::default()
