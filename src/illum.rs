@@ -487,8 +487,9 @@ impl<'w> Direct<'w> {
     }
 
     /// What the facets of `rays` see of the disk Sun's cone through their own body: with
-    /// the BVH tracer's bound and tree, most are found clear or covered by one facet,
-    /// which spares their samples' rays; without, every one is [`ConeView::Partial`].
+    /// the BVH tracer's bound and tree, most are found clear or covered (by one facet or
+    /// a pair sharing an edge), which spares their samples' rays; without, every one is
+    /// [`ConeView::Partial`].
     fn cone_views(&self, b: usize, light: &Sunlight<'_>, rays: &[OwnRay]) -> Vec<ConeView> {
         let OwnHorizon::Bound { bound, bvh } = &self.horizons[b] else {
             return vec![ConeView::Partial; rays.len()];
