@@ -231,19 +231,32 @@ impl Bvh {
 
     /// True if a facet blocks the prepared `segment`.
     fn first_blocker(&self, segment: &Segment) -> bool {
+        self.walk(
+            |quad| segment.slab.hits(quad),
+            |leaf| self.leaf_blocks(leaf, segment),
+        )
+    }
+
+    /// Depth-first walk of the tree: into every child whose lane `hits` sets, handing
+    /// each leaf reached to `at_leaf`; stops, returning true, as soon as that does.
+    #[inline]
+    fn walk(&self, hits: impl Fn(&Quad) -> u32, mut at_leaf: impl FnMut(&Leaf) -> bool) -> bool {
+        if self.quads.is_empty() {
+            return false;
+        }
         let mut stack = [0u32; STACK];
         let mut top = 1;
         while top > 0 {
             top -= 1;
             let quad = &self.quads[stack[top] as usize];
-            let mut lanes = segment.slab.hits(quad);
+            let mut lanes = hits(quad);
             while lanes != 0 {
                 let k = lanes.trailing_zeros() as usize;
                 lanes &= lanes - 1;
                 if !quad.leaf[k] {
                     stack[top] = quad.child[k];
                     top += 1;
-                } else if self.leaf_blocks(&self.leaves[quad.child[k] as usize], segment) {
+                } else if at_leaf(&self.leaves[quad.child[k] as usize]) {
                     return true;
                 }
             }
@@ -431,35 +444,18 @@ impl Bvh {
         tan_half: f64,
         mut visit: impl FnMut(u32, &[DVec3; 3]) -> bool,
     ) {
-        if self.quads.is_empty() {
-            return;
-        }
         let from = apex - self.centre;
         // A little above the cone's own slope, for the rounding of the slopes in `f32`.
         let slope = tan_half * (1.0 + 1e-6);
         let slab = ConeSlab::new(from, axis, slope, 2.0 * (from.length() + self.radius));
-        let mut stack = [0u32; STACK];
-        let mut top = 1;
-        while top > 0 {
-            top -= 1;
-            let quad = &self.quads[stack[top] as usize];
-            let mut lanes = slab.hits(quad);
-            while lanes != 0 {
-                let k = lanes.trailing_zeros() as usize;
-                lanes &= lanes - 1;
-                if !quad.leaf[k] {
-                    stack[top] = quad.child[k];
-                    top += 1;
-                    continue;
-                }
-                let leaf = &self.leaves[quad.child[k] as usize];
-                for (lane, &id) in leaf.ids.iter().enumerate() {
-                    if id != u32::MAX && visit(id, &self.tris[leaf.first as usize + lane].corners) {
-                        return;
-                    }
-                }
-            }
-        }
+        self.walk(
+            |quad| slab.hits(quad),
+            |leaf| {
+                (leaf.ids.iter().enumerate()).any(|(lane, &id)| {
+                    id != u32::MAX && visit(id, &self.tris[leaf.first as usize + lane].corners)
+                })
+            },
+        );
     }
 }
 
