@@ -23,7 +23,7 @@ use crate::horizon::disk::SolarDisk;
 use crate::horizon::eclipse::Ellipsoid;
 use crate::horizon::map::{HorizonMap, LocalHorizon, SkyPosition};
 use crate::horizon::{HorizonMode, Shadows, SunShape};
-use crate::trace::bvh::Bvh;
+use crate::trace::bvh::{Bvh, BvhRays, TreeSlot};
 use crate::trace::{self, ShadowQuery, Tracer, TracerKind};
 use crate::world::{Body, FrameTransform, World};
 use glam::DVec3;
@@ -433,52 +433,71 @@ impl<'w> Direct<'w> {
     /// facet's own body leaves in view: 1 or 0 where the cone tells ([`Direct::cone_views`]),
     /// else the share of the disk's samples above the plane whose rays are clear, each
     /// weighted by its `n·s` (the flux it brings); 1 for a facet the disk only grazes,
-    /// with no sample above its plane. The samples are taken one at a time, so that one
-    /// direction's shadow queries (a Sun-view grid) are held at once, as for a point Sun.
+    /// with no sample above its plane. A partial cone's samples are answered by the facets
+    /// reaching into it alone, without the tracer. Without cones the samples are traced
+    /// one direction at a time, so that one direction's shadow queries (a Sun-view grid)
+    /// are held at once, as for a point Sun.
     fn own_disk_shares(
         &self,
         b: usize,
         light: &Sunlight<'_>,
         rays: &[OwnRay],
     ) -> (Vec<f64>, StepCounts) {
-        let mut counts = StepCounts::default();
         if rays.is_empty() {
-            return (Vec::new(), counts);
+            return (Vec::new(), StepCounts::default());
         }
         let normals = &self.world.bodies[b].mesh.normals;
-        let views = self.cone_views(b, light, rays);
-        let mut shares: Vec<f64> = (views.iter())
-            .map(|view| match view {
-                ConeView::Covered => 0.0,
-                ConeView::Clear | ConeView::Partial => 1.0,
-            })
-            .collect();
-        let partial: Vec<usize> = (0..rays.len())
-            .filter(|&k| views[k] == ConeView::Partial)
-            .collect();
+        let cones = self.cone_views(b, light, rays);
+        let mut shares = vec![1.0; rays.len()];
+        // Per ray still in question: its index and the facets that answer its samples
+        // (none needed where the tracer answers).
+        let partial: Vec<(usize, &[TreeSlot])> = match &cones {
+            Some((_, views)) => (views.iter().enumerate())
+                .filter_map(|(k, view)| match view {
+                    ConeView::Clear => None,
+                    ConeView::Covered => {
+                        shares[k] = 0.0;
+                        None
+                    }
+                    ConeView::Partial(among) => Some((k, among.as_slice())),
+                })
+                .collect(),
+            None => (0..rays.len()).map(|k| (k, &[][..])).collect(),
+        };
         // Per partial ray, the n·s of the samples above its plane, and of those in view.
         let mut seen = vec![0.0; partial.len()];
         let mut clear = vec![0.0; partial.len()];
+        let mut counts = StepCounts::default();
         for &offset in &self.disk_samples {
             let s = disk_point(light.sun, light.radius, offset);
-            let query = self.tracers[b].toward(s);
-            counts.rays += (partial.par_iter().zip(&mut seen).zip(&mut clear))
-                .map(|((&k, seen), clear)| {
-                    let r = &rays[k];
-                    let cos = normals[r.facet as usize].dot(s);
-                    if cos <= 0.0 {
-                        return 0;
-                    }
-                    *seen += cos;
-                    let t_min = self.t_min(b, r.facet as usize, cos);
-                    if !query.blocked(r.origin, t_min, Some(r.facet)) {
-                        *clear += cos;
-                    }
-                    1
-                })
-                .sum::<u64>();
+            let mut sample = |clear_of: &(dyn Fn(&OwnRay, f64, &[TreeSlot]) -> bool + Sync)| {
+                (partial.par_iter().zip(&mut seen).zip(&mut clear))
+                    .map(|((&(k, among), seen), clear)| {
+                        let r = &rays[k];
+                        let cos = normals[r.facet as usize].dot(s);
+                        if cos <= 0.0 {
+                            return 0;
+                        }
+                        *seen += cos;
+                        if clear_of(r, self.t_min(b, r.facet as usize, cos), among) {
+                            *clear += cos;
+                        }
+                        1
+                    })
+                    .sum::<u64>()
+            };
+            counts.rays += match &cones {
+                Some((bvh, _)) => {
+                    let query = BvhRays::new(bvh, s);
+                    sample(&|r, t_min, among| !query.blocked_among(r.origin, t_min, r.facet, among))
+                }
+                None => {
+                    let query = self.tracers[b].toward(s);
+                    sample(&|r, t_min, _| !query.blocked(r.origin, t_min, Some(r.facet)))
+                }
+            };
         }
-        for ((k, seen), clear) in partial.into_iter().zip(seen).zip(clear) {
+        for ((&(k, _), seen), clear) in partial.iter().zip(seen).zip(clear) {
             if seen > 0.0 {
                 shares[k] = clear / seen;
             }
@@ -486,16 +505,23 @@ impl<'w> Direct<'w> {
         (shares, counts)
     }
 
-    /// What the facets of `rays` see of the disk Sun's cone through their own body: with
-    /// the BVH tracer's bound and tree, most are found clear or covered (by one facet or
-    /// a pair sharing an edge), which spares their samples' rays; without, every one is
-    /// [`ConeView::Partial`].
-    fn cone_views(&self, b: usize, light: &Sunlight<'_>, rays: &[OwnRay]) -> Vec<ConeView> {
+    /// What the facets of `rays` see of the disk Sun's cone through their own body, and
+    /// the tree that answers their samples: with the BVH tracer's bound and tree, most
+    /// are found clear or covered (by one facet or a pair sharing an edge), the rest
+    /// partial with the few facets reaching in, which spares their samples' walks
+    /// through the tree; `None` without.
+    fn cone_views(
+        &self,
+        b: usize,
+        light: &Sunlight<'_>,
+        rays: &[OwnRay],
+    ) -> Option<(&Bvh, Vec<ConeView>)> {
         let OwnHorizon::Bound { bound, bvh } = &self.horizons[b] else {
-            return vec![ConeView::Partial; rays.len()];
+            return None;
         };
         let body = &self.world.bodies[b];
-        rays.par_iter()
+        let views = rays
+            .par_iter()
             .map(|r| {
                 let i = r.facet as usize;
                 // The samples' rays count hits beyond their `t_min`, the farthest for the
@@ -508,7 +534,8 @@ impl<'w> Direct<'w> {
                 let cone = (light.sun, light.radius);
                 bound.cone_view(body.shadow_mesh(), bvh, i, cone, beyond)
             })
-            .collect()
+            .collect();
+        Some((bvh, views))
     }
 
     /// Lights every facet of body `b` facing the Sun at each step (`skies[k]` into

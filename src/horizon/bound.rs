@@ -27,7 +27,7 @@
 use super::geometry::{box_bound, distance_to_triangle, rounding_widening, triangle_bound};
 use super::map::in_seeded_runs;
 use crate::mesh::Mesh;
-use crate::trace::bvh::Bvh;
+use crate::trace::bvh::{Bvh, TreeSlot};
 use glam::DVec3;
 use std::cell::{Cell, RefCell};
 
@@ -49,15 +49,18 @@ pub struct HorizonBound {
 }
 
 /// What a facet's centroid sees of a narrow cone of directions (a disk Sun).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, PartialEq, Eq)]
 pub enum ConeView {
     /// No other facet reaches into the cone: every ray within it is clear.
     Clear,
     /// One facet covers the whole cone beyond the distance asked for: every ray within
     /// it is blocked.
     Covered,
-    /// Anything else: facets reach in without one covering it all.
-    Partial,
+    /// Anything else: facets reach in without one covering it all. They are every facet
+    /// a ray within the cone can cross (as the tracers' predicate decides, rounding
+    /// included), which can then answer it alone
+    /// ([`BvhRays::blocked_among`](crate::trace::bvh::BvhRays::blocked_among)).
+    Partial(Vec<TreeSlot>),
 }
 
 impl HorizonBound {
@@ -92,11 +95,15 @@ impl HorizonBound {
         let c = mesh.centroids[i];
         let (cos_half, sin_half) = (half_angle.cos(), half_angle.sin());
         let covered = Cell::new(false);
-        // The triangles reaching into the cone.
+        // The triangles reaching into the cone, and where the tree keeps them.
         let reaching = RefCell::new(Vec::new());
+        let slots = RefCell::new(Vec::new());
         // A triangle's elevation sine above the plane across `axis` is the cosine of its
         // least angle from `axis`: what the bound's geometry computes exactly.
         let tan_half = half_angle.tan();
+        // Across the axis, toward the facet's plane: where its neighbours lie.
+        let n = mesh.normals[i];
+        let down = -(n - axis * n.dot(axis)).normalize_or_zero();
         let cover = |pieces: &[&[DVec3; 3]], outline: &[DVec3]| {
             let gap = pieces
                 .iter()
@@ -111,11 +118,14 @@ impl HorizonBound {
                 )
         };
         // The tree's boxes are padded far beyond the widening (`Bvh`'s box margin).
-        bvh.near_cone(c, axis, tan_half, |id, tri| {
-            if id as usize != i && triangle_bound(c, axis, tri, self.widening, cos_half) > cos_half
+        bvh.near_cone(c, axis, tan_half, |slot, tri| {
+            if slot.id() as usize != i
+                && may_reach_cone(c, (axis, tan_half), down, tri, self.widening)
+                && triangle_bound(c, axis, tri, self.widening, cos_half) > cos_half
             {
                 covered.set(cover(&[tri], tri));
                 reaching.borrow_mut().push(*tri);
+                slots.borrow_mut().push(slot);
             }
             covered.get()
         });
@@ -135,7 +145,7 @@ impl HorizonBound {
         if paired {
             ConeView::Covered
         } else {
-            ConeView::Partial
+            ConeView::Partial(slots.into_inner())
         }
     }
 
@@ -189,6 +199,39 @@ fn facet_bound(
     ((found + SEARCH_SLACK).min(1.0), setter)
 }
 
+/// False when no point within `widening` of triangle `tri` lies in the cone from `c`
+/// along the unit `axis` whose half-angle has the tangent `tan_half`: a plane through
+/// `c` has the cone on one side and the triangle's corners on the other, farther than
+/// the widening. The planes tried: the one across the axis (a triangle behind `c`), and
+/// those touching the cone's side toward the corners' mean and toward `down` (a unit
+/// vector across the axis, or zero). A cheap screen before the exact bound: the tree
+/// hands a narrow cone mostly triangles beside it, and the facet's neighbours below it.
+fn may_reach_cone(
+    c: DVec3,
+    cone: (DVec3, f64),
+    down: DVec3,
+    tri: &[DVec3; 3],
+    widening: f64,
+) -> bool {
+    let (axis, tan_half) = cone;
+    let v = tri.map(|p| p - c);
+    let along = v.map(|x| x.dot(axis));
+    // The widening, scaled by the planes' tilt, and these few operations' own rounding:
+    // a few units in the last place of the coordinates (`widening` is a thousand) and of
+    // the corners' distances (bounded by twice their largest coordinate).
+    let reach = v.iter().fold(0.0f64, |m, x| m.max(x.abs().max_element()));
+    let slack = 2.0 * widening * (1.0 + tan_half) + 2e-12 * reach;
+    if along.iter().all(|&a| a < -slack) {
+        return false;
+    }
+    // The cone lies within `x·e ≤ tan_half · x·axis` for every unit `e` across the axis
+    // (and for `e = 0`).
+    let beyond = |e: DVec3| (0..3).all(|k| v[k].dot(e) - tan_half * along[k] > slack);
+    let mid = (v[0] + v[1] + v[2]) / 3.0;
+    let aside = (mid - axis * mid.dot(axis)).normalize_or_zero();
+    !(beyond(aside) || beyond(down))
+}
+
 /// Most triangles reaching into a cone whose pairs are tried as a cover.
 const PAIRED_MAX: usize = 8;
 
@@ -232,6 +275,7 @@ mod tests {
     use super::*;
     use crate::mesh::generate::{floor_and_wall, icosphere};
     use crate::mesh::LengthUnit;
+    use crate::trace::bvh::BvhRays;
     use crate::trace::Tracer;
 
     /// A floor (two triangles, z = 0) and a vertical wall of height `h` along x = `wall_x`,
@@ -275,17 +319,18 @@ mod tests {
         let view = |z: f64, beyond: f64| bound.cone_view(&mesh, &bvh, 0, (toward(z), rho), beyond);
         assert_eq!(view(h + 0.1, 0.0), ConeView::Clear);
         assert_eq!(view(h - 0.2, 0.0), ConeView::Covered);
-        assert_eq!(view(h, 0.0), ConeView::Partial);
+        assert!(matches!(view(h, 0.0), ConeView::Partial(_)));
         // The diagonal from (x, −half, 0) to (x, half, h) crosses y = c.y here.
         let diagonal = h * (c.y + half) / (2.0 * half);
         assert_eq!(view(diagonal, 0.0), ConeView::Covered);
         assert_eq!(view(diagonal + 0.2, 0.0), ConeView::Covered);
-        assert_eq!(view(h - 0.2, d + 0.5), ConeView::Partial);
+        assert!(matches!(view(h - 0.2, d + 0.5), ConeView::Partial(_)));
     }
 
-    /// On rough terrain, a cone said clear has every ray within it unblocked, and one said
-    /// covered every ray blocked, by the BVH's rays (the disk Sun's samples' tracer):
-    /// rays on a polar grid of the cone out to 0.999 of its half-angle.
+    /// On rough terrain, a cone said clear has every ray within it unblocked, one said
+    /// covered every ray blocked, and one said partial has its rays answered by the facets
+    /// it lists as by the whole tree: by the BVH's rays (the disk Sun's samples' tracer),
+    /// on a polar grid of the cone out to 0.999 of its half-angle.
     #[test]
     fn cone_views_agree_with_rays_through_the_cone() {
         let raw =
@@ -297,6 +342,7 @@ mod tests {
         let bound = HorizonBound::new(&mesh, mesh.len(), &bvh);
         let mut rng = crate::TestRng::new(11);
         let mut seen = [0usize; 3];
+        let mut partial_rays = [0usize; 2];
         for _ in 0..600 {
             let i = 60 + (rng.unit() * 270.0) as usize;
             let n = mesh.normals[i];
@@ -304,10 +350,11 @@ mod tests {
             let axis = (n * 0.1 + DVec3::new(rng.unit() - 0.5, rng.unit() - 0.5, rng.unit() * 0.6))
                 .normalize();
             let view = bound.cone_view(&mesh, &bvh, i, (axis, half), 1e-6);
-            seen[view as usize] += 1;
-            if view == ConeView::Partial {
-                continue;
-            }
+            seen[match view {
+                ConeView::Clear => 0,
+                ConeView::Covered => 1,
+                ConeView::Partial(_) => 2,
+            }] += 1;
             let (e1, e2) = (
                 axis.any_orthonormal_vector(),
                 axis.cross(axis.any_orthonormal_vector()),
@@ -320,20 +367,27 @@ mod tests {
                     if n.dot(dir) <= 0.0 {
                         continue;
                     }
-                    let blocked = bvh
-                        .toward(dir)
-                        .blocked(mesh.centroids[i], 1e-6, Some(i as u32));
-                    assert_eq!(
-                        blocked,
-                        view == ConeView::Covered,
-                        "facet {i}, {view:?}, ring {ring}, k {k}"
-                    );
+                    let c = mesh.centroids[i];
+                    let blocked = bvh.toward(dir).blocked(c, 1e-6, Some(i as u32));
+                    let told = match &view {
+                        ConeView::Partial(among) => {
+                            partial_rays[blocked as usize] += 1;
+                            BvhRays::new(&bvh, dir).blocked_among(c, 1e-6, i as u32, among)
+                        }
+                        view => *view == ConeView::Covered,
+                    };
+                    assert_eq!(told, blocked, "facet {i}, {view:?}, ring {ring}, k {k}");
                 }
             }
         }
         assert!(
             seen.iter().all(|&k| k >= 20),
             "clear, covered, partial: {seen:?}"
+        );
+        // The partial cones' facets answered both ways, many times each.
+        assert!(
+            partial_rays.iter().all(|&k| k >= 200),
+            "rays of partial cones clear, blocked: {partial_rays:?}"
         );
     }
 

@@ -312,13 +312,20 @@ impl Bvh {
     /// the tree, with the frame built from the direction itself, as the other tracers
     /// build it.
     fn ray_blocked(&self, a: DVec3, toward: &Toward, t_min: f64, skip: [u32; 2]) -> bool {
+        self.ray(a, toward, t_min, skip)
+            .is_some_and(|ray| self.first_blocker(&ray))
+    }
+
+    /// The ray from `a` along `toward`, hits counting beyond `t_min`, as the segment
+    /// reaching past the tree that [`Bvh::ray_blocked`] tests; `None` when it cannot
+    /// cross any facet.
+    fn ray(&self, a: DVec3, toward: &Toward, t_min: f64, skip: [u32; 2]) -> Option<Segment> {
         if self.quads.is_empty() {
-            return false;
+            return None;
         }
         let length = (a - self.centre).length() + self.radius + 2.0 * t_min;
         let b = a + toward.frame.dir() * length;
         self.along(a, b, toward, t_min, length - t_min, skip)
-            .is_some_and(|ray| self.first_blocker(&ray))
     }
 
     /// True if a facet of `leaf` blocks the segment.
@@ -362,17 +369,14 @@ impl Toward {
 }
 
 /// Shadow rays along one direction, answered by the tree.
-struct BvhRays<'b> {
+pub(crate) struct BvhRays<'b> {
     bvh: &'b Bvh,
     toward: Toward,
 }
 
 impl Tracer for Bvh {
     fn toward(&self, dir: DVec3) -> Box<dyn ShadowQuery + '_> {
-        Box::new(BvhRays {
-            bvh: self,
-            toward: Toward::new(dir),
-        })
+        Box::new(BvhRays::new(self, dir))
     }
 }
 
@@ -380,6 +384,52 @@ impl ShadowQuery for BvhRays<'_> {
     fn blocked(&self, origin: DVec3, t_min: f64, skip: Option<u32>) -> bool {
         let skip = [skip.unwrap_or(u32::MAX), u32::MAX];
         self.bvh.ray_blocked(origin, &self.toward, t_min, skip)
+    }
+}
+
+/// A facet as [`Bvh::near_cone`] hands it out, for [`BvhRays::blocked_among`]: its mesh
+/// id and its place in the tree's own order.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct TreeSlot {
+    id: u32,
+    at: u32,
+}
+
+impl TreeSlot {
+    /// The facet's id in the mesh.
+    pub fn id(self) -> u32 {
+        self.id
+    }
+}
+
+impl<'b> BvhRays<'b> {
+    /// Shadow rays along the unit `dir`, answered by `bvh`.
+    pub(crate) fn new(bvh: &'b Bvh, dir: DVec3) -> BvhRays<'b> {
+        BvhRays {
+            bvh,
+            toward: Toward::new(dir),
+        }
+    }
+
+    /// [`ShadowQuery::blocked`] (the facet `skip` left out) decided by the facets at
+    /// `among` alone, without walking the tree: the same answer, bit for bit, when
+    /// `among` holds every facet the ray can cross, as those [`Bvh::near_cone`] finds
+    /// reaching into a cone around it do.
+    pub(crate) fn blocked_among(
+        &self,
+        origin: DVec3,
+        t_min: f64,
+        skip: u32,
+        among: &[TreeSlot],
+    ) -> bool {
+        let bvh = self.bvh;
+        bvh.ray(origin, &self.toward, t_min, [skip, u32::MAX])
+            .is_some_and(|s| {
+                among.iter().any(|slot| {
+                    let tri = &bvh.tris[slot.at as usize];
+                    !s.skip.contains(&slot.id) && crosses(&s.frame, s.q, tri, s.t0, s.t1)
+                })
+            })
     }
 }
 
@@ -434,7 +484,7 @@ impl Bvh {
 impl Bvh {
     /// Every facet of every leaf that the cone of directions from `apex` within the angle
     /// of tangent `tan_half` of the unit `axis` may reach (mesh frame, metres), to
-    /// `visit(facet id, corners)`, until it returns `true`. The boxes are tested in
+    /// `visit(facet, corners)`, until it returns `true`. The boxes are tested in
     /// `f32` as for shadow rays ([`ConeSlab`]), their margin keeping the tests
     /// conservative.
     pub(crate) fn near_cone(
@@ -442,7 +492,7 @@ impl Bvh {
         apex: DVec3,
         axis: DVec3,
         tan_half: f64,
-        mut visit: impl FnMut(u32, &[DVec3; 3]) -> bool,
+        mut visit: impl FnMut(TreeSlot, &[DVec3; 3]) -> bool,
     ) {
         let from = apex - self.centre;
         // A little above the cone's own slope, for the rounding of the slopes in `f32`.
@@ -452,7 +502,8 @@ impl Bvh {
             |quad| slab.hits(quad),
             |leaf| {
                 (leaf.ids.iter().enumerate()).any(|(lane, &id)| {
-                    id != u32::MAX && visit(id, &self.tris[leaf.first as usize + lane].corners)
+                    let at = leaf.first + lane as u32;
+                    id != u32::MAX && visit(TreeSlot { id, at }, &self.tris[at as usize].corners)
                 })
             },
         );
