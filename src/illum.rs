@@ -23,7 +23,7 @@ use crate::horizon::disk::SolarDisk;
 use crate::horizon::eclipse::Ellipsoid;
 use crate::horizon::map::{HorizonMap, LocalHorizon, SkyPosition};
 use crate::horizon::{HorizonMode, Shadows, SunShape};
-use crate::trace::bvh::{Bvh, BvhRays, TreeSlot};
+use crate::trace::bvh::{Bvh, BvhRays};
 use crate::trace::{self, ShadowQuery, Tracer, TracerKind};
 use crate::world::{Body, FrameTransform, World};
 use glam::DVec3;
@@ -430,112 +430,107 @@ impl<'w> Direct<'w> {
     }
 
     /// Per ray of `rays`, the share of a disk Sun above its facet's plane that the
-    /// facet's own body leaves in view: 1 or 0 where the cone tells ([`Direct::cone_views`]),
-    /// else the share of the disk's samples above the plane whose rays are clear, each
-    /// weighted by its `n·s` (the flux it brings); 1 for a facet the disk only grazes,
-    /// with no sample above its plane. A partial cone's samples are answered by the facets
-    /// reaching into it alone, without the tracer. Without cones the samples are traced
-    /// one direction at a time, so that one direction's shadow queries (a Sun-view grid)
-    /// are held at once, as for a point Sun.
+    /// facet's own body leaves in view: the share of the disk's samples above the plane
+    /// whose rays are clear, each weighted by its `n·s` (the flux it brings; [`DiskTally`]).
+    /// With the BVH tracer's bound and tree, the disk's cone decides first
+    /// ([`Direct::disk_shares_by_cones`]); without, every sample is traced
+    /// ([`Direct::disk_shares_traced`]).
     fn own_disk_shares(
         &self,
         b: usize,
         light: &Sunlight<'_>,
         rays: &[OwnRay],
     ) -> (Vec<f64>, StepCounts) {
-        if rays.is_empty() {
-            return (Vec::new(), StepCounts::default());
-        }
-        let normals = &self.world.bodies[b].mesh.normals;
-        let cones = self.cone_views(b, light, rays);
-        let mut shares = vec![1.0; rays.len()];
-        // Per ray still in question: its index and the facets that answer its samples
-        // (none needed where the tracer answers).
-        let partial: Vec<(usize, &[TreeSlot])> = match &cones {
-            Some((_, views)) => (views.iter().enumerate())
-                .filter_map(|(k, view)| match view {
-                    ConeView::Clear => None,
-                    ConeView::Covered => {
-                        shares[k] = 0.0;
-                        None
-                    }
-                    ConeView::Partial(among) => Some((k, among.as_slice())),
-                })
-                .collect(),
-            None => (0..rays.len()).map(|k| (k, &[][..])).collect(),
-        };
-        // Per partial ray, the n·s of the samples above its plane, and of those in view.
-        let mut seen = vec![0.0; partial.len()];
-        let mut clear = vec![0.0; partial.len()];
-        let mut counts = StepCounts::default();
-        for &offset in &self.disk_samples {
-            let s = disk_point(light.sun, light.radius, offset);
-            let mut sample = |clear_of: &(dyn Fn(&OwnRay, f64, &[TreeSlot]) -> bool + Sync)| {
-                (partial.par_iter().zip(&mut seen).zip(&mut clear))
-                    .map(|((&(k, among), seen), clear)| {
-                        let r = &rays[k];
-                        let cos = normals[r.facet as usize].dot(s);
-                        if cos <= 0.0 {
-                            return 0;
-                        }
-                        *seen += cos;
-                        if clear_of(r, self.t_min(b, r.facet as usize, cos), among) {
-                            *clear += cos;
-                        }
-                        1
-                    })
-                    .sum::<u64>()
-            };
-            counts.rays += match &cones {
-                Some((bvh, _)) => {
-                    let query = BvhRays::new(bvh, s);
-                    sample(&|r, t_min, among| !query.blocked_among(r.origin, t_min, r.facet, among))
-                }
-                None => {
-                    let query = self.tracers[b].toward(s);
-                    sample(&|r, t_min, _| !query.blocked(r.origin, t_min, Some(r.facet)))
-                }
-            };
-        }
-        for ((&(k, _), seen), clear) in partial.iter().zip(seen).zip(clear) {
-            if seen > 0.0 {
-                shares[k] = clear / seen;
+        let (shares, traced) = match &self.horizons[b] {
+            OwnHorizon::Bound { bound, bvh } => {
+                self.disk_shares_by_cones(b, light, rays, (bound, bvh))
             }
-        }
+            _ => self.disk_shares_traced(b, light, rays),
+        };
+        let counts = StepCounts {
+            rays: traced,
+            ..StepCounts::default()
+        };
         (shares, counts)
     }
 
-    /// What the facets of `rays` see of the disk Sun's cone through their own body, and
-    /// the tree that answers their samples: with the BVH tracer's bound and tree, most
-    /// are found clear or covered (by one facet or a pair sharing an edge), the rest
-    /// partial with the few facets reaching in, which spares their samples' walks
-    /// through the tree; `None` without.
-    fn cone_views(
+    /// [`Direct::own_disk_shares`] through the cones: a facet whose cone is clear gets 1,
+    /// one covered (by one facet or a pair sharing an edge) 0, and one partly covered its
+    /// samples, answered by the few facets reaching into the cone alone, without walks
+    /// through the tree. Also the count of samples answered.
+    fn disk_shares_by_cones(
         &self,
         b: usize,
         light: &Sunlight<'_>,
         rays: &[OwnRay],
-    ) -> Option<(&Bvh, Vec<ConeView>)> {
-        let OwnHorizon::Bound { bound, bvh } = &self.horizons[b] else {
-            return None;
-        };
+        (bound, bvh): (&HorizonBound, &Bvh),
+    ) -> (Vec<f64>, u64) {
         let body = &self.world.bodies[b];
-        let views = rays
+        let samples: Vec<(DVec3, BvhRays)> = (self.disk_samples.iter())
+            .map(|&offset| {
+                let s = disk_point(light.sun, light.radius, offset);
+                (s, BvhRays::new(bvh, s))
+            })
+            .collect();
+        let cone = (light.sun, light.radius);
+        let (shares, answered): (Vec<f64>, Vec<u64>) = rays
             .par_iter()
             .map(|r| {
                 let i = r.facet as usize;
+                let n = body.mesh.normals[i];
                 // The samples' rays count hits beyond their `t_min`, the farthest for the
                 // disk's lowest point; a disk reaching below the plane is never covered.
-                let lowest = lowest_sin(body.mesh.normals[i].dot(light.sun), light.radius);
+                let lowest = lowest_sin(n.dot(light.sun), light.radius);
                 let beyond = match lowest > 0.0 {
                     true => self.t_min(b, i, lowest),
                     false => f64::INFINITY,
                 };
-                let cone = (light.sun, light.radius);
-                bound.cone_view(body.shadow_mesh(), bvh, i, cone, beyond)
+                match bound.cone_view(body.shadow_mesh(), bvh, i, cone, beyond) {
+                    ConeView::Clear => (1.0, 0),
+                    ConeView::Covered => (0.0, 0),
+                    ConeView::Partial(among) => {
+                        let mut tally = DiskTally::default();
+                        for (s, query) in &samples {
+                            tally.add(n.dot(*s), |cos| {
+                                !query.blocked_among(
+                                    r.origin,
+                                    self.t_min(b, i, cos),
+                                    r.facet,
+                                    &among,
+                                )
+                            });
+                        }
+                        (tally.share(), tally.rays)
+                    }
+                }
             })
-            .collect();
-        Some((bvh, views))
+            .unzip();
+        (shares, answered.iter().sum())
+    }
+
+    /// [`Direct::own_disk_shares`] with every sample traced by the body's tracer, one
+    /// direction at a time, so that one direction's shadow queries (a Sun-view grid) are
+    /// held at once, as for a point Sun. Also the count of rays traced.
+    fn disk_shares_traced(
+        &self,
+        b: usize,
+        light: &Sunlight<'_>,
+        rays: &[OwnRay],
+    ) -> (Vec<f64>, u64) {
+        let normals = &self.world.bodies[b].mesh.normals;
+        let mut tallies = vec![DiskTally::default(); rays.len()];
+        for &offset in &self.disk_samples {
+            let s = disk_point(light.sun, light.radius, offset);
+            let query = self.tracers[b].toward(s);
+            (rays.par_iter().zip(&mut tallies)).for_each(|(r, tally)| {
+                let i = r.facet as usize;
+                tally.add(normals[i].dot(s), |cos| {
+                    !query.blocked(r.origin, self.t_min(b, i, cos), Some(r.facet))
+                });
+            });
+        }
+        let traced = tallies.iter().map(|t| t.rays).sum();
+        (tallies.iter().map(DiskTally::share).collect(), traced)
     }
 
     /// Lights every facet of body `b` facing the Sun at each step (`skies[k]` into
@@ -858,6 +853,41 @@ impl<'w> Direct<'w> {
     /// as a shadow, for the Sun at `cos_i` from its normal (the module doc's `h_min`).
     pub fn t_min(&self, b: usize, i: usize, cos_i: f64) -> f64 {
         self.min_height_m[b][i] / cos_i
+    }
+}
+
+/// The samples of a disk Sun above one facet's plane, each weighted by its `n·s` (the
+/// flux it brings), and those of them in view.
+#[derive(Debug, Clone, Copy, Default)]
+struct DiskTally {
+    seen: f64,
+    clear: f64,
+    /// Samples above the plane (rays answered).
+    rays: u64,
+}
+
+impl DiskTally {
+    /// Takes a sample at `cos = n·s` above the plane (nothing below it), in view when
+    /// `clear(cos)` says so.
+    fn add(&mut self, cos: f64, clear: impl FnOnce(f64) -> bool) {
+        if cos <= 0.0 {
+            return;
+        }
+        self.seen += cos;
+        self.rays += 1;
+        if clear(cos) {
+            self.clear += cos;
+        }
+    }
+
+    /// The share of the samples' flux in view: 1 for a facet the disk only grazes,
+    /// with no sample above its plane.
+    fn share(&self) -> f64 {
+        if self.seen > 0.0 {
+            self.clear / self.seen
+        } else {
+            1.0
+        }
     }
 }
 

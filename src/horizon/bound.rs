@@ -224,12 +224,13 @@ fn may_reach_cone(
     if along.iter().all(|&a| a < -slack) {
         return false;
     }
-    // The cone lies within `x·e ≤ tan_half · x·axis` for every unit `e` across the axis
-    // (and for `e = 0`).
-    let beyond = |e: DVec3| (0..3).all(|k| v[k].dot(e) - tan_half * along[k] > slack);
-    let mid = (v[0] + v[1] + v[2]) / 3.0;
-    let aside = (mid - axis * mid.dot(axis)).normalize_or_zero();
-    !(beyond(aside) || beyond(down))
+    // The cone lies within `x·e ≤ |e| tan_half · x·axis` for every `e` across the axis.
+    let beyond = |e: DVec3, length: f64| {
+        (0..3).all(|k| v[k].dot(e) - length * (tan_half * along[k] + slack) > 0.0)
+    };
+    let mid = v[0] + v[1] + v[2];
+    let aside = mid - axis * mid.dot(axis);
+    !(beyond(aside, aside.length()) || beyond(down, down.length()))
 }
 
 /// Most triangles reaching into a cone whose pairs are tried as a cover.
