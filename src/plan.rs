@@ -7,6 +7,7 @@
 use crate::budget::Estimate;
 use crate::horizon::SunShape;
 use crate::scene::Scene;
+use crate::trace::TracerKind;
 use crate::world::World;
 use serde::{Deserialize, Serialize};
 
@@ -115,7 +116,7 @@ impl Plan {
             bodies: world.bodies.len(),
             facets: world.facet_count(),
             steps,
-            tracer: format!("{:?}", scene.run.tracer).to_lowercase(),
+            tracer: scene.run.tracer.name().to_string(),
             decisions,
             memory: Estimate::default(),
         }
@@ -174,6 +175,25 @@ impl Plan {
                 .position(|x| x.stage == format!("self-shadowing of {body}"))
                 .map_or(self.decisions.len(), |i| i + 1);
             self.decisions.insert(at, d);
+        }
+    }
+
+    /// Names the tracer the run takes and why, in place of the scene's `tracer` (which
+    /// may be `auto`), as the decision after the direct irradiance.
+    pub fn set_tracer(&mut self, (kind, reason): (TracerKind, String)) {
+        self.tracer = kind.name().to_string();
+        let decision = Decision {
+            stage: "shadow tracer".into(),
+            runs: true,
+            reason,
+        };
+        match self
+            .decisions
+            .iter()
+            .position(|d| d.stage == decision.stage)
+        {
+            Some(at) => self.decisions[at] = decision,
+            None => self.decisions.insert(1.min(self.decisions.len()), decision),
         }
     }
 

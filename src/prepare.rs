@@ -30,6 +30,7 @@ use crate::scene::{
     SpinSection,
 };
 use crate::stats::Bins;
+use crate::trace::choice;
 use crate::world::{Body, Pose, World};
 use glam::{DMat3, DVec3};
 use rayon::prelude::*;
@@ -142,6 +143,14 @@ pub fn prepare(scene: &Scene, budget: &Budget, timings: &mut Timings) -> Result<
     budget.check(&memory)?;
     let mut plan = Plan::new(scene, world, states.len());
     plan.set_horizon_maps(map_decisions);
+    let tracer = choice::choose(
+        scene.run.tracer,
+        world,
+        states.len(),
+        shadows.disk_samples(),
+        &horizon_maps,
+    );
+    plan.set_tracer(tracer);
     if let Some(settings) = &scatter {
         plan.set_scatter(settings.decisions(world, &states));
     }

@@ -25,6 +25,7 @@ use crate::scatter::ScatterRecord;
 use crate::scene::Scene;
 use crate::simulate::{simulate, Options, Simulation, Slice, StepIrradiance};
 use crate::stats::{Bins, FacetStats};
+use crate::trace::choice;
 use crate::world::World;
 use std::path::{Path, PathBuf};
 
@@ -143,12 +144,22 @@ pub fn run_with(
         states,
         scatter,
         bins,
-        plan,
+        mut plan,
         shadows,
         horizon_maps,
     } = prepare(scene, budget, &mut timings)?;
     let world = &assembly.world;
     let slice = outputs.slice(states.len(), world.output_facet_count())?;
+    // A time shard chooses by the steps it computes.
+    let steps = slice.steps.as_ref().map_or(states.len(), |r| r.len());
+    let (tracer, why) = choice::choose(
+        scene.run.tracer,
+        world,
+        steps,
+        shadows.disk_samples(),
+        &horizon_maps,
+    );
+    plan.set_tracer((tracer, why));
     // Only now that the scene is known to run is the earlier run cleared away.
     clear_previous_run(out_dir, previous)?;
     for w in &assembly.warnings {
@@ -161,7 +172,7 @@ pub fn run_with(
     };
     let mut bands = Bands::from_scene(scene, world, scatter.as_ref(), bins, slice.kept(world))?;
     let options = Options {
-        tracer: scene.run.tracer,
+        tracer,
         bins,
         shadows,
         horizon_maps,

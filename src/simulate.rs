@@ -24,7 +24,7 @@ use crate::illum::{Direct, StepCounts};
 use crate::progress::{Progress, Silent, Timings};
 use crate::scatter::{Scatter, ScatterRecord, Settings as ScatterSettings, LANES};
 use crate::stats::{Bins, FacetStats, Selection};
-use crate::trace::TracerKind;
+use crate::trace::{choice, TracerKind};
 use crate::world::World;
 
 /// How to step: the tracer, the CDF bins, and what besides direct sunlight to compute.
@@ -134,8 +134,10 @@ pub fn simulate(
     let (maps, records) = timings.time("horizon maps", || {
         obtain_maps(world, &shadows, &horizon_maps, progress)
     })?;
-    if tracer == TracerKind::Bvh && maps.iter().any(Option::is_none) {
-        announce_bvh_build(world, progress);
+    let mapped: Vec<bool> = maps.iter().map(Option::is_some).collect();
+    let (tracer, _) = choice::choose(tracer, world, states.len(), shadows.disk_samples(), &mapped);
+    if tracer == TracerKind::Bvh {
+        announce_bvh_build(world, &mapped, progress);
     }
     // A body without outputs needs its own light only when its facets scatter it.
     let needed = world
@@ -237,28 +239,19 @@ fn obtain_maps(
 }
 
 /// Tells the user about the one long silent stage of a BVH run: the tree and horizon
-/// bound of every body that can shadow itself, and roughly how long they take.
-fn announce_bvh_build(world: &World, progress: &dyn Progress) {
-    let bounded: usize = world
-        .bodies
+/// bound of every body that shadows itself without a map, and roughly how long they take.
+fn announce_bvh_build(world: &World, mapped: &[bool], progress: &dyn Progress) {
+    let bounded: usize = choice::bounded(world, mapped)
         .iter()
-        .filter(|b| !b.convex)
         .map(|b| b.mesh.len())
         .sum();
     if bounded > 0 {
         progress.note(&format!(
             "tracer bvh: building the tree and the horizon bound of {bounded} facets once \
-             (about {:.0} s on one core)",
-            build_seconds_one_core(bounded)
+             (about {:.1} s on one core)",
+            choice::bound_seconds(world, mapped)
         ));
     }
-}
-
-/// Seconds the BVH tracer's tree and horizon bound take to build on one core for
-/// `facets` facets, fitted to the peer benchmark's Itokawa runs (2.8 s at 49k, 81 s at
-/// 786k, 434 s at 3.1M facets; docs/performance.md).
-fn build_seconds_one_core(facets: usize) -> f64 {
-    3.0 * (facets as f64 / 50_000.0).powf(1.2)
 }
 
 /// Steps computed before their statistics are added, as one block (and, with scattered

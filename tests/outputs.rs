@@ -1044,6 +1044,7 @@ fn run_json_plan_reflects_the_scene() {
     let spin: serde_json::Value =
         serde_json::from_slice(&std::fs::read(spin_run().out.join("run.json")).unwrap()).unwrap();
     assert_eq!(spin["plan"]["steps"].as_u64(), Some(SPIN_STEPS as u64));
+    // `auto`: one convex body has nothing to bound and nothing to shadow.
     assert_eq!(spin["plan"]["tracer"], "sunview");
     let runs = |v: &serde_json::Value, stage: &str| {
         v["plan"]["decisions"]
@@ -1070,6 +1071,8 @@ fn run_json_plan_reflects_the_scene() {
         serde_json::from_slice(&std::fs::read(fixed_run().out.join("run.json")).unwrap()).unwrap();
     assert_eq!(fixed["plan"]["steps"].as_u64(), Some(3));
     assert!(runs(&fixed, "shadows between bodies"));
+    // Two convex bodies shadowing each other: trees, no grid per step.
+    assert_eq!(fixed["plan"]["tracer"], "bvh");
     assert!((fixed["duration_s"].as_f64().unwrap() - 300.0).abs() < 1e-9);
 }
 

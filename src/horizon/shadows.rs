@@ -215,6 +215,15 @@ impl Shadows {
         }
     }
 
+    /// The rays per facet toward a disk Sun where rays decide; `None` for a point Sun
+    /// (one ray).
+    pub fn disk_samples(&self) -> Option<u32> {
+        match self.sun {
+            SunShape::Point => None,
+            SunShape::Disk => Some(self.sun_samples),
+        }
+    }
+
     /// What a map spares per facet and step over rays: for a disk Sun the rays toward its
     /// samples, each about as dear as a point Sun's one ray (each is a direction of its
     /// own; `bench_direct --sun disk`, 49k Itokawa on 2026-11-26: 30× the point Sun's

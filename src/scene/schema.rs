@@ -63,8 +63,9 @@ pub struct BandSection {
 pub struct RunSection {
     /// Name of the run (outputs, run.json).
     pub name: Option<String>,
-    /// Shadow tracer: "sunview" (default), "bvh" (a tree and a horizon bound built once:
-    /// faster per step, worth it for long runs) or "grid" (the paper's reference).
+    /// Shadow tracer: "auto" (default: "bvh" when the run's steps pay for its horizon
+    /// bound, else "sunview"), "sunview" (a grid per step, no setup), "bvh" (a tree and a
+    /// horizon bound built once: faster per step) or "grid" (the paper's reference).
     pub tracer: TracerKind,
     /// Width of the CDF bins, W/m².
     pub bin_width_w_m2: f64,

@@ -8,13 +8,16 @@
 //! Three structures implement [`Tracer`]:
 //! - [`grid::UniformGrid`]: the SLIM paper's reference (section 6.1), a 3-D uniform grid
 //!   over the body's bounding box walked cell by cell with Amanatides–Woo traversal.
-//! - [`sunview::SunView`]: the default. All shadow rays of a step are parallel to the
+//! - [`sunview::SunView`]: all shadow rays of a step are parallel to the
 //!   Sun, so the mesh is projected once onto the plane perpendicular to the Sun and binned
 //!   into a 2-D grid; a shadow query is then a point lookup in one cell.
 //! - [`bvh::Bvh`]: a bounding-volume hierarchy built once for every direction (also the
 //!   facet-to-facet visibility of scattered light). With it, the direct stage also builds
 //!   each body's [`crate::horizon::bound::HorizonBound`], which answers without a ray whenever the Sun
 //!   stands above everything a facet can see.
+//!
+//! `tracer = "auto"`, the default, takes the Sun-view grid or the BVH by the run's
+//! length ([`choice`]).
 //!
 //! All decide a hit with the same exact predicate ([`ray::blocks`]), evaluated in a
 //! frame that depends only on the ray direction, so they classify every ray identically;
@@ -23,6 +26,7 @@
 
 pub mod bvh;
 mod cells;
+pub mod choice;
 pub mod grid;
 pub mod ray;
 pub mod sunview;
@@ -64,18 +68,35 @@ impl<T: Tracer + ?Sized> Tracer for std::sync::Arc<T> {
 pub enum TracerKind {
     /// The paper's 3-D uniform grid (reference).
     Grid,
-    /// The Sun-parallel 2-D projection grid (fast; default).
-    #[default]
+    /// The Sun-parallel 2-D projection grid: no setup, a grid per step.
     Sunview,
-    /// A bounding-volume hierarchy built once for every direction.
+    /// A bounding-volume hierarchy built once for every direction, with its horizon
+    /// bound.
     Bvh,
+    /// `Sunview` or `Bvh`, whichever costs less for the run ([`choice::choose`]; the
+    /// default). Where nothing resolved it (images, fits), the Sun-view grid, which needs
+    /// no setup.
+    #[default]
+    Auto,
 }
 
-/// Builds a tracer of `kind` over `mesh`.
+impl TracerKind {
+    /// The name a scene gives it.
+    pub fn name(self) -> &'static str {
+        match self {
+            TracerKind::Grid => "grid",
+            TracerKind::Sunview => "sunview",
+            TracerKind::Bvh => "bvh",
+            TracerKind::Auto => "auto",
+        }
+    }
+}
+
+/// Builds a tracer of `kind` over `mesh` (`Auto`: the Sun-view grid).
 pub fn build(kind: TracerKind, mesh: &Mesh) -> Box<dyn Tracer + '_> {
     match kind {
         TracerKind::Grid => Box::new(grid::UniformGrid::build(mesh)),
-        TracerKind::Sunview => Box::new(sunview::SunView::new(mesh)),
+        TracerKind::Sunview | TracerKind::Auto => Box::new(sunview::SunView::new(mesh)),
         TracerKind::Bvh => Box::new(bvh::Bvh::build(mesh)),
     }
 }

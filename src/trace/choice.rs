@@ -1,0 +1,180 @@
+//! Choice: which tracer `tracer = "auto"` (the default) takes for a run.
+//!
+//! In: the world, the number of steps the run computes, the Sun's shape (a point, or a
+//! disk sampled by so many rays per facet) and which bodies take their own shadows from a
+//! horizon map. Out: a concrete [`TracerKind`] and the
+//! reason, for the plan.
+//!
+//! Every tracer classifies every ray identically, so the choice changes run time only.
+//! The Sun-view tracer needs no setup but rebuilds its grid at every step; the BVH tracer
+//! builds once a tree and, for each body that shadows itself without a map, a horizon
+//! bound, which then spares most rays (and under a disk Sun most of the samples' rays,
+//! by its cone tests). The bound is what costs: about 30 µs of CPU per facet at 49k
+//! facets, growing with the square root of the facets that cast shadows. So the BVH is
+//! taken when the run's steps spare more than that, counted on one core as measured with
+//! `cargo run --release --example bench_direct -- MESH --threads 1` (2026-11-26, 2-core
+//! AMD EPYC; the `build s` column and the difference per step between the two tracers):
+//!
+//! | mesh | bound, s | Sun-view, ms/step | BVH, ms/step | point Sun: saved per facet-step | disk, 32 samples: Sun-view, BVH (ms/step) |
+//! |---|---:|---:|---:|---:|---:|
+//! | m1phobos, 32,070 | 1.14 | 7.32 | 2.36 | 0.155 µs | 252, 18.2 |
+//! | Itokawa, 49,152 | 1.41 | 9.87 | 3.60 | 0.128 µs | 324, 21.2 |
+//!
+//! The model takes the lower saving, so that a run near the break-even keeps the tracer
+//! that needs no setup. With two cores the BVH gains more (its steps scale better than
+//! the Sun-view grid's), which the model leaves out on the same side.
+
+use super::TracerKind;
+use crate::world::{Body, World};
+
+/// CPU seconds per facet of the BVH's tree and horizon bound over `casters` facets: a
+/// fixed part and one growing as √N (the triangles that set a horizon lie along a line
+/// across the mesh). 33 µs at 32k facets, 35 µs at 49k, 65 µs at 786k; the runs of
+/// `bench/peers/run --tracer bvh` (docs/performance.md) took 31 µs at 49k, about 72 µs
+/// at 786k and 97 µs at 3.1M.
+fn bound_s_per_facet(casters: usize) -> f64 {
+    25e-6 + 0.045e-6 * (casters as f64).sqrt()
+}
+
+/// CPU seconds the BVH spares over the Sun-view tracer per facet and step: one ray's
+/// worth for a point Sun (`disk_samples` `None`); for a disk Sun, the Sun-view tracer's
+/// rays toward every sample against the BVH's cone tests (4.8–6.3 µs measured with 32
+/// samples).
+fn saved_s_per_facet_step(disk_samples: Option<u32>) -> f64 {
+    const POINT: f64 = 0.128e-6;
+    match disk_samples {
+        None => POINT,
+        Some(samples) => 4.5e-6 * samples as f64 / 32.0,
+    }
+}
+
+/// The bodies that get a horizon bound with the BVH tracer: those that shadow themselves
+/// without a horizon map (`maps[b]`).
+pub fn bounded<'w>(world: &'w World, maps: &[bool]) -> Vec<&'w Body> {
+    (world.bodies.iter().zip(maps))
+        .filter(|(body, &map)| !body.convex && !map)
+        .map(|(body, _)| body)
+        .collect()
+}
+
+/// CPU seconds on one core that the BVH tracer's tree and horizon bounds take to build
+/// (the [`bounded`] bodies').
+pub fn bound_seconds(world: &World, maps: &[bool]) -> f64 {
+    (bounded(world, maps).iter())
+        .map(|b| b.mesh.len() as f64 * bound_s_per_facet(b.shadow_mesh().len()))
+        .sum()
+}
+
+/// The tracer a run of `steps` steps takes: `kind` itself unless it is
+/// [`TracerKind::Auto`], and why. `disk_samples`: the rays per facet toward a disk Sun
+/// (`None`: a point Sun). `maps[b]` says whether body `b` takes its own shadows from a
+/// horizon map (its few remaining rays then go to a BVH whatever the tracer).
+pub fn choose(
+    kind: TracerKind,
+    world: &World,
+    steps: usize,
+    disk_samples: Option<u32>,
+    maps: &[bool],
+) -> (TracerKind, String) {
+    if kind != TracerKind::Auto {
+        let name = kind.name();
+        return (kind, format!("run.tracer = \"{name}\""));
+    }
+    let bounded = bounded(world, maps);
+    if bounded.is_empty() {
+        return match world.bodies.len() {
+            1 => (
+                TracerKind::Sunview,
+                "auto: sunview, nothing to bound (the body is convex, or has a horizon map) and \
+                 no other body: no setup"
+                    .into(),
+            ),
+            _ => (
+                TracerKind::Bvh,
+                "auto: bvh, no body needs a horizon bound (convex, or with a horizon map): its \
+                 trees alone answer the bodies' rays on each other, without a grid per step"
+                    .into(),
+            ),
+        };
+    }
+    let bound_s = bound_seconds(world, maps);
+    let facets: usize = bounded.iter().map(|b| b.mesh.len()).sum();
+    let per_step = facets as f64 * saved_s_per_facet_step(disk_samples);
+    let break_even = (bound_s / per_step).ceil() as usize;
+    if steps >= break_even {
+        (
+            TracerKind::Bvh,
+            format!(
+                "auto: bvh, {steps} steps ≥ {break_even}, where its horizon bound (about \
+                 {bound_s:.1} s on one core) costs less than the rays it spares"
+            ),
+        )
+    } else {
+        (
+            TracerKind::Sunview,
+            format!(
+                "auto: sunview, {steps} steps < {break_even}: too few to pay for the BVH's \
+                 horizon bound (about {bound_s:.1} s on one core; run.tracer = \"bvh\" \
+                 forces it)"
+            ),
+        )
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::mesh::generate::{floor_and_wall, icosphere};
+    use crate::mesh::{LengthUnit, Mesh};
+    use glam::DVec3;
+
+    /// A world of the given bodies, each with its convexity as stated.
+    fn world(bodies: Vec<(Mesh, bool)>) -> World {
+        let bodies = (bodies.into_iter().enumerate())
+            .map(|(k, (mesh, convex))| Body::new(format!("b{k}"), mesh, convex))
+            .collect();
+        World { bodies }
+    }
+
+    fn wall() -> Mesh {
+        Mesh::from_raw(floor_and_wall(3.0, 4.0, 50.0), LengthUnit::M)
+    }
+
+    /// The break-even follows the bound's cost over the saving per step, from both
+    /// sides; a disk Sun pays for it far sooner; a kind given is kept.
+    #[test]
+    fn auto_takes_the_bvh_once_the_steps_pay_for_its_bound() {
+        let w = world(vec![(wall(), false)]);
+        let point = None;
+        let facets = w.bodies[0].mesh.len();
+        let casters = w.bodies[0].shadow_mesh().len();
+        let even = (bound_s_per_facet(casters) / 0.128e-6).ceil() as usize;
+        assert!(facets > 0 && even > 100, "{even}");
+        let pick = |steps, sun: Option<u32>| choose(TracerKind::Auto, &w, steps, sun, &[false]);
+        assert_eq!(pick(even, point).0, TracerKind::Bvh);
+        let (kind, why) = pick(even - 1, point);
+        assert_eq!(kind, TracerKind::Sunview);
+        assert!(why.contains(&format!("< {even}")), "{why}");
+        let disk = Some(32);
+        assert_eq!(pick(even / 30, disk).0, TracerKind::Bvh);
+        assert_eq!(pick(1, disk).0, TracerKind::Sunview);
+        for kind in [TracerKind::Grid, TracerKind::Sunview, TracerKind::Bvh] {
+            assert_eq!(choose(kind, &w, 1_000_000, point, &[false]).0, kind);
+        }
+    }
+
+    /// Bodies that need no bound (convex, or with a map) cost nothing to bound: the BVH
+    /// from the first step where bodies shadow each other; a lone one needs no tracer.
+    #[test]
+    fn auto_takes_the_bvh_when_no_body_needs_a_bound() {
+        let ball = || Mesh::from_raw(icosphere(2, 1.0, DVec3::ZERO), LengthUnit::Km);
+        let w = world(vec![(ball(), true), (wall(), false)]);
+        let pick = |w: &World, maps: &[bool]| choose(TracerKind::Auto, w, 1, None, maps).0;
+        assert_eq!(pick(&w, &[false, true]), TracerKind::Bvh);
+        assert_eq!(pick(&w, &[false, false]), TracerKind::Sunview);
+        assert_eq!(
+            pick(&world(vec![(ball(), true)]), &[false]),
+            TracerKind::Sunview
+        );
+    }
+}
