@@ -125,8 +125,10 @@ pub fn prepare(scene: &Scene, budget: &Budget, timings: &mut Timings) -> Result<
         .as_ref()
         .map_or(0.0, |s| s.estimated_entries(world, &states));
     let shadows = scene.shadows();
-    let (horizon_maps, reasons): (Vec<bool>, Vec<String>) =
-        shadows.choose(world, states.len()).into_iter().unzip();
+    let (horizon_maps, reasons): (Vec<bool>, Vec<String>) = shadows
+        .choose(world, states.len(), scene.run.tracer)
+        .into_iter()
+        .unzip();
     demand.horizon_map_bytes = shadows.map_bytes(world, &horizon_maps);
     let map_decisions = world
         .bodies

@@ -18,6 +18,7 @@ use crate::cache::Lookup;
 use crate::error::{Error, Result};
 use crate::progress::Progress;
 use crate::trace::bvh::Bvh;
+use crate::trace::TracerKind;
 use crate::world::{Body, World};
 use serde::{Deserialize, Serialize};
 use std::path::PathBuf;
@@ -123,6 +124,12 @@ fn build_seconds(body: &Body) -> f64 {
 
 const SAVED_S_PER_FACET_STEP: f64 = 0.37e-6;
 
+/// What a map spares per facet and step over the BVH tracer's rays (CPU seconds), for a
+/// point Sun and for a disk Sun of 32 samples: m1phobos, 360 steps on one thread
+/// (`bench_direct MESH --threads 1` with `--tracer bvh`, `--horizon exact`, `--sun
+/// disk`; 2026-11-26): the BVH 2.40 ms per step (disk: 18.2), the map 1.26 (disk: 1.28).
+const SAVED_OVER_BVH: (f64, f64) = (0.036e-6, 0.53e-6);
+
 impl Shadows {
     /// Checks the settings, naming the key at fault.
     pub fn check(&self) -> std::result::Result<(), String> {
@@ -145,16 +152,17 @@ impl Shadows {
         Ok(())
     }
 
-    /// Per body, whether it uses a horizon map, and why (for the plan).
-    pub fn choose(&self, world: &World, steps: usize) -> Vec<(bool, String)> {
+    /// Per body, whether it uses a horizon map, and why (for the plan); without one its
+    /// own shadows take rays through `tracer`.
+    pub fn choose(&self, world: &World, steps: usize, tracer: TracerKind) -> Vec<(bool, String)> {
         world
             .bodies
             .iter()
-            .map(|b| self.choose_for(b, steps))
+            .map(|b| self.choose_for(b, steps, tracer))
             .collect()
     }
 
-    fn choose_for(&self, body: &Body, steps: usize) -> (bool, String) {
+    fn choose_for(&self, body: &Body, steps: usize, tracer: TracerKind) -> (bool, String) {
         if body.convex {
             return (
                 false,
@@ -192,7 +200,8 @@ impl Shadows {
                     );
                 }
                 let per_facet = build_s_per_facet(body.shadow_mesh().len());
-                let break_even = (per_facet / self.saved_s_per_facet_step()).ceil() as usize;
+                let saved = self.saved_s_per_facet_step(tracer);
+                let break_even = (per_facet / saved).ceil() as usize;
                 if steps >= break_even {
                     (
                         true,
@@ -224,15 +233,20 @@ impl Shadows {
         }
     }
 
-    /// What a map spares per facet and step over rays: for a disk Sun the rays toward its
-    /// samples, each about as dear as a point Sun's one ray (each is a direction of its
-    /// own; `bench_direct --sun disk`, 49k Itokawa on 2026-11-26: 30× the point Sun's
-    /// time per step with the Sun-view tracer, for 32 samples; 12× with `bvh`, whose
-    /// bound and cones spare most rays, is not modelled).
-    fn saved_s_per_facet_step(&self) -> f64 {
-        match self.sun {
-            SunShape::Point => SAVED_S_PER_FACET_STEP,
-            SunShape::Disk => SAVED_S_PER_FACET_STEP * self.sun_samples as f64,
+    /// What a map spares per facet and step over the rays `tracer` traces instead: for a
+    /// point Sun one ray, for a disk Sun rays toward its samples. The Sun-view grid's
+    /// disk rays are each about as dear as a point Sun's one (each is a direction of its
+    /// own). The BVH's are cheaper ([`SAVED_OVER_BVH`]); `auto` counts as the BVH, which
+    /// it takes for any run long enough for a map to pay.
+    fn saved_s_per_facet_step(&self, tracer: TracerKind) -> f64 {
+        let samples = self.sun_samples as f64;
+        match (tracer, self.sun) {
+            (TracerKind::Bvh | TracerKind::Auto, SunShape::Point) => SAVED_OVER_BVH.0,
+            (TracerKind::Bvh | TracerKind::Auto, SunShape::Disk) => {
+                SAVED_OVER_BVH.1 * samples / DEFAULT_SUN_SAMPLES as f64
+            }
+            (_, SunShape::Point) => SAVED_S_PER_FACET_STEP,
+            (_, SunShape::Disk) => SAVED_S_PER_FACET_STEP * samples,
         }
     }
 
@@ -354,7 +368,7 @@ mod tests {
                 sun,
                 ..Shadows::default()
             };
-            shadows.choose_for(&body, steps)
+            shadows.choose_for(&body, steps, TracerKind::Sunview)
         };
         let point = build_s_per_facet(body.shadow_mesh().len()) / SAVED_S_PER_FACET_STEP;
         let disk = (point / DEFAULT_SUN_SAMPLES as f64).ceil() as usize;
@@ -364,5 +378,39 @@ mod tests {
         assert!(auto(SunShape::Disk, disk).0);
         assert!(!auto(SunShape::Point, disk).0);
         assert!(auto(SunShape::Point, point.ceil() as usize).0);
+    }
+
+    /// Against the BVH's rays (under `bvh` or `auto`) a map pays later: its bound and
+    /// cones make rays cheaper, a point Sun's most of all.
+    #[test]
+    fn auto_builds_a_map_later_when_the_bvh_would_trace() {
+        let body = Body::new(
+            "floor and wall",
+            Mesh::from_raw(floor_and_wall(3.0, 4.0, 50.0), LengthUnit::M),
+            false,
+        );
+        let per_facet = build_s_per_facet(body.shadow_mesh().len());
+        for (sun, saved) in [
+            (SunShape::Point, SAVED_OVER_BVH.0),
+            (SunShape::Disk, SAVED_OVER_BVH.1),
+        ] {
+            let shadows = Shadows {
+                method: ShadowMethod::Auto,
+                sun,
+                ..Shadows::default()
+            };
+            let even = (per_facet / saved).ceil() as usize;
+            let grid_even =
+                (per_facet / shadows.saved_s_per_facet_step(TracerKind::Sunview)).ceil();
+            assert!(
+                even as f64 > 1.5 * grid_even,
+                "{sun:?}: {even} against {grid_even}"
+            );
+            for tracer in [TracerKind::Bvh, TracerKind::Auto] {
+                assert!(shadows.choose_for(&body, even, tracer).0);
+                let (uses_map, why) = shadows.choose_for(&body, even - 1, tracer);
+                assert!(!uses_map && why.contains(&format!("< {even}")), "{why}");
+            }
+        }
     }
 }
