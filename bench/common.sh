@@ -27,12 +27,13 @@ subdivided_itokawa() {
 }
 
 # spin_scene NAME MESH STEPS CSV [RUN_LINE]: prints a spin scene of the Itokawa-like body
-# with MESH (km) at 1.1 AU, STEPS steps per 12.13 h spin, `csv = CSV`, and RUN_LINE
-# (e.g. `shadows = "rays"`) in [run].
+# with MESH (km) at 1.1 AU, STEPS steps per 12.13 h spin, `csv = CSV`, a point Sun (as
+# the figures in docs/ were taken), and RUN_LINE (e.g. `shadows = "rays"`) in [run].
 spin_scene() {
   cat <<TOML
 [run]
 name = "$1"
+sun = "point"
 ${5:-}
 [output]
 csv = $4

@@ -153,10 +153,11 @@ fn report(name: &str, clients: usize, phase: &Phase) {
     );
 }
 
-/// A spin scene of one Itokawa mesh over `steps` steps of a 12 h period.
+/// A spin scene of one Itokawa mesh over `steps` steps of a 12 h period, with a point Sun
+/// (as docs/performance.md's figures were taken).
 fn scene(mesh: &str, steps: usize) -> String {
     format!(
-        "[output]\ncsv = false\nply = false\n[ephemeris]\nmode = \"spin\"\ndistance_au = 1.0\n\
+        "[run]\nsun = \"point\"\n[output]\ncsv = false\nply = false\n[ephemeris]\nmode = \"spin\"\ndistance_au = 1.0\n\
          steps_per_period = {steps}\n[[body]]\nname = \"itokawa\"\nmesh = \"shapes/{mesh}\"\n\
          units = \"km\"\nspin_period_h = 12.0\n"
     )

@@ -46,7 +46,7 @@ impl Plan {
                      get E = 0 and no shadow ray"
                 .into(),
         }];
-        let rays = match scene.run.sun {
+        let rays = match scene.sun() {
             SunShape::Point => "one shadow ray per facet facing the Sun".to_string(),
             SunShape::Disk => format!(
                 "shadow rays toward {} points of the disk (run.sun_samples) per facet that \
@@ -135,7 +135,7 @@ fn between_bodies(scene: &Scene, world: &World) -> Decision {
     }
     let pairs = "each step, only pairs whose bounding spheres can reach into each other's \
                  shadow are traced";
-    let reason = match scene.run.sun {
+    let reason = match scene.sun() {
         SunShape::Point => pairs.to_string(),
         SunShape::Disk => {
             let casters: Vec<String> = world

@@ -30,7 +30,7 @@ use crate::scene::{
     SpinSection,
 };
 use crate::stats::Bins;
-use crate::trace::choice;
+use crate::trace::{choice, TracerKind};
 use crate::world::{Body, Pose, World};
 use glam::{DMat3, DVec3};
 use rayon::prelude::*;
@@ -88,6 +88,9 @@ pub struct Prepared {
     pub bins: Bins,
     /// What runs and what is left out, and why.
     pub plan: Plan,
+    /// The shadow tracer, `auto` resolved by the whole run's steps (a time shard takes
+    /// the same, so that its counts add up to the run's).
+    pub tracer: TracerKind,
     /// How the bodies' own shadows are found.
     pub shadows: Shadows,
     /// Per body, whether it uses a horizon map.
@@ -145,14 +148,14 @@ pub fn prepare(scene: &Scene, budget: &Budget, timings: &mut Timings) -> Result<
     budget.check(&memory)?;
     let mut plan = Plan::new(scene, world, states.len());
     plan.set_horizon_maps(map_decisions);
-    let tracer = choice::choose(
+    let (tracer, why) = choice::choose(
         scene.run.tracer,
         world,
         states.len(),
         shadows.disk_samples(),
         &horizon_maps,
     );
-    plan.set_tracer(tracer);
+    plan.set_tracer((tracer, why));
     if let Some(settings) = &scatter {
         plan.set_scatter(settings.decisions(world, &states));
     }
@@ -163,6 +166,7 @@ pub fn prepare(scene: &Scene, budget: &Budget, timings: &mut Timings) -> Result<
         states,
         scatter,
         plan,
+        tracer,
         shadows,
         horizon_maps,
     })

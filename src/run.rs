@@ -25,7 +25,6 @@ use crate::scatter::ScatterRecord;
 use crate::scene::Scene;
 use crate::simulate::{simulate, Options, Simulation, Slice, StepIrradiance};
 use crate::stats::{Bins, FacetStats};
-use crate::trace::choice;
 use crate::world::World;
 use std::path::{Path, PathBuf};
 
@@ -144,22 +143,13 @@ pub fn run_with(
         states,
         scatter,
         bins,
-        mut plan,
+        plan,
+        tracer,
         shadows,
         horizon_maps,
     } = prepare(scene, budget, &mut timings)?;
     let world = &assembly.world;
     let slice = outputs.slice(states.len(), world.output_facet_count())?;
-    // A time shard chooses by the steps it computes.
-    let steps = slice.steps.as_ref().map_or(states.len(), |r| r.len());
-    let (tracer, why) = choice::choose(
-        scene.run.tracer,
-        world,
-        steps,
-        shadows.disk_samples(),
-        &horizon_maps,
-    );
-    plan.set_tracer((tracer, why));
     // Only now that the scene is known to run is the earlier run cleared away.
     clear_previous_run(out_dir, previous)?;
     for w in &assembly.warnings {

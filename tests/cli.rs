@@ -132,8 +132,8 @@ fn run_succeeds_writes_run_json_and_draws_no_bar_when_not_a_terminal() {
         serde_json::from_slice(&std::fs::read(out_dir.join("run.json")).unwrap()).unwrap();
     assert_eq!(record["threads"].as_u64(), Some(1));
     assert!(
-        record["counts"]["rays"].as_u64().unwrap() > 0,
-        "non-convex mesh: rays traced"
+        record["counts"]["shadowed"].as_u64().unwrap() > 0,
+        "non-convex mesh: facets shadowed by their own body"
     );
 }
 

@@ -622,7 +622,13 @@ fn history_reduces_to_the_summary() {
                 max[k],
                 "facet {k} max"
             );
-            assert_close(m, mean[k], 1e-12, &format!("facet {k} mean"));
+            // Rounding of a sum scales with its largest term, not with the mean: a facet
+            // a disk Sun only grazes has a tiny mean beside a large maximum.
+            assert!(
+                (m - mean[k]).abs() <= 1e-12 * max[k].max(1.0),
+                "facet {k} mean {m} vs {}",
+                mean[k]
+            );
             assert!(
                 (var.sqrt() - std[k]).abs() <= 1e-9 * max[k].max(1.0),
                 "facet {k} std {} vs {}",

@@ -1006,3 +1006,20 @@ fn a_disk_sun_needs_the_distance_of_fixed_suns() {
     let point = format!("[run]\nsun = \"point\"\n\n{FIXED}");
     parse(&point).expect("a point Sun needs no distance");
 }
+
+/// Left out, the Sun is a disk wherever its distance is known at every step (spin, and
+/// fixed Suns given by their distance), and a point where one is given by its flux alone;
+/// a scene that names it gets what it names.
+#[test]
+fn the_sun_is_a_disk_by_default_wherever_its_distance_is_known() {
+    use slim::horizon::SunShape;
+    let sun = |text: &str| parse(text).expect("valid scene").sun();
+    assert_eq!(sun(SPIN), SunShape::Disk);
+    assert_eq!(sun(FIXED), SunShape::Point);
+    let by_distance = FIXED.replace("flux_w_m2 = 1000.0", "distance_au = 1.0");
+    assert_eq!(sun(&by_distance), SunShape::Disk);
+    let point = SPIN.replace("[run]\n", "[run]\nsun = \"point\"\n");
+    assert_eq!(sun(&point), SunShape::Point);
+    assert_eq!(parse(&point).unwrap().shadows().sun, SunShape::Point);
+    assert_eq!(parse(SPIN).unwrap().shadows().sun, SunShape::Disk);
+}

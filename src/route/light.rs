@@ -11,7 +11,6 @@ use crate::ephemeris::EpochState;
 use crate::error::{Error, Result};
 use crate::prepare::Prepared;
 use crate::progress::{Progress, Timings};
-use crate::scene::Scene;
 use crate::simulate::{simulate, Options};
 
 /// Irradiance of one body's facets over a window of evenly spaced steps.
@@ -67,7 +66,6 @@ impl Light {
     /// of body `body`'s facets (a body with outputs). Refused when the table would not
     /// fit in `budget`, naming what shrinks it.
     pub fn compute(
-        scene: &Scene,
         prepared: Prepared,
         body: usize,
         first_step: usize,
@@ -79,6 +77,7 @@ impl Light {
             states,
             scatter,
             bins,
+            tracer,
             shadows,
             horizon_maps,
             ..
@@ -105,7 +104,7 @@ impl Light {
         let offset = world.output_offsets()[body];
         let mut irradiance = Vec::with_capacity(facets * states.len());
         let options = Options {
-            tracer: scene.run.tracer,
+            tracer,
             bins,
             shadows,
             horizon_maps,

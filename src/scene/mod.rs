@@ -22,7 +22,7 @@ pub use validate::{camera_size_problem, MAX_BODIES, MAX_SPAN_S, MAX_STEPS};
 
 use crate::error::{printable, Error, Result};
 use crate::horizon::disk::SolarDisk;
-use crate::horizon::Shadows;
+use crate::horizon::{Shadows, SunShape};
 use hifitime::Epoch;
 use serde::Deserialize;
 use std::path::{Path, PathBuf};
@@ -105,13 +105,25 @@ impl Scene {
             method: self.run.shadows,
             mode: self.run.horizon_mode,
             azimuths: self.run.horizon_azimuths,
-            sun: self.run.sun,
+            sun: self.sun(),
             disk: SolarDisk {
                 limb_darkening: self.run.limb_darkening,
             },
             sun_samples: self.run.sun_samples,
             cache_dir: self.cache_dir(),
         }
+    }
+
+    /// The Sun's shape: `[run] sun`, else a disk wherever the Sun's distance, and with
+    /// it its angular size, is known at every step (spin and SPICE scenes, fixed Suns
+    /// given by their distance), else a point.
+    pub fn sun(&self) -> SunShape {
+        self.run.sun.unwrap_or(match &self.ephemeris {
+            EphemerisSection::Fixed(f) if f.sun.iter().any(|s| s.distance_au.is_none()) => {
+                SunShape::Point
+            }
+            _ => SunShape::Disk,
+        })
     }
 
     /// The folder cached horizon maps and form factors go to ([`crate::cache::dir_for`]).

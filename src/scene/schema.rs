@@ -77,8 +77,10 @@ pub struct RunSection {
     pub horizon_mode: HorizonMode,
     /// Azimuth wedges of a horizon map (default 128, 2.8° each; 8 to 4096).
     pub horizon_azimuths: u32,
-    /// The Sun as a "point" (default) or a "disk" (visible share above the horizon).
-    pub sun: SunShape,
+    /// The Sun as a "disk" (the visible share of the disk; the default wherever the
+    /// Sun's distance is known) or a "point" (the default for a fixed Sun given by its
+    /// flux alone, which has no angular size): [`super::Scene::sun`].
+    pub sun: Option<SunShape>,
     /// Linear limb-darkening coefficient of the disk Sun, 0 (uniform, default) to 1.
     pub limb_darkening: f64,
     /// Rays per facet through a disk Sun toward another body's mesh (default 32, 1 to
@@ -99,7 +101,7 @@ impl Default for RunSection {
             shadows: ShadowMethod::default(),
             horizon_mode: HorizonMode::default(),
             horizon_azimuths: DEFAULT_AZIMUTHS,
-            sun: SunShape::default(),
+            sun: None,
             limb_darkening: 0.0,
             sun_samples: DEFAULT_SUN_SAMPLES,
             cache_dir: None,

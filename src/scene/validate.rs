@@ -446,7 +446,7 @@ impl Scene {
             }
             match (s.distance_au, s.flux_w_m2) {
                 (Some(d), None) => positive(self, &key("distance_au"), d)?,
-                (None, Some(_)) if self.run.sun == SunShape::Disk => {
+                (None, Some(_)) if self.run.sun == Some(SunShape::Disk) => {
                     return Err(self.err(
                         key("flux_w_m2"),
                         "a disk Sun's size comes from its distance: give distance_au instead \

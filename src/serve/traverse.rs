@@ -275,7 +275,7 @@ pub fn answer(
         check_ends(&terrain, &rover, &facets)?;
     }
     let clock = Instant::now();
-    let light = Light::compute(scene, prepared, b, first_step, &limits.budget, progress)
+    let light = Light::compute(prepared, b, first_step, &limits.budget, progress)
         .map_err(|e| scene_error(&e))?;
     let light_s = clock.elapsed().as_secs_f64();
     let clock = Instant::now();
