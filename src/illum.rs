@@ -441,6 +441,10 @@ impl<'w> Direct<'w> {
         light: &Sunlight<'_>,
         rays: &[OwnRay],
     ) -> (Vec<f64>, StepCounts) {
+        if rays.is_empty() {
+            // Nothing to build: a Sun-view grid per sample is dear.
+            return (Vec::new(), StepCounts::default());
+        }
         let (shares, traced) = match &self.horizons[b] {
             OwnHorizon::Bound { bound, bvh } => {
                 self.disk_shares_by_cones(b, light, rays, (bound, bvh))

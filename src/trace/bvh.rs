@@ -5,7 +5,9 @@
 //! In: a mesh (metres, body frame). Out: [`Bvh::segment_blocked`] — whether the open
 //! segment from `a` to `b` crosses a facet other than the (up to two) facets it joins;
 //! as a [`Tracer`], whether a ray toward the Sun is blocked (a segment reaching past the
-//! tree); and [`Bvh::search`].
+//! tree); [`Bvh::search`]; the facets a cone of directions may reach
+//! ([`Bvh::near_cone`]), from which a ray within the cone is answered without the tree
+//! ([`BvhRays::blocked_among`]).
 //! The hit decision is the shared exact predicate of [`super::ray`] evaluated in the frame
 //! of the segment's direction, so a segment is classified exactly as a shadow ray of the
 //! other tracers would be. The tree is built with the binned surface-area heuristic;
