@@ -58,8 +58,7 @@ pub enum ConeView {
     Covered,
     /// Anything else: facets reach in without one covering it all. They are every facet
     /// a ray within the cone can cross (as the tracers' predicate decides, rounding
-    /// included), which can then answer it alone
-    /// ([`BvhRays::blocked_among`](crate::trace::bvh::BvhRays::blocked_among)).
+    /// included), which can then answer it alone (`BvhRays::blocked_among`).
     Partial(Vec<TreeSlot>),
 }
 
