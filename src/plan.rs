@@ -37,23 +37,29 @@ pub struct Plan {
 }
 
 impl Plan {
-    /// The plan for `scene` over `world` with `steps` steps.
-    pub fn new(scene: &Scene, world: &World, steps: usize) -> Plan {
-        let mut decisions = vec![Decision {
-            stage: "direct irradiance".into(),
-            runs: true,
-            reason: "E = S·max(0, n·s) at every facet centroid; facets facing away from the Sun \
-                     get E = 0 and no shadow ray"
-                .into(),
-        }];
-        let rays = match scene.sun() {
-            SunShape::Point => "one shadow ray per facet facing the Sun".to_string(),
-            SunShape::Disk => format!(
-                "shadow rays toward {} points of the disk (run.sun_samples) per facet that \
-                 sees part of it",
-                scene.run.sun_samples
-            ),
-        };
+    /// The plan for `scene` over `world` with `steps` steps, its shadows traced by
+    /// `tracer` (chosen, and why: [`crate::trace::choice::choose`]).
+    pub fn new(
+        scene: &Scene,
+        world: &World,
+        steps: usize,
+        (tracer, why): (TracerKind, String),
+    ) -> Plan {
+        let mut decisions = vec![
+            Decision {
+                stage: "direct irradiance".into(),
+                runs: true,
+                reason: "E = S·max(0, n·s) at every facet centroid; facets facing away from the \
+                         Sun get E = 0 and no shadow ray"
+                    .into(),
+            },
+            Decision {
+                stage: "shadow tracer".into(),
+                runs: true,
+                reason: why,
+            },
+        ];
+        let rays = own_rays(scene, tracer);
         for body in &world.bodies {
             decisions.push(if body.convex {
                 Decision {
@@ -116,10 +122,34 @@ impl Plan {
             bodies: world.bodies.len(),
             facets: world.facet_count(),
             steps,
-            tracer: scene.run.tracer.name().to_string(),
+            tracer: tracer.name().to_string(),
             decisions,
             memory: Estimate::default(),
         }
+    }
+}
+
+/// How a body's own shadows are found without a map: by rays, which the BVH tracer's
+/// horizon bound spares where the Sun (or the whole disk) stands above everything the
+/// facet sees, and for a disk its cone tests decide first.
+fn own_rays(scene: &Scene, tracer: TracerKind) -> String {
+    let bvh = tracer == TracerKind::Bvh;
+    match (scene.sun(), bvh) {
+        (SunShape::Point, false) => "one shadow ray per facet facing the Sun".to_string(),
+        (SunShape::Point, true) => "one shadow ray per facet facing the Sun below its horizon \
+                                    bound (tracer bvh)"
+            .to_string(),
+        (SunShape::Disk, false) => format!(
+            "shadow rays toward {} points of the disk (run.sun_samples) per facet that sees \
+             part of it",
+            scene.run.sun_samples
+        ),
+        (SunShape::Disk, true) => format!(
+            "per facet whose horizon bound the disk does not clear, the disk's cone through \
+             the tree (tracer bvh): clear, covered, or its {} sample rays (run.sun_samples) \
+             answered by the few facets reaching in",
+            scene.run.sun_samples
+        ),
     }
 }
 
@@ -175,25 +205,6 @@ impl Plan {
                 .position(|x| x.stage == format!("self-shadowing of {body}"))
                 .map_or(self.decisions.len(), |i| i + 1);
             self.decisions.insert(at, d);
-        }
-    }
-
-    /// Names the tracer the run takes and why, in place of the scene's `tracer` (which
-    /// may be `auto`), as the decision after the direct irradiance.
-    pub fn set_tracer(&mut self, (kind, reason): (TracerKind, String)) {
-        self.tracer = kind.name().to_string();
-        let decision = Decision {
-            stage: "shadow tracer".into(),
-            runs: true,
-            reason,
-        };
-        match self
-            .decisions
-            .iter()
-            .position(|d| d.stage == decision.stage)
-        {
-            Some(at) => self.decisions[at] = decision,
-            None => self.decisions.insert(1.min(self.decisions.len()), decision),
         }
     }
 

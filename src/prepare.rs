@@ -146,8 +146,6 @@ pub fn prepare(scene: &Scene, budget: &Budget, timings: &mut Timings) -> Result<
         .collect();
     let memory = demand.estimate();
     budget.check(&memory)?;
-    let mut plan = Plan::new(scene, world, states.len());
-    plan.set_horizon_maps(map_decisions);
     let (tracer, why) = choice::choose(
         scene.run.tracer,
         world,
@@ -155,7 +153,8 @@ pub fn prepare(scene: &Scene, budget: &Budget, timings: &mut Timings) -> Result<
         shadows.disk_samples(),
         &horizon_maps,
     );
-    plan.set_tracer((tracer, why));
+    let mut plan = Plan::new(scene, world, states.len(), (tracer, why));
+    plan.set_horizon_maps(map_decisions);
     if let Some(settings) = &scatter {
         plan.set_scatter(settings.decisions(world, &states));
     }
