@@ -2,8 +2,7 @@
 //!
 //! In: the world, the number of steps the run computes, the Sun's shape (a point, or a
 //! disk sampled by so many rays per facet) and which bodies take their own shadows from a
-//! horizon map. Out: a concrete [`TracerKind`] and the
-//! reason, for the plan.
+//! horizon map. Out: a concrete [`TracerKind`] and the reason, for the plan.
 //!
 //! Every tracer classifies every ray identically, so the choice changes run time only.
 //! The Sun-view tracer needs no setup but rebuilds its grid at every step; the BVH tracer
