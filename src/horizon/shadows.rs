@@ -353,15 +353,17 @@ mod tests {
     use crate::mesh::generate::floor_and_wall;
     use crate::mesh::{LengthUnit, Mesh};
 
+    /// A floor with a wall beside it: a body that shadows itself.
+    fn floor_and_wall_body() -> Body {
+        let mesh = Mesh::from_raw(floor_and_wall(3.0, 4.0, 50.0), LengthUnit::M);
+        Body::new("floor and wall", mesh, false)
+    }
+
     /// `auto` weighs a map's build against the rays it spares, which for a disk Sun are
     /// `sun_samples` per facet where a point Sun needs one.
     #[test]
     fn auto_builds_a_map_sooner_for_a_disk_sun_by_its_samples() {
-        let body = Body::new(
-            "floor and wall",
-            Mesh::from_raw(floor_and_wall(3.0, 4.0, 50.0), LengthUnit::M),
-            false,
-        );
+        let body = floor_and_wall_body();
         let auto = |sun, steps| {
             let shadows = Shadows {
                 method: ShadowMethod::Auto,
@@ -384,11 +386,7 @@ mod tests {
     /// cones make rays cheaper, a point Sun's most of all.
     #[test]
     fn auto_builds_a_map_later_when_the_bvh_would_trace() {
-        let body = Body::new(
-            "floor and wall",
-            Mesh::from_raw(floor_and_wall(3.0, 4.0, 50.0), LengthUnit::M),
-            false,
-        );
+        let body = floor_and_wall_body();
         let per_facet = build_s_per_facet(body.shadow_mesh().len());
         for (sun, saved) in [
             (SunShape::Point, SAVED_OVER_BVH.0),
