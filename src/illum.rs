@@ -64,7 +64,7 @@ pub struct Direct<'w> {
     world: &'w World,
     tracers: Vec<Box<dyn Tracer + 'w>>,
     /// Per body, what spares or replaces its own shadow rays.
-    horizons: Vec<OwnHorizon>,
+    horizons: Vec<OwnHorizon<'w>>,
     sun: SunShape,
     disk: SolarDisk,
     /// Equal-flux points of the disk (units of its radius) that sample the share a mesh
@@ -78,12 +78,15 @@ pub struct Direct<'w> {
 }
 
 /// What a body knows of its horizon.
-enum OwnHorizon {
+enum OwnHorizon<'w> {
     /// Nothing: a ray per facet facing the Sun.
     None,
     /// The horizon bound of the BVH tracer: no ray for a Sun above it; with the tree
     /// (shared with the tracer), what a facet sees of a disk Sun's cone.
-    Bound { bound: HorizonBound, bvh: Arc<Bvh> },
+    Bound {
+        bound: HorizonBound,
+        bvh: Arc<Bvh<'w>>,
+    },
     /// A horizon map: no ray where it is certain (`exact`), or none at all.
     Map { map: HorizonMap, exact: bool },
 }
@@ -167,7 +170,7 @@ impl<'w> Direct<'w> {
     fn assemble(
         world: &'w World,
         tracers: Vec<Box<dyn Tracer + 'w>>,
-        horizons: Vec<OwnHorizon>,
+        horizons: Vec<OwnHorizon<'w>>,
         shadows: &Shadows,
     ) -> Direct<'w> {
         Direct {

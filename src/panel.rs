@@ -83,7 +83,7 @@ impl PanelLight {
 
 /// A place above the surface with its horizon.
 pub struct Site<'a> {
-    bvh: &'a Bvh,
+    bvh: &'a Bvh<'a>,
     point: DVec3,
     up: DVec3,
     north: DVec3,
@@ -98,7 +98,7 @@ impl<'a> Site<'a> {
     /// is `bvh`. Errors when the height is not positive or the point is the origin.
     pub fn new(
         mesh: &Mesh,
-        bvh: &'a Bvh,
+        bvh: &'a Bvh<'a>,
         surface_m: DVec3,
         height_m: f64,
     ) -> Result<Site<'a>, String> {
@@ -109,7 +109,7 @@ impl<'a> Site<'a> {
     /// caller that answers many queries), or `None` to build it.
     pub fn with_horizon(
         mesh: &Mesh,
-        bvh: &'a Bvh,
+        bvh: &'a Bvh<'a>,
         surface_m: DVec3,
         height_m: f64,
         horizon: Option<PointHorizon>,

@@ -27,7 +27,7 @@
 use super::geometry::{box_bound, distance_to_triangle, rounding_widening, triangle_bound};
 use super::map::in_seeded_runs;
 use crate::mesh::Mesh;
-use crate::trace::bvh::{Bvh, TreeSlot};
+use crate::trace::bvh::{round_up, Bvh};
 use glam::DVec3;
 use std::cell::{Cell, RefCell};
 
@@ -43,7 +43,9 @@ const SIN_MARGIN: f64 = 1e-9;
 /// Per facet, the sine of the highest elevation of any other facet seen from its centroid.
 #[derive(Debug, Clone)]
 pub struct HorizonBound {
-    sin_max: Vec<f64>,
+    /// Rounded up to `f32`: half the memory, and the bound stays a bound (the search
+    /// leaves it up to `SEARCH_SLACK` high anyway).
+    sin_max: Vec<f32>,
     /// How far triangles are widened against the exact predicate's rounding (m).
     widening: f64,
 }
@@ -59,7 +61,7 @@ pub enum ConeView {
     /// Anything else: facets reach in without one covering it all. They are every facet
     /// a ray within the cone can cross (as the tracers' predicate decides, rounding
     /// included), which can then answer it alone (`BvhRays::blocked_among`).
-    Partial(Vec<TreeSlot>),
+    Partial(Vec<u32>),
 }
 
 impl HorizonBound {
@@ -71,7 +73,8 @@ impl HorizonBound {
         // search prunes.
         let widening = rounding_widening(mesh);
         let sin_max = in_seeded_runs(0..receivers, |i, &seed| {
-            facet_bound(mesh, bvh, i, widening, seed)
+            let (sin, setter) = facet_bound(mesh, bvh, i, widening, seed);
+            (round_up(sin), setter)
         });
         HorizonBound { sin_max, widening }
     }
@@ -96,7 +99,7 @@ impl HorizonBound {
         let covered = Cell::new(false);
         // The triangles reaching into the cone, and where the tree keeps them.
         let reaching = RefCell::new(Vec::new());
-        let slots = RefCell::new(Vec::new());
+        let ids = RefCell::new(Vec::new());
         // A triangle's elevation sine above the plane across `axis` is the cosine of its
         // least angle from `axis`: what the bound's geometry computes exactly.
         let tan_half = half_angle.tan();
@@ -117,14 +120,14 @@ impl HorizonBound {
                 )
         };
         // The tree's boxes are padded far beyond the widening (`Bvh`'s box margin).
-        bvh.near_cone(c, axis, tan_half, |slot, tri| {
-            if slot.id() as usize != i
+        bvh.near_cone(c, axis, tan_half, |id, tri| {
+            if id as usize != i
                 && may_reach_cone(c, (axis, tan_half), down, tri, self.widening)
                 && triangle_bound(c, axis, tri, self.widening, cos_half) > cos_half
             {
                 covered.set(cover(&[tri], tri));
                 reaching.borrow_mut().push(*tri);
-                slots.borrow_mut().push(slot);
+                ids.borrow_mut().push(id);
             }
             covered.get()
         });
@@ -144,7 +147,7 @@ impl HorizonBound {
         if paired {
             ConeView::Covered
         } else {
-            ConeView::Partial(slots.into_inner())
+            ConeView::Partial(ids.into_inner())
         }
     }
 
@@ -152,12 +155,12 @@ impl HorizonBound {
     /// everything else of the body seen from its centroid: its shadow ray is unblocked.
     #[inline]
     pub fn clears(&self, i: usize, sin_elevation: f64) -> bool {
-        sin_elevation > self.sin_max[i] + SIN_MARGIN
+        sin_elevation > self.sin_max[i] as f64 + SIN_MARGIN
     }
 
-    /// Per facet, the sine of the highest elevation (for tests and reports).
-    pub fn sin_max(&self) -> &[f64] {
-        &self.sin_max
+    /// Facet `i`'s bound: the sine of the highest elevation (for tests and reports).
+    pub fn sin_max(&self, i: usize) -> f64 {
+        self.sin_max[i] as f64
     }
 }
 
@@ -290,9 +293,11 @@ mod tests {
         for i in 0..2 {
             let c = mesh.centroids[i];
             let expected = h / (h * h + (wall_x - c.x).powi(2)).sqrt();
-            let got = bound.sin_max()[i];
+            let got = bound.sin_max(i);
+            // Stored rounded up to `f32`: up to one unit in its last place above.
+            let most = (expected + SEARCH_SLACK + 1e-9) * (1.0 + f32::EPSILON as f64);
             assert!(
-                got >= expected && got <= expected + SEARCH_SLACK + 1e-9,
+                got >= expected && got <= most,
                 "facet {i}: bound {got}, closed form {expected}"
             );
             // A Sun just above the wall's top is cleared, one just below it is not.
@@ -395,7 +400,7 @@ mod tests {
     fn a_convex_body_hides_nothing_above_any_facets_plane() {
         let mesh = Mesh::from_raw(icosphere(3, 1.0, DVec3::new(5e3, 0.0, 0.0)), LengthUnit::Km);
         let bound = HorizonBound::new(&mesh, mesh.len(), &Bvh::build(&mesh));
-        let worst = bound.sin_max().iter().fold(0.0f64, |m, &s| m.max(s));
+        let worst = (0..mesh.len()).fold(0.0f64, |m, i| m.max(bound.sin_max(i)));
         // Nothing rises above a face of a convex solid: only the search's slack remains.
         assert!(worst <= SEARCH_SLACK + 1e-6, "{worst}");
     }

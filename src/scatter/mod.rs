@@ -705,7 +705,7 @@ pub struct Scatter<'w> {
     world: &'w World,
     settings: Settings,
     method: SolverKind,
-    bvhs: Vec<Bvh>,
+    bvhs: Vec<Bvh<'w>>,
     offsets: Vec<usize>,
     own: Vec<Csr>,
     own_row_sums: Vec<f64>,

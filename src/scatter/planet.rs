@@ -87,7 +87,7 @@ struct Kernel {
 /// A receiving body: its mesh and what can hide the planet from its facets.
 pub struct Receiver<'a> {
     pub mesh: &'a Mesh,
-    pub bvh: &'a Bvh,
+    pub bvh: &'a Bvh<'a>,
     /// `None` for a closed convex body, which hides nothing above a facet's plane.
     pub bound: Option<&'a HorizonBound>,
 }

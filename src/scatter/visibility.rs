@@ -23,7 +23,7 @@ use rayon::prelude::*;
 /// A body that can hide one facet from another: its tree and the transform from the
 /// frame the pairs are computed in to its own frame.
 pub struct Occluder<'a> {
-    pub bvh: &'a Bvh,
+    pub bvh: &'a Bvh<'a>,
     pub to_own: FrameTransform,
     /// This body holds the pair's row facet (skipped as an occluder of its own pair).
     pub holds_rows: bool,

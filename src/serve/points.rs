@@ -408,7 +408,7 @@ struct Engine<'w> {
     direct: Direct<'w>,
     /// Each body's tree over its shadow mesh (with its surroundings): the facets' shadow
     /// rays, and the horizons of panels and facets.
-    bvhs: &'w [Bvh],
+    bvhs: &'w [Bvh<'w>],
     /// The scene's Sun: a disk (with its limb darkening) or a point.
     disk: Option<SolarDisk>,
     /// Every facet's albedo when the scene scatters light ([`Light::albedo`]).
@@ -459,7 +459,7 @@ fn engine(dir: &Path, scene: &SceneText, budget: &Budget, asks: mpsc::Receiver<A
 }
 
 /// Each body's tree over its shadow mesh, in scene order.
-fn body_trees(world: &World) -> Vec<Bvh> {
+fn body_trees(world: &World) -> Vec<Bvh<'_>> {
     world
         .bodies
         .iter()
@@ -513,7 +513,7 @@ pub fn answer_scene_file(scene: &Path, request: &PointsRequest) -> crate::Result
 impl<'w> Engine<'w> {
     fn new(
         world: &'w World,
-        bvhs: &'w [Bvh],
+        bvhs: &'w [Bvh<'w>],
         ephemeris: &'w dyn Ephemeris,
         light: Light,
     ) -> Engine<'w> {
