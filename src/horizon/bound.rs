@@ -25,9 +25,9 @@
 //! little faster than the facet count. Memory: 8 bytes per facet.
 
 use super::geometry::{box_bound, distance_to_triangle, rounding_widening, triangle_bound};
-use super::map::in_seeded_runs;
+use super::map::{f32_at_least, in_seeded_runs};
 use crate::mesh::Mesh;
-use crate::trace::bvh::{round_up, Bvh};
+use crate::trace::bvh::Bvh;
 use glam::DVec3;
 use std::cell::{Cell, RefCell};
 
@@ -74,7 +74,7 @@ impl HorizonBound {
         let widening = rounding_widening(mesh);
         let sin_max = in_seeded_runs(0..receivers, |i, &seed| {
             let (sin, setter) = facet_bound(mesh, bvh, i, widening, seed);
-            (round_up(sin), setter)
+            (f32_at_least(sin), setter)
         });
         HorizonBound { sin_max, widening }
     }

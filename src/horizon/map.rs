@@ -308,7 +308,7 @@ fn ceiling<'a>(cells: impl Iterator<Item = &'a [u16; 2]>) -> f64 {
 }
 
 /// The least f32 at or above `v` (a sine in (0, 1], or infinite).
-fn f32_at_least(v: f64) -> f32 {
+pub(super) fn f32_at_least(v: f64) -> f32 {
     let rounded = v as f32;
     if (rounded as f64) < v {
         // The next f32 up: positive floats order as their bits.

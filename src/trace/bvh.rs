@@ -634,7 +634,7 @@ fn round_down(x: f64) -> f32 {
 }
 
 /// An `f32` not below `x`.
-pub(crate) fn round_up(x: f64) -> f32 {
+fn round_up(x: f64) -> f32 {
     -round_down(-x)
 }
 
