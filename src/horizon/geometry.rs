@@ -28,12 +28,14 @@ pub(crate) fn rounding_widening(mesh: &Mesh) -> f64 {
 
 /// An upper bound of the elevation sine from `c` (plane normal `n`) of every point of the
 /// box `lo..hi` widened by `widening`; 0 when the box lies on or below the plane.
+#[inline]
 pub(crate) fn box_bound(c: DVec3, n: DVec3, lo: DVec3, hi: DVec3, widening: f64) -> f64 {
     signed_box_bound(c, n, lo, hi, widening).max(0.0)
 }
 
 /// [`box_bound`] below the plane too (down to −1): a box wholly below it is bounded by
 /// its highest rise over its farthest corner's distance.
+#[inline]
 pub(crate) fn signed_box_bound(c: DVec3, n: DVec3, lo: DVec3, hi: DVec3, widening: f64) -> f64 {
     let (lo, hi) = (lo - widening, hi + widening);
     let mid = (lo + hi) * 0.5;
@@ -58,6 +60,7 @@ pub(crate) fn signed_box_bound(c: DVec3, n: DVec3, lo: DVec3, hi: DVec3, widenin
 /// `widening` of triangle `tri`: the exact maximum over the triangle plus `widening` over
 /// the distance to it, or anything not above `threshold` when a cheap bound (the
 /// triangle's box) shows that it is not higher.
+#[inline]
 pub(crate) fn triangle_bound(
     c: DVec3,
     n: DVec3,
@@ -96,6 +99,7 @@ pub(crate) fn directions_max_sin(n: DVec3, corners: [DVec3; 3]) -> f64 {
 /// not contain): 1 when `n` points into the polygon's cone, else the highest of its edges'
 /// arcs. (The maximum of `n·u` over a spherically convex region not holding `n` lies on
 /// its boundary.)
+#[inline]
 pub(crate) fn polygon_max_sin(n: DVec3, dirs: &[DVec3]) -> f64 {
     if normal_in_cone(n, dirs) {
         return 1.0;
@@ -128,6 +132,7 @@ fn normal_in_cone(n: DVec3, dirs: &[DVec3]) -> bool {
 /// The largest `n·u` over the unit directions `u` of the segment between the directions
 /// of unit vectors `ua` and `ub` (seen from the origin): an end, or the top of the
 /// great-circle arc between them. A segment through the origin gives 1.
+#[inline]
 pub(crate) fn arc_max_sin(n: DVec3, ua: DVec3, ub: DVec3) -> f64 {
     let ends = n.dot(ua).max(n.dot(ub));
     let k = ua.cross(ub);

@@ -312,11 +312,7 @@ impl<'m> Bvh<'m> {
         }
         Some(Segment {
             screened: Screened::new(a, b, self.centre, self.reach),
-            q: frame.project(a),
-            frame,
-            t0,
-            t1,
-            skip,
+            exact: Exact::new(a, frame, (t0, t1), skip),
             slab: Slab::new(start.as_vec3(), inv, t0 - tc, t1 - tc),
         })
     }
@@ -337,9 +333,15 @@ impl<'m> Bvh<'m> {
         if self.quads.is_empty() {
             return None;
         }
-        let length = (a - self.centre).length() + self.radius + 2.0 * t_min;
+        let length = self.ray_length(a, t_min);
         let b = a + toward.frame.dir() * length;
         self.along(a, b, toward, t_min, length - t_min, skip)
+    }
+
+    /// How long the segment standing for a ray from `a` is: past the tree's bounding
+    /// sphere by twice `t_min`.
+    fn ray_length(&self, a: DVec3, t_min: f64) -> f64 {
+        (a - self.centre).length() + self.radius + 2.0 * t_min
     }
 
     /// True if a facet of `leaf` blocks the segment.
@@ -349,17 +351,20 @@ impl<'m> Bvh<'m> {
         while lanes != 0 {
             let k = lanes.trailing_zeros() as usize;
             lanes &= lanes - 1;
-            if !s.skip.contains(&leaf.ids[k]) && self.crosses(s, leaf.ids[k]) {
+            if self.crosses(&s.exact, leaf.ids[k]) {
                 return true;
             }
         }
         false
     }
 
-    /// The exact predicate for facet `id` and the segment, with the hit distance bounded
-    /// on both sides.
+    /// The exact predicate for facet `id` (false for a facet left out) and the segment,
+    /// with the hit distance bounded on both sides.
     #[inline]
-    fn crosses(&self, s: &Segment, id: u32) -> bool {
+    fn crosses(&self, s: &Exact, id: u32) -> bool {
+        if s.skip.contains(&id) {
+            return false;
+        }
         let corners = self.mesh.corners(id as usize).map(|p| s.frame.project(p));
         let normal = s.frame.project(self.mesh.normals[id as usize]);
         let t = DepthPlane::new(normal, corners[0]).distance(s.q);
@@ -423,13 +428,12 @@ impl<'b> BvhRays<'b> {
         skip: u32,
         among: &[u32],
     ) -> bool {
+        // Only the exact tests: the boxes and screens that `ray` would also prepare
+        // decide nothing here, and a ray missing the tree's sphere crosses no facet.
         let bvh = self.bvh;
-        bvh.ray(origin, &self.toward, t_min, [skip, u32::MAX])
-            .is_some_and(|s| {
-                among
-                    .iter()
-                    .any(|&id| !s.skip.contains(&id) && bvh.crosses(&s, id))
-            })
+        let t1 = bvh.ray_length(origin, t_min) - t_min;
+        let exact = Exact::new(origin, self.toward.frame, (t_min, t1), [skip, u32::MAX]);
+        among.iter().any(|&id| bvh.crosses(&exact, id))
     }
 }
 
@@ -567,14 +571,32 @@ impl ConeSlab {
 /// A segment prepared for the box tests, the screen and the exact facet tests.
 struct Segment {
     screened: Screened,
+    exact: Exact,
+    slab: Slab,
+}
+
+/// A segment as the exact predicate sees it.
+struct Exact {
     frame: RayFrame,
-    /// `a` in `frame`.
+    /// The segment's start in `frame`.
     q: DVec3,
     /// The range of hit distances that count (m).
     t0: f64,
     t1: f64,
+    /// Facets left out.
     skip: [u32; 2],
-    slab: Slab,
+}
+
+impl Exact {
+    fn new(a: DVec3, frame: RayFrame, (t0, t1): (f64, f64), skip: [u32; 2]) -> Exact {
+        Exact {
+            frame,
+            q: frame.project(a),
+            t0,
+            t1,
+            skip,
+        }
+    }
 }
 
 /// A segment as the `f32` box tests see it, each value in all four lanes: origin

@@ -8,7 +8,7 @@
 //! The Sun-view tracer needs no setup but rebuilds its grid at every step; the BVH tracer
 //! builds once a tree and, for each body that shadows itself without a map, a horizon
 //! bound, which then spares most rays (and under a disk Sun most of the samples' rays,
-//! by its cone tests). The bound is what costs: about 30 µs of CPU per facet at 49k
+//! by its cone tests). The bound is what costs: about 25 µs of CPU per facet at 49k
 //! facets, growing with the square root of the facets that cast shadows. So the BVH is
 //! taken when the run's steps spare more than that, counted on one core as measured with
 //! `cargo run --release --example bench_direct -- MESH --threads 1` (2026-11-26, 2-core
@@ -16,8 +16,11 @@
 //!
 //! | mesh | bound, s | Sun-view, ms/step | BVH, ms/step | point Sun: saved per facet-step | disk, 32 samples: Sun-view, BVH (ms/step) |
 //! |---|---:|---:|---:|---:|---:|
-//! | m1phobos, 32,070 | 1.14 | 7.32 | 2.36 | 0.155 µs | 252, 18.2 |
-//! | Itokawa, 49,152 | 1.41 | 9.87 | 3.60 | 0.128 µs | 324, 21.2 |
+//! | m1phobos, 32,070 | 0.96 | 7.32 | 2.36 | 0.155 µs | 252, 18.2 |
+//! | Itokawa, 49,152 | 1.17 | 9.87 | 3.60 | 0.128 µs | 324, 21.2 |
+//!
+//! (The bounds as built since the tree reads the mesh's own facets, in runs paired with
+//! the version before, which took 1.105 and 1.40 s.)
 //!
 //! The model takes the lower saving, so that a run near the break-even keeps the tracer
 //! that needs no setup. With two cores the BVH gains more (its steps scale better than
@@ -28,11 +31,11 @@ use crate::world::{Body, World};
 
 /// CPU seconds per facet of the BVH's tree and horizon bound over `casters` facets: a
 /// fixed part and one growing as √N (the triangles that set a horizon lie along a line
-/// across the mesh). 33 µs at 32k facets, 35 µs at 49k, 65 µs at 786k; the runs of
-/// `bench/peers/run --tracer bvh` (docs/performance.md) took 31 µs at 49k, about 72 µs
-/// at 786k and 97 µs at 3.1M.
+/// across the mesh). 27 µs at 32k facets, 28 µs at 49k, 36 µs at 786k; measured 30 µs
+/// on m1phobos (32k), 24 µs at 49k, and in a run of `bench/peers/run --tracer bvh`
+/// (docs/performance.md, 2026-11-26) 31 µs at 786k and 36 µs at 3.1M.
 fn bound_s_per_facet(casters: usize) -> f64 {
-    25e-6 + 0.045e-6 * (casters as f64).sqrt()
+    25e-6 + 0.012e-6 * (casters as f64).sqrt()
 }
 
 /// CPU seconds the BVH spares over the Sun-view tracer per facet and step: one ray's
