@@ -12,11 +12,12 @@
 //! of the segment's direction, so a segment is classified exactly as a shadow ray of the
 //! other tracers would be. The tree is built with the binned surface-area heuristic;
 //! leaves hold at most [`LEAF_SIZE`] facets. The tree borrows the mesh, whose `f64`
-//! facets the exact tests read; it keeps only its `f32` boxes and leaf screens. For traversal the binary tree is collapsed
-//! into one of four children per node, whose boxes are stored in `f32` by axis (one
-//! child per SIMD lane), relative to the mesh's centre and rounded outward with a margin
-//! far above `f32` rounding, so the box tests can only let through more, never fewer,
-//! segments than exact ones would; facets are then screened in `f32` and tested in `f64`.
+//! facets the exact tests read; it keeps only its `f32` boxes and leaf screens. For
+//! traversal the binary tree is collapsed into one of four children per node, whose
+//! boxes are stored in `f32` by axis (one child per SIMD lane), relative to the mesh's
+//! centre and rounded outward with a margin far above `f32` rounding, so the box tests
+//! can only let through more, never fewer, segments than exact ones would; facets are
+//! then screened in `f32` and tested in `f64`.
 
 use super::ray::{inside, DepthPlane, RayFrame};
 use super::{caster_facets, ShadowQuery, Tracer};
