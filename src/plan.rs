@@ -5,7 +5,7 @@
 //! scene pays only for what it needs.
 
 use crate::budget::Estimate;
-use crate::horizon::SunShape;
+use crate::horizon::{HorizonMode, SunShape};
 use crate::scene::Scene;
 use crate::trace::TracerKind;
 use crate::world::World;
@@ -38,12 +38,14 @@ pub struct Plan {
 
 impl Plan {
     /// The plan for `scene` over `world` with `steps` steps, its shadows traced by
-    /// `tracer` (chosen, and why: [`crate::trace::choice::choose`]).
+    /// `tracer` (chosen, and why: [`crate::trace::choice::choose`]); `maps[b]` says
+    /// whether body `b` takes its own shadows from a horizon map.
     pub fn new(
         scene: &Scene,
         world: &World,
         steps: usize,
         (tracer, why): (TracerKind, String),
+        maps: &[bool],
     ) -> Plan {
         let mut decisions = vec![
             Decision {
@@ -59,8 +61,8 @@ impl Plan {
                 reason: why,
             },
         ];
-        let rays = own_rays(scene, tracer);
-        for body in &world.bodies {
+        for (body, &mapped) in world.bodies.iter().zip(maps) {
+            let rays = own_shadows(scene, tracer, mapped);
             decisions.push(if body.convex {
                 Decision {
                     stage: format!("self-shadowing of '{}'", body.name),
@@ -126,6 +128,18 @@ impl Plan {
             decisions,
             memory: Estimate::default(),
         }
+    }
+}
+
+/// How a body's own shadows are found with a horizon map (`mapped`), or else by rays.
+fn own_shadows(scene: &Scene, tracer: TracerKind, mapped: bool) -> String {
+    let shadows = scene.shadows();
+    match (mapped, scene.sun(), shadows.mode) {
+        (false, ..) => own_rays(scene, tracer),
+        (true, SunShape::Point, HorizonMode::Exact) => "from its horizon map (next line), with \
+             a ray, through a BVH, only where the map is not certain"
+            .into(),
+        (true, ..) => "from its horizon map (next line), without rays".into(),
     }
 }
 

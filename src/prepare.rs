@@ -153,7 +153,7 @@ pub fn prepare(scene: &Scene, budget: &Budget, timings: &mut Timings) -> Result<
         shadows.disk_samples(),
         &horizon_maps,
     );
-    let mut plan = Plan::new(scene, world, states.len(), (tracer, why));
+    let mut plan = Plan::new(scene, world, states.len(), (tracer, why), &horizon_maps);
     plan.set_horizon_maps(map_decisions);
     if let Some(settings) = &scatter {
         plan.set_scatter(settings.decisions(world, &states));

@@ -137,6 +137,42 @@ fn run_succeeds_writes_run_json_and_draws_no_bar_when_not_a_terminal() {
     );
 }
 
+/// A body whose own shadows come from a horizon map says so in the plan's self-shadowing
+/// line, with the rays the map leaves, instead of promising a ray per facet.
+#[test]
+fn the_plan_says_when_a_horizon_map_decides_a_bodys_own_shadows() {
+    let dir = TempDir::new("plan-map");
+    let base = std::fs::read_to_string(write_scene(&dir, "ito.toml")).unwrap();
+    for (mode, says) in [
+        ("exact", "only where the map is not certain"),
+        ("approximate", "without rays"),
+    ] {
+        let scene = dir.join(&format!("{mode}.toml"));
+        let run = format!(
+            "[run]\nsun = \"point\"\nshadows = \"horizon\"\nhorizon_mode = \"{mode}\"\n\
+             cache_dir = \"cache\"\n\n"
+        );
+        std::fs::write(&scene, run + &base).unwrap();
+        let out_dir = dir.join(mode);
+        let out = slim(&["run", s(&scene), "-o", s(&out_dir), "-q"], &dir.0);
+        assert!(out.status.success(), "{mode}: {}", text(&out.stderr));
+        let record: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(out_dir.join("run.json")).unwrap()).unwrap();
+        let decisions = record["plan"]["decisions"].as_array().unwrap();
+        let own = decisions
+            .iter()
+            .find(|d| d["stage"] == "self-shadowing of 'itokawa'")
+            .expect("a self-shadowing decision")["reason"]
+            .as_str()
+            .unwrap();
+        assert!(
+            own.contains("horizon map") && own.contains(says),
+            "{mode}: {own}"
+        );
+        assert!(!own.contains("ray per facet"), "{mode}: {own}");
+    }
+}
+
 #[test]
 fn quiet_run_prints_nothing() {
     let dir = TempDir::new("quiet");
