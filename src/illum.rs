@@ -612,6 +612,7 @@ impl<'w> Direct<'w> {
         // Facets whose map cells decide, with where the Sun stands in their sky.
         let mut pending = Vec::new();
         let normals = &mesh.normals[first..first + values.len()];
+        let sun = self.sun;
         // The cosines first, in a loop of their own: most facets need nothing else.
         for (e, normal) in values.iter_mut().zip(normals) {
             *e = normal.dot(sky.sun);
@@ -628,7 +629,7 @@ impl<'w> Direct<'w> {
                 OwnHorizon::Map { map, exact } => {
                     // A point Sun above the facet's whole horizon, or above the octant of
                     // azimuth it stands in, needs no lookup.
-                    let at = match self.sun {
+                    let at = match sun {
                         SunShape::Point if map.above_all(i, cos) => None,
                         SunShape::Point => map.locate(i, normals[k], sky.sun, cos),
                         SunShape::Disk => Some(map.position(normals[k], sky.sun, cos)),
@@ -647,7 +648,7 @@ impl<'w> Direct<'w> {
                 }
                 // The facet's own plane; then, unless nothing else can rise into the
                 // disk, its samples' rays (`shade`).
-                _ if self.sun == SunShape::Disk => {
+                _ if sun == SunShape::Disk => {
                     *e = sky.flux * self.disk_share(cos, PLANE, sky.radius);
                     let cleared = self.disk_clears_own(b, i, cos, sky.radius);
                     if *e == 0.0 {

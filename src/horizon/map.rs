@@ -361,10 +361,15 @@ fn atan2_within(y: f64, x: f64) -> f64 {
 #[inline]
 fn between_centres(azimuths: u32, at: &SkyPosition, centre: impl Fn(usize) -> f64) -> LocalHorizon {
     let a = azimuths as usize;
-    let below = at.between.floor();
+    // `between` lies in [−½, A − ½): the wedge below is −1 (the last) to A − 1. Its floor
+    // is a truncation where it is not negative (a libm call, `floor`, cost more).
+    let (below, k0) = if at.between < 0.0 {
+        (-1.0, a - 1)
+    } else {
+        let k = at.between as usize;
+        (k as f64, k)
+    };
     let t = at.between - below;
-    // `between` lies in [−½, A − ½): the wedge below is −1 (the last) to A − 1.
-    let k0 = if below < 0.0 { a - 1 } else { below as usize };
     let k1 = if k0 + 1 == a { 0 } else { k0 + 1 };
     let (h0, h1) = (centre(k0), centre(k1));
     LocalHorizon {
