@@ -18,7 +18,7 @@
 
 use crate::ephemeris::EpochState;
 use crate::error::{Error, Result};
-use crate::horizon::bound::{ConeView, HorizonBound};
+use crate::horizon::bound::{Cone, ConeView, HorizonBound};
 use crate::horizon::disk::SolarDisk;
 use crate::horizon::eclipse::Ellipsoid;
 use crate::horizon::map::{HorizonMap, LocalHorizon, SkyPosition};
@@ -479,7 +479,7 @@ impl<'w> Direct<'w> {
                 (s, BvhRays::new(bvh, s))
             })
             .collect();
-        let cone = (light.sun, light.radius);
+        let cone = Cone::new(light.sun, light.radius);
         let (shares, answered): (Vec<f64>, Vec<u64>) = rays
             .par_iter()
             .map(|r| {
@@ -492,7 +492,7 @@ impl<'w> Direct<'w> {
                     true => self.t_min(b, i, lowest),
                     false => f64::INFINITY,
                 };
-                match bound.cone_view(body.shadow_mesh(), bvh, i, cone, beyond) {
+                match bound.cone_view(body.shadow_mesh(), bvh, i, &cone, beyond) {
                     ConeView::Clear => (1.0, 0),
                     ConeView::Covered => (0.0, 0),
                     ConeView::Partial(among) => {

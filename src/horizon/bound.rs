@@ -50,6 +50,28 @@ pub struct HorizonBound {
     widening: f64,
 }
 
+/// A cone of directions (a disk Sun's): its unit axis and its half-angle's cosine, sine
+/// and tangent, taken once for every facet that looks at it.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Cone {
+    axis: DVec3,
+    cos_half: f64,
+    sin_half: f64,
+    tan_half: f64,
+}
+
+impl Cone {
+    /// The directions within `half_angle` (radians) of the unit `axis`.
+    pub fn new(axis: DVec3, half_angle: f64) -> Cone {
+        Cone {
+            axis,
+            cos_half: half_angle.cos(),
+            sin_half: half_angle.sin(),
+            tan_half: half_angle.tan(),
+        }
+    }
+}
+
 /// What a facet's centroid sees of a narrow cone of directions (a disk Sun).
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub enum ConeView {
@@ -79,8 +101,7 @@ impl HorizonBound {
         HorizonBound { sin_max, widening }
     }
 
-    /// What facet `i`'s centroid sees of the cone of directions within `half_angle`
-    /// (radians) of the unit `axis`, through the other facets of `mesh` (the one `bvh`
+    /// What facet `i`'s centroid sees of the `cone` of directions, through the other facets of `mesh` (the one `bvh`
     /// and the bound were built over): [`ConeView::Covered`] only by a facet farther
     /// than `beyond` metres. Exact up to the rounding of the ray predicate, which every
     /// triangle is widened by (so a clear cone is clear, a covered one covered, for the
@@ -90,19 +111,22 @@ impl HorizonBound {
         mesh: &Mesh,
         bvh: &Bvh,
         i: usize,
-        cone: (DVec3, f64),
+        cone: &Cone,
         beyond: f64,
     ) -> ConeView {
-        let (axis, half_angle) = cone;
+        let Cone {
+            axis,
+            cos_half,
+            sin_half,
+            tan_half,
+        } = *cone;
         let c = mesh.centroids[i];
-        let (cos_half, sin_half) = (half_angle.cos(), half_angle.sin());
         let covered = Cell::new(false);
         // The triangles reaching into the cone, and where the tree keeps them.
         let reaching = RefCell::new(Vec::new());
         let ids = RefCell::new(Vec::new());
         // A triangle's elevation sine above the plane across `axis` is the cosine of its
         // least angle from `axis`: what the bound's geometry computes exactly.
-        let tan_half = half_angle.tan();
         // Across the axis, toward the facet's plane: where its neighbours lie.
         let n = mesh.normals[i];
         let down = -(n - axis * n.dot(axis)).normalize_or_zero();
@@ -321,7 +345,9 @@ mod tests {
         // Toward the wall at height z above the floor, straight across.
         let toward = |z: f64| DVec3::new(d, 0.0, z).normalize();
         let rho = 0.005;
-        let view = |z: f64, beyond: f64| bound.cone_view(&mesh, &bvh, 0, (toward(z), rho), beyond);
+        let view = |z: f64, beyond: f64| {
+            bound.cone_view(&mesh, &bvh, 0, &Cone::new(toward(z), rho), beyond)
+        };
         assert_eq!(view(h + 0.1, 0.0), ConeView::Clear);
         assert_eq!(view(h - 0.2, 0.0), ConeView::Covered);
         assert!(matches!(view(h, 0.0), ConeView::Partial(_)));
@@ -354,7 +380,7 @@ mod tests {
             let half = 0.002 + 0.05 * rng.unit();
             let axis = (n * 0.1 + DVec3::new(rng.unit() - 0.5, rng.unit() - 0.5, rng.unit() * 0.6))
                 .normalize();
-            let view = bound.cone_view(&mesh, &bvh, i, (axis, half), 1e-6);
+            let view = bound.cone_view(&mesh, &bvh, i, &Cone::new(axis, half), 1e-6);
             seen[match view {
                 ConeView::Clear => 0,
                 ConeView::Covered => 1,
