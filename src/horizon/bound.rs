@@ -267,11 +267,17 @@ const PAIRED_MAX: usize = 8;
 /// `spare` (a sine) more to each edge: the axis lies inside each plane through `c` and
 /// an edge by more than both. The corners must lie less than 90° from the axis, so that
 /// their directions keep their order on the plane tangent there, where turning the same
-/// way at every corner makes the polygon convex.
+/// way at every corner makes the polygon convex. At most four corners.
 fn covers(c: DVec3, cone: (DVec3, f64), outline: &[DVec3], spare: f64) -> bool {
     let (axis, sin_half) = cone;
-    let u: Vec<DVec3> = outline.iter().map(|&p| (p - c).normalize()).collect();
-    let k = u.len();
+    // A triangle or a quadrilateral: the directions kept on the stack.
+    assert!(outline.len() <= 4, "covers takes 3 or 4 corners");
+    let mut directions = [DVec3::ZERO; 4];
+    let k = outline.len();
+    for (d, &p) in directions.iter_mut().zip(outline) {
+        *d = (p - c).normalize();
+    }
+    let u = &directions[..k];
     let turn = |j: usize| u[j].dot(u[(j + 1) % k].cross(u[(j + 2) % k]));
     let orientation = turn(0);
     if orientation == 0.0 || !orientation.is_finite() || u.iter().any(|d| axis.dot(*d) <= 0.0) {
