@@ -562,7 +562,13 @@ impl<'w> Direct<'w> {
                 chunks[c].push(part);
             }
         }
-        let by_chunk: Vec<Vec<(StepCounts, Vec<OwnRay>)>> = chunks
+        let nothing = || {
+            skies
+                .iter()
+                .map(|_| (StepCounts::default(), Vec::new()))
+                .collect()
+        };
+        chunks
             .into_par_iter()
             .enumerate()
             .map(|(c, steps)| {
@@ -574,23 +580,15 @@ impl<'w> Direct<'w> {
                     .into_iter()
                     .zip(skies)
                     .map(|(values, sky)| self.light_chunk(facets, sky, values))
-                    .collect()
+                    .collect::<Vec<_>>()
             })
-            .collect();
-        // Each step's rays joined once, in chunk order: a parallel reduce would copy the
-        // rays of later chunks once per level of its tree.
-        (0..skies.len())
-            .map(|s| {
-                let mut counts = StepCounts::default();
-                let total = by_chunk.iter().map(|c| c[s].1.len()).sum();
-                let mut rays = Vec::with_capacity(total);
-                for chunk in &by_chunk {
-                    counts += chunk[s].0;
-                    rays.extend_from_slice(&chunk[s].1);
+            .reduce(nothing, |mut a, b| {
+                for ((ca, ra), (cb, rb)) in a.iter_mut().zip(b) {
+                    *ca += cb;
+                    ra.extend(rb);
                 }
-                (counts, rays)
+                a
             })
-            .collect()
     }
 
     /// [`Direct::light_facing`] for one step and one chunk of facets, numbered from
