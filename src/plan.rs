@@ -61,6 +61,7 @@ impl Plan {
                 reason: why,
             },
         ];
+        assert_eq!(maps.len(), world.bodies.len(), "one map flag per body");
         for (body, &mapped) in world.bodies.iter().zip(maps) {
             let rays = own_shadows(scene, tracer, mapped);
             decisions.push(if body.convex {

@@ -13,16 +13,16 @@
 //! steps.
 //!
 //! The bound is computed exactly (`super::geometry`) for every triangle the tree cannot
-//! rule out,
-//! each triangle widened by the rounding of the exact predicate (a few units in the last
-//! place of the mesh's coordinates, `ROUNDING_ULPS · ε · |v|max`), so that a ray the
-//! tracers call blocked through rounding is never cleared. The branch and bound stops
+//! rule out, each triangle widened by the rounding of the exact predicate (a few units in
+//! the last place of the mesh's coordinates, `ROUNDING_ULPS · ε · |v|max`), so that a ray
+//! the tracers call blocked through rounding is never cleared. The branch and bound stops
 //! refining within `SEARCH_SLACK` (0.02 in sine, about 1°) of the highest horizon, which
 //! it adds to the bound: a Sun less than that above the horizon is simply traced.
 //!
 //! Cost: a tree search per facet, parallel over facets, each seeded with the triangle
-//! that set its neighbour's bound; about 1.5 s per 49k facets on one core, growing a
-//! little faster than the facet count. Memory: 8 bytes per facet.
+//! that set its neighbour's bound; about 1.2 s per 49k facets on one core, growing a
+//! little faster than the facet count. Memory: 4 bytes per facet (the sine rounded up to
+//! `f32`).
 
 use super::geometry::{box_bound, distance_to_triangle, rounding_widening, triangle_bound};
 use super::map::{f32_at_least, in_seeded_runs};
@@ -101,9 +101,9 @@ impl HorizonBound {
         HorizonBound { sin_max, widening }
     }
 
-    /// What facet `i`'s centroid sees of the `cone` of directions, through the other facets of `mesh` (the one `bvh`
-    /// and the bound were built over): [`ConeView::Covered`] only by a facet farther
-    /// than `beyond` metres. Exact up to the rounding of the ray predicate, which every
+    /// What facet `i`'s centroid sees of the `cone` of directions, through the other
+    /// facets of `mesh` (the one `bvh` and the bound were built over):
+    /// [`ConeView::Covered`] only by a facet farther than `beyond` metres. Exact up to the rounding of the ray predicate, which every
     /// triangle is widened by (so a clear cone is clear, a covered one covered, for the
     /// tracers' rays).
     pub fn cone_view(
@@ -122,11 +122,9 @@ impl HorizonBound {
         } = *cone;
         let c = mesh.centroids[i];
         let covered = Cell::new(false);
-        // The triangles reaching into the cone, and where the tree keeps them.
+        // The triangles reaching into the cone, and their mesh ids.
         let reaching = RefCell::new(Vec::new());
         let ids = RefCell::new(Vec::new());
-        // A triangle's elevation sine above the plane across `axis` is the cosine of its
-        // least angle from `axis`: what the bound's geometry computes exactly.
         // Across the axis, toward the facet's plane: where its neighbours lie.
         let n = mesh.normals[i];
         let down = -(n - axis * n.dot(axis)).normalize_or_zero();
@@ -143,7 +141,9 @@ impl HorizonBound {
                     self.widening / (gap - self.widening),
                 )
         };
-        // The tree's boxes are padded far beyond the widening (`Bvh`'s box margin).
+        // The tree's boxes are padded far beyond the widening (`Bvh`'s box margin). A
+        // triangle's elevation sine above the plane across `axis` is the cosine of its
+        // least angle from `axis`: what the bound's geometry computes exactly.
         bvh.near_cone(c, axis, tan_half, |id, tri| {
             if id as usize != i
                 && may_reach_cone(c, (axis, tan_half), down, tri, self.widening)
