@@ -24,7 +24,7 @@
 //! little faster than the facet count. Memory: 4 bytes per facet (the sine rounded up to
 //! `f32`).
 
-use super::geometry::{box_bound, distance_to_triangle, rounding_widening, triangle_bound};
+use super::geometry::{distance_to_triangle, rounding_widening, triangle_bound};
 use super::map::{f32_at_least, in_seeded_runs};
 use crate::mesh::Mesh;
 use crate::trace::bvh::Bvh;
@@ -215,10 +215,8 @@ fn facet_bound(
         take(id, &mesh.corners(id as usize));
     }
     bvh.search(
-        |lo, hi| {
-            let bound = box_bound(c, n, lo, hi, widening);
-            (bound > best.get().0 + SEARCH_SLACK).then_some(bound)
-        },
+        &bvh.viewpoint(c, n, widening),
+        |child| (child.bound > best.get().0 + SEARCH_SLACK).then_some(child.bound),
         take,
     );
     let (found, setter) = best.get();

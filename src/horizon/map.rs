@@ -32,7 +32,7 @@ use super::geometry::{
     signed_box_bound,
 };
 use crate::mesh::Mesh;
-use crate::trace::bvh::Bvh;
+use crate::trace::bvh::{Bvh, SearchBox};
 use glam::DVec3;
 use rayon::prelude::*;
 use std::cell::RefCell;
@@ -598,8 +598,10 @@ fn search_sky<'a>(
         sky.borrow_mut()
             .add_triangle(id, &mesh.corners(id as usize));
     }
+    let view = bvh.viewpoint(sky.borrow().c, sky.borrow().n, sky.borrow().widening);
     bvh.search(
-        |lo, hi| sky.borrow().box_priority(lo, hi),
+        &view,
+        |child| sky.borrow().box_priority(child),
         |id, tri| {
             if Some(id) != skip {
                 sky.borrow_mut().add_triangle(id, tri);
@@ -715,10 +717,10 @@ impl<'a> FacetSky<'a> {
         signed_box_bound(self.c, self.n, lo, hi, self.widening).max(self.floor)
     }
 
-    /// Whether to open the box `lo..hi` and with which priority: not when nothing in it
+    /// Whether to open the `child` box and with which priority: not when nothing in it
     /// can rise above the upper bounds of the wedges it spans.
-    fn box_priority(&self, lo: DVec3, hi: DVec3) -> Option<f64> {
-        let bound = self.box_bound(lo, hi);
+    fn box_priority(&self, child: &SearchBox) -> Option<f64> {
+        let bound = child.bound.max(self.floor);
         if bound <= self.lowest(Span::All) {
             return None;
         }
@@ -726,6 +728,7 @@ impl<'a> FacetSky<'a> {
             // Above every wedge's centre horizon: whatever azimuths the box spans.
             return Some(bound);
         }
+        let (lo, hi) = child.corners();
         let (lo, hi) = (lo - self.widening, hi + self.widening);
         let corners: [DVec3; 8] = std::array::from_fn(|k| {
             DVec3::new(

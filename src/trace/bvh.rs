@@ -481,13 +481,14 @@ impl<'b> BvhRays<'b> {
 }
 
 impl Bvh<'_> {
-    /// Branch and bound over the tree: `open(lo, hi)` of a child's box (lower and upper
-    /// corners, mesh frame, metres; the box holds every facet below it) says whether to
-    /// descend and with which priority (higher first); `visit(facet id, corners)` sees
-    /// every facet of every leaf opened.
+    /// Branch and bound over the tree, seen from a point above a plane: `open` of a
+    /// child's box (a [`SearchBox`], with an upper bound of the elevation sine of its
+    /// points above the plane of `view`) says whether to descend and with which priority
+    /// (higher first); `visit(facet id, corners)` sees every facet of every leaf opened.
     pub(crate) fn search(
         &self,
-        mut open: impl FnMut(DVec3, DVec3) -> Option<f64>,
+        view: &Viewpoint,
+        mut open: impl FnMut(&SearchBox) -> Option<f64>,
         mut visit: impl FnMut(u32, &[DVec3; 3]),
     ) {
         if self.quads.is_empty() {
@@ -498,13 +499,17 @@ impl Bvh<'_> {
         while top > 0 {
             top -= 1;
             let quad = &self.quads[stack[top] as usize];
-            let corner = |c: &[Vec4; 3], lane: usize| {
-                DVec3::new(c[0][lane] as f64, c[1][lane] as f64, c[2][lane] as f64) + self.centre
-            };
+            let bounds = quad.elevation_bounds(view);
             let mut lanes: [(f64, usize); 4] = [(f64::NEG_INFINITY, 4); 4];
             for (lane, slot) in lanes.iter_mut().enumerate() {
                 if quad.lo[0][lane] != f32::INFINITY {
-                    if let Some(priority) = open(corner(&quad.lo, lane), corner(&quad.hi, lane)) {
+                    let child = SearchBox {
+                        quad,
+                        lane,
+                        centre: self.centre,
+                        bound: bounds[lane] as f64,
+                    };
+                    if let Some(priority) = open(&child) {
                         *slot = (priority, lane);
                     }
                 }
@@ -527,6 +532,88 @@ impl Bvh<'_> {
                 }
             }
         }
+    }
+
+    /// The point `c` above the plane of unit normal `n` (mesh frame, metres) as
+    /// [`Bvh::search`] sees it, for facets widened by `widening` (m).
+    pub(crate) fn viewpoint(&self, c: DVec3, n: DVec3, widening: f64) -> Viewpoint {
+        let from = c - self.centre;
+        let splat = |v: DVec3| v.as_vec3().to_array().map(Vec4::splat);
+        // Every coordinate the bounds combine is within `size` of zero; a few dozen
+        // roundings of that size, and the widening, are far within this.
+        let size = from.abs().max_element() + 2.0 * self.reach;
+        Viewpoint {
+            c: splat(from),
+            n: splat(n),
+            n_abs: splat(n.abs()),
+            error: Vec4::splat(round_up(64.0 * f32::EPSILON as f64 * size + widening)),
+        }
+    }
+}
+
+/// A viewpoint and its plane's unit normal as the `f32` elevation bounds of
+/// [`Bvh::search`] see them: relative to the tree's centre, in all four lanes, with the
+/// bounds' allowance for rounding (m).
+pub(crate) struct Viewpoint {
+    c: [Vec4; 3],
+    n: [Vec4; 3],
+    n_abs: [Vec4; 3],
+    error: Vec4,
+}
+
+/// A child's box as [`Bvh::search`] meets it.
+pub(crate) struct SearchBox<'q> {
+    quad: &'q Quad,
+    lane: usize,
+    centre: DVec3,
+    /// An upper bound of the elevation sine of every point of the box (−1 to 1).
+    pub(crate) bound: f64,
+}
+
+impl SearchBox<'_> {
+    /// The box's lower and upper corners (mesh frame, metres); it holds every facet
+    /// below it.
+    pub(crate) fn corners(&self) -> (DVec3, DVec3) {
+        let corner = |c: &[Vec4; 3]| {
+            DVec3::new(
+                c[0][self.lane] as f64,
+                c[1][self.lane] as f64,
+                c[2][self.lane] as f64,
+            ) + self.centre
+        };
+        (corner(&self.quad.lo), corner(&self.quad.hi))
+    }
+}
+
+impl Quad {
+    /// Per child, an upper bound of the elevation sine above the plane of `view` of every
+    /// point of its box: the box's highest rise over the plane, over its distance from
+    /// the viewpoint (1 when it holds the viewpoint); for a box wholly below the plane,
+    /// that rise (negative) over its farthest corner's distance. Rises are taken up, and
+    /// distances down (up for the farthest), by the view's rounding allowance.
+    #[inline]
+    fn elevation_bounds(&self, view: &Viewpoint) -> Vec4 {
+        let (mut rise, mut near, mut far) = (view.error, Vec4::ZERO, Vec4::ZERO);
+        for k in 0..3 {
+            let mid = (self.lo[k] + self.hi[k]) * 0.5 - view.c[k];
+            let half = (self.hi[k] - self.lo[k]) * 0.5;
+            rise += view.n[k] * mid + view.n_abs[k] * half;
+            let outside = (self.lo[k] - view.c[k])
+                .max(view.c[k] - self.hi[k])
+                .max(Vec4::ZERO);
+            near += outside * outside;
+            let reach = mid.abs() + half;
+            far += reach * reach;
+        }
+        let gap = near.sqrt() * (1.0 - 1e-6) - view.error;
+        let far = far.sqrt() * (1.0 + 1e-6) + view.error;
+        let above = Vec4::select(
+            gap.cmple(Vec4::ZERO),
+            Vec4::ONE,
+            (rise / gap).min(Vec4::ONE),
+        );
+        let below = (rise / far).max(Vec4::NEG_ONE);
+        Vec4::select(rise.cmpge(Vec4::ZERO), above, below)
     }
 }
 
@@ -1088,6 +1175,64 @@ mod tests {
             }
             // Both answers occur often enough for the comparison to mean something.
             assert!(blocked > 300 && blocked < 2700, "{blocked} of 3000 blocked");
+        }
+    }
+
+    /// The facets below child `lane` of quad `q`.
+    fn facets_below(bvh: &Bvh, q: usize, lane: usize) -> Vec<u32> {
+        match bvh.quads[q].child(lane) {
+            Child::Leaf(l) => bvh.leaves[l as usize]
+                .ids
+                .into_iter()
+                .filter(|&id| id != u32::MAX)
+                .collect(),
+            Child::Node(n) => (0..4)
+                .filter(|&k| bvh.quads[n as usize].lo[0][k].is_finite())
+                .flat_map(|k| facets_below(bvh, n as usize, k))
+                .collect(),
+        }
+    }
+
+    #[test]
+    fn search_bounds_hold_every_point_of_the_facets_below() {
+        // Viewpoints on, above and inside the terrain and far off it, planes at any
+        // tilt: no corner, edge midpoint or centroid below a child rises higher, seen
+        // from the viewpoint, than the child's bound says.
+        for centre in [DVec3::ZERO, DVec3::new(4.0e6, -1.0e6, 2.5e6)] {
+            let mesh = terrain(12, 1.0, centre);
+            let bvh = Bvh::build(&mesh);
+            let mut rng = crate::TestRng::new(0x5851_f42d_4c95_7f2d);
+            let mut next = || rng.unit() - 0.5;
+            let (mut tight, mut below_plane) = (0usize, 0usize);
+            for k in 0..200 {
+                let i = ((next() + 0.5) * mesh.len() as f64) as usize;
+                let lift = [0.0, 0.5, 30.0][k % 3];
+                let c = mesh.centroids[i] + DVec3::new(next(), next(), lift);
+                let n = DVec3::new(next(), next(), next() + 0.3).normalize();
+                let view = bvh.viewpoint(c, n, 0.0);
+                for q in 0..bvh.quads.len() {
+                    let bounds = bvh.quads[q].elevation_bounds(&view);
+                    for lane in (0..4).filter(|&l| bvh.quads[q].lo[0][l].is_finite()) {
+                        let bound = bounds[lane] as f64;
+                        let highest = facets_below(&bvh, q, lane)
+                            .into_iter()
+                            .flat_map(|id| {
+                                let [a, b, d] = mesh.corners(id as usize);
+                                [a, b, d, (a + b) / 2.0, (b + d) / 2.0, (a + b + d) / 3.0]
+                            })
+                            .map(|p| n.dot((p - c).normalize()))
+                            .fold(-1.0, f64::max);
+                        assert!(highest <= bound + 1e-12, "{highest} above {bound}");
+                        tight += usize::from(bound < 1.0 && bound - highest < 0.2);
+                        below_plane += usize::from(bound < 0.0);
+                    }
+                }
+            }
+            // Bounds both above and below the plane, many of them close.
+            assert!(
+                tight > 1000 && below_plane > 1000,
+                "{tight} close, {below_plane} below"
+            );
         }
     }
 
