@@ -27,14 +27,8 @@ pub(crate) fn rounding_widening(mesh: &Mesh) -> f64 {
 }
 
 /// An upper bound of the elevation sine from `c` (plane normal `n`) of every point of the
-/// box `lo..hi` widened by `widening`; 0 when the box lies on or below the plane.
-#[inline]
-pub(crate) fn box_bound(c: DVec3, n: DVec3, lo: DVec3, hi: DVec3, widening: f64) -> f64 {
-    signed_box_bound(c, n, lo, hi, widening).max(0.0)
-}
-
-/// [`box_bound`] below the plane too (down to −1): a box wholly below it is bounded by
-/// its highest rise over its farthest corner's distance.
+/// box `lo..hi` widened by `widening`, from −1 to 1: a box wholly below the plane is
+/// bounded by its highest rise over its farthest corner's distance.
 #[inline]
 pub(crate) fn signed_box_bound(c: DVec3, n: DVec3, lo: DVec3, hi: DVec3, widening: f64) -> f64 {
     let (lo, hi) = (lo - widening, hi + widening);
@@ -58,8 +52,8 @@ pub(crate) fn signed_box_bound(c: DVec3, n: DVec3, lo: DVec3, hi: DVec3, widenin
 
 /// An upper bound of the elevation sine from `c` (plane normal `n`) of every point within
 /// `widening` of triangle `tri`: the exact maximum over the triangle plus `widening` over
-/// the distance to it, or anything not above `threshold` when a cheap bound (the
-/// triangle's box) shows that it is not higher.
+/// the distance to it, or anything not above `threshold` when a cheap bound (its highest
+/// corner) shows that it is not higher.
 #[inline]
 pub(crate) fn triangle_bound(
     c: DVec3,
@@ -68,11 +62,7 @@ pub(crate) fn triangle_bound(
     widening: f64,
     threshold: f64,
 ) -> f64 {
-    let (lo, hi) = (
-        tri[0].min(tri[1]).min(tri[2]),
-        tri[0].max(tri[1]).max(tri[2]),
-    );
-    if box_bound(c, n, lo, hi, widening) <= threshold {
+    if !may_rise_above(c, n, tri, widening, threshold) {
         return 0.0;
     }
     let gap = distance_to_triangle(c, tri);
@@ -80,6 +70,31 @@ pub(crate) fn triangle_bound(
         return 1.0;
     }
     (triangle_max_sin(c, n, tri) + widening / (gap - widening)).min(1.0)
+}
+
+/// False when no point within `widening` of triangle `tri` rises above the elevation sine
+/// `threshold` seen from `c` (plane normal `n`): its highest corner's rise over the plane
+/// (every point of a triangle rises less than one of its corners), widened, over the
+/// distance to its widened box is no higher. Tighter than the box's own bound, and without
+/// a root or a division.
+#[inline]
+fn may_rise_above(c: DVec3, n: DVec3, tri: &[DVec3; 3], widening: f64, threshold: f64) -> bool {
+    let rise = tri
+        .iter()
+        .map(|p| n.dot(*p - c))
+        .fold(f64::NEG_INFINITY, f64::max)
+        + widening;
+    if rise <= 0.0 || threshold < 0.0 {
+        // Nothing above the plane, or a threshold below it.
+        return threshold < 0.0;
+    }
+    let (lo, hi) = (
+        tri[0].min(tri[1]).min(tri[2]) - widening,
+        tri[0].max(tri[1]).max(tri[2]) + widening,
+    );
+    let gap_squared = (c.clamp(lo, hi) - c).length_squared();
+    // rise / gap > threshold, squared; the factor covers the squares' rounding.
+    rise * rise * (1.0 + 1e-12) > threshold * threshold * gap_squared
 }
 
 /// The exact largest elevation sine from `c` of a point of triangle `tri`, which does not
@@ -287,6 +302,37 @@ mod tests {
         assert!(
             far > 200,
             "too few triangles far enough to compare with the sampling"
+        );
+    }
+
+    #[test]
+    fn the_bounds_cheap_screen_keeps_every_triangle_rising_above_the_threshold() {
+        let mut rng = TestRng::new(23);
+        let (mut kept, mut screened) = (0, 0);
+        for _ in 0..4000 {
+            let c = random_point(&mut rng, 2.0);
+            let n = random_point(&mut rng, 2.0).normalize();
+            let tri = [0, 1, 2].map(|_| random_point(&mut rng, 4.0));
+            if distance_to_triangle(c, &tri) < 0.05 {
+                continue;
+            }
+            let threshold = 1.5 * rng.unit() - 0.5;
+            let sampled = sampled_max_sin(c, n, tri, 60);
+            let bound = triangle_bound(c, n, &tri, 0.0, threshold);
+            if sampled > threshold {
+                kept += 1;
+                assert!(
+                    bound >= sampled - 1e-12,
+                    "{c} {n} {tri:?}: {bound} below {sampled}, threshold {threshold}"
+                );
+            } else if bound <= threshold {
+                screened += 1;
+            }
+        }
+        // Both ways, often: the screen is no mere pass-through.
+        assert!(
+            kept > 500 && screened > 500,
+            "{kept} kept, {screened} screened"
         );
     }
 

@@ -770,13 +770,22 @@ impl<'a> FacetSky<'a> {
             return;
         }
         let margin = self.widening / (gap - self.widening);
-        // Cheap first: the triangle's box, over the wedges its corners span (or all of
-        // them when the zenith might lie inside it).
+        // Cheap first, over the wedges its corners span (or all of them when the zenith
+        // might lie inside its box): no point rises more than its highest corner, nor
+        // lies nearer than `gap`; below the plane, the box's bound.
         let (lo, hi) = (
             tri[0].min(tri[1]).min(tri[2]),
             tri[0].max(tri[1]).max(tri[2]),
         );
-        let boxed = self.box_bound(lo, hi);
+        let rise = rel
+            .iter()
+            .map(|p| p.dot(self.n))
+            .fold(f64::NEG_INFINITY, f64::max);
+        let boxed = if rise > 0.0 {
+            (rise / gap).min(1.0)
+        } else {
+            self.box_bound(lo, hi)
+        };
         // The corners' span, once: the box test and the exact test differ only in how
         // they learn that the zenith may lie inside.
         let corners = Span::of(&rel, self.t1, self.t2);
