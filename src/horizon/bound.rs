@@ -20,7 +20,7 @@
 //! it adds to the bound: a Sun less than that above the horizon is simply traced.
 //!
 //! Cost: a tree search per facet, parallel over facets, each seeded with the triangle
-//! that set its neighbour's bound; about 1.2 s per 49k facets on one core, growing a
+//! that set its neighbour's bound; about 0.6 s per 49k facets on one core, growing a
 //! little faster than the facet count. Memory: 4 bytes per facet (the sine rounded up to
 //! `f32`).
 

@@ -127,8 +127,9 @@ const SAVED_S_PER_FACET_STEP: f64 = 0.37e-6;
 /// What a map spares per facet and step over the BVH tracer's rays (CPU seconds), for a
 /// point Sun and for a disk Sun of 32 samples: m1phobos, 360 steps on one thread
 /// (`bench_direct MESH --threads 1` with `--tracer bvh`, `--horizon exact`, `--sun
-/// disk`; 2026-11-26): the BVH 2.40 ms per step (disk: 18.2), the map 1.26 (disk: 1.28).
-const SAVED_OVER_BVH: (f64, f64) = (0.036e-6, 0.53e-6);
+/// disk`; 2026-11-26): the BVH 2.30 ms per step (disk, with the cones' leaf screen of
+/// a4318f1: 11.9), the map 1.26 (disk: 1.28).
+const SAVED_OVER_BVH: (f64, f64) = (0.032e-6, 0.33e-6);
 
 impl Shadows {
     /// Checks the settings, naming the key at fault.

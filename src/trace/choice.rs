@@ -8,19 +8,19 @@
 //! The Sun-view tracer needs no setup but rebuilds its grid at every step; the BVH tracer
 //! builds once a tree and, for each body that shadows itself without a map, a horizon
 //! bound, which then spares most rays (and under a disk Sun most of the samples' rays,
-//! by its cone tests). The bound is what costs: about 25 µs of CPU per facet at 49k
-//! facets, growing with the square root of the facets that cast shadows. So the BVH is
-//! taken when the run's steps spare more than that, counted on one core as measured with
-//! `cargo run --release --example bench_direct -- MESH --threads 1` (2026-11-26, 2-core
-//! AMD EPYC; the `build s` column and the difference per step between the two tracers):
+//! by its cone tests). The bound is what costs: about 14 µs of CPU per facet at 49k
+//! facets, growing slowly with the facets that cast shadows. So the BVH is taken when the
+//! run's steps spare more than that, counted on one core as measured with `cargo run
+//! --release --example bench_direct -- MESH --threads 1` (2026-11-26, 2-core AMD EPYC;
+//! the `build s` column and the difference per step between the two tracers):
 //!
 //! | mesh | bound, s | Sun-view, ms/step | BVH, ms/step | point Sun: saved per facet-step | disk, 32 samples: Sun-view, BVH (ms/step) |
 //! |---|---:|---:|---:|---:|---:|
-//! | m1phobos, 32,070 | 0.96 | 7.32 | 2.36 | 0.155 µs | 252, 18.2 |
-//! | Itokawa, 49,152 | 1.17 | 9.87 | 3.60 | 0.128 µs | 324, 21.2 |
+//! | m1phobos, 32,070 | 0.455 | 9.46 | 2.30 | 0.223 µs | 252, 11.9 |
+//! | Itokawa, 49,152 | 0.625 | 9.96 | 3.42 | 0.133 µs | 324, 16.6 |
 //!
-//! (The bounds as built since the tree reads the mesh's own facets, in runs paired with
-//! the version before, which took 1.105 and 1.40 s.)
+//! (The bounds and the disk's cone tests as since 2021f95; the Sun-view disk figures are
+//! from the same day, before.)
 //!
 //! The model takes the lower saving, so that a run near the break-even keeps the tracer
 //! that needs no setup. With two cores the BVH gains more (its steps scale better than
@@ -31,22 +31,23 @@ use crate::world::{Body, World};
 
 /// CPU seconds per facet of the BVH's tree and horizon bound over `casters` facets: a
 /// fixed part and one growing as √N (the triangles that set a horizon lie along a line
-/// across the mesh). 27 µs at 32k facets, 28 µs at 49k, 36 µs at 786k; measured 30 µs
-/// on m1phobos (32k), 24 µs at 49k, and in a run of `bench/peers/run --tracer bvh`
-/// (docs/performance.md, 2026-11-26) 31 µs at 786k and 36 µs at 3.1M.
+/// across the mesh), fitted from above to the bounds measured on 2026-11-26
+/// (`bench_direct --tracer bvh --threads 1`, since 2021f95): 14.2 µs on m1phobos (32k
+/// facets), 12.7 µs at 49k, 16.8 µs at 786k and 19.3 µs at 3.1M; the model gives 14.3,
+/// 14.5, 17.5 and 21.5.
 fn bound_s_per_facet(casters: usize) -> f64 {
-    25e-6 + 0.012e-6 * (casters as f64).sqrt()
+    13.5e-6 + 0.0045e-6 * (casters as f64).sqrt()
 }
 
 /// CPU seconds the BVH spares over the Sun-view tracer per facet and step: one ray's
 /// worth for a point Sun (`disk_samples` `None`); for a disk Sun, the Sun-view tracer's
-/// rays toward every sample against the BVH's cone tests (4.8–6.3 µs measured with 32
+/// rays toward every sample against the BVH's cone tests (6.3–7.5 µs measured with 32
 /// samples).
 fn saved_s_per_facet_step(disk_samples: Option<u32>) -> f64 {
     const POINT: f64 = 0.128e-6;
     match disk_samples {
         None => POINT,
-        Some(samples) => 4.5e-6 * samples as f64 / 32.0,
+        Some(samples) => 6.0e-6 * samples as f64 / 32.0,
     }
 }
 
