@@ -603,8 +603,10 @@ impl<'w> Direct<'w> {
         let mesh = &self.world.bodies[b].mesh;
         let horizon = &self.horizons[b];
         let traces_own = self.traces_own(b);
-        // A disk starts to rise above a facet's plane when its centre is ρ below it.
-        let facing = -sky.radius.sin();
+        // A disk starts to rise above a facet's plane when its centre is ρ below it, and
+        // stands wholly above it when its centre is ρ above.
+        let sin_radius = sky.radius.sin();
+        let facing = -sin_radius;
         let mut counts = StepCounts::default();
         let mut rays = Vec::new();
         // Facets whose map cells decide, with where the Sun stands in their sky.
@@ -647,7 +649,7 @@ impl<'w> Direct<'w> {
                 // The facet's own plane; then, unless nothing else can rise into the
                 // disk, its samples' rays (`shade`).
                 _ if sun == SunShape::Disk => {
-                    *e = sky.flux * self.disk_share(cos, PLANE, sky.radius);
+                    *e = sky.flux * self.plane_disk_share(cos, (sky.radius, sin_radius));
                     let cleared = self.disk_clears_own(b, i, cos, sky.radius);
                     if *e == 0.0 {
                         counts.shadowed += 1;
@@ -783,7 +785,7 @@ impl<'w> Direct<'w> {
                 let horizon = map.horizon(i, &map.position(normal, light.sun, cos));
                 light.flux * self.disk_share(cos, horizon, light.radius)
             }
-            _ => light.flux * self.disk_share(cos, PLANE, light.radius),
+            _ => light.flux * self.plane_disk_share(cos, (light.radius, light.radius.sin())),
         };
         let own_rays = !matches!(self.horizons[b], OwnHorizon::Map { .. })
             && !self.disk_clears_own(b, i, cos, light.radius);
@@ -845,6 +847,16 @@ impl<'w> Direct<'w> {
         let e = sin_elevation.clamp(-1.0, 1.0).asin();
         let (fraction, centroid) = self.disk.above(e, horizon, radius);
         fraction * centroid.sin().max(0.0)
+    }
+
+    /// [`Direct::disk_share`] over the facet's own plane alone, the disk's angular radius
+    /// given with its sine: a disk wholly above the plane gives its centre's cosine (the
+    /// flux centroid of a symmetric disk), with no angle taken.
+    fn plane_disk_share(&self, sin_elevation: f64, (radius, sin_radius): (f64, f64)) -> f64 {
+        match sin_elevation >= sin_radius {
+            true => sin_elevation,
+            false => self.disk_share(sin_elevation, PLANE, radius),
+        }
     }
 
     /// The shadow ray of facet `i` of body `b` through its own body, the Sun at `cos_i`
