@@ -122,24 +122,27 @@ impl HorizonBound {
         } = *cone;
         let c = mesh.centroids[i];
         let covered = Cell::new(false);
-        // The triangles reaching into the cone, and their mesh ids.
+        // The mesh ids of the triangles reaching into the cone.
         let reaching = RefCell::new(Vec::new());
-        let ids = RefCell::new(Vec::new());
         // Across the axis, toward the facet's plane: where its neighbours lie.
         let n = mesh.normals[i];
         let down = -(n - axis * n.dot(axis)).normalize_or_zero();
+        // The plane tests first, with no spare (a cover with one is a cover without), so
+        // that the distance is taken only for the few outlines that pass them.
         let cover = |pieces: &[&[DVec3; 3]], outline: &[DVec3]| {
-            let gap = pieces
-                .iter()
-                .map(|t| distance_to_triangle(c, t))
-                .fold(f64::INFINITY, f64::min);
-            gap - self.widening > beyond
-                && covers(
-                    c,
-                    (axis, sin_half),
-                    outline,
-                    self.widening / (gap - self.widening),
-                )
+            covers(c, (axis, sin_half), outline, 0.0) && {
+                let gap = pieces
+                    .iter()
+                    .map(|t| distance_to_triangle(c, t))
+                    .fold(f64::INFINITY, f64::min);
+                gap - self.widening > beyond
+                    && covers(
+                        c,
+                        (axis, sin_half),
+                        outline,
+                        self.widening / (gap - self.widening),
+                    )
+            }
         };
         // The tree's boxes are padded far beyond the widening (`Bvh`'s box margin). A
         // triangle's elevation sine above the plane across `axis` is the cosine of its
@@ -150,8 +153,7 @@ impl HorizonBound {
                 && triangle_bound(c, axis, tri, self.widening, cos_half) > cos_half
             {
                 covered.set(cover(&[tri], tri));
-                reaching.borrow_mut().push(*tri);
-                ids.borrow_mut().push(id);
+                reaching.borrow_mut().push(id);
             }
             covered.get()
         });
@@ -161,17 +163,19 @@ impl HorizonBound {
         }
         // Two triangles sharing an edge that crosses the cone cover it together when,
         // seen from the centroid, they make a convex quadrilateral around it.
+        let corners = |id: &u32| mesh.corners(*id as usize);
         let paired = covered.get()
             || (reaching.len() <= PAIRED_MAX
                 && reaching.iter().enumerate().any(|(k, a)| {
-                    reaching[k + 1..].iter().any(|b| {
-                        quadrilateral(a, b).is_some_and(|outline| cover(&[a, b], &outline))
+                    let a = corners(a);
+                    reaching[k + 1..].iter().map(corners).any(|b| {
+                        quadrilateral(&a, &b).is_some_and(|outline| cover(&[&a, &b], &outline))
                     })
                 }));
         if paired {
             ConeView::Covered
         } else {
-            ConeView::Partial(ids.into_inner())
+            ConeView::Partial(reaching)
         }
     }
 
