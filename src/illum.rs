@@ -843,10 +843,14 @@ impl<'w> Direct<'w> {
     /// The share of the flux a facet receives from a disk Sun of angular radius
     /// `radius` whose centre stands at `sin_elevation` above its plane, with `horizon`
     /// (approximated by a straight line across the disk; [`crate::horizon::disk`]).
+    /// A whole disk gives its centre's `sin_elevation` itself (the flux centroid of a
+    /// symmetric disk), whichever way its horizon was found.
     fn disk_share(&self, sin_elevation: f64, horizon: LocalHorizon, radius: f64) -> f64 {
         let e = sin_elevation.clamp(-1.0, 1.0).asin();
-        let (fraction, centroid) = self.disk.above(e, horizon, radius);
-        fraction * centroid.sin().max(0.0)
+        match self.disk.cut_by(e, horizon, radius) {
+            None => sin_elevation.max(0.0),
+            Some((fraction, centroid)) => fraction * centroid.sin().max(0.0),
+        }
     }
 
     /// [`Direct::disk_share`] over the facet's own plane alone, the disk's angular radius

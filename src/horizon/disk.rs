@@ -81,10 +81,20 @@ impl SolarDisk {
     /// disk tilted by its slope: the share of the flux, and the elevation (radians) of
     /// that part's flux centroid.
     pub fn above(&self, elevation: f64, horizon: LocalHorizon, radius: f64) -> (f64, f64) {
+        self.cut_by(elevation, horizon, radius)
+            .unwrap_or((1.0, elevation))
+    }
+
+    /// [`SolarDisk::above`] where the horizon cuts the disk; `None` where the whole disk
+    /// stands above it (all of the flux, its centroid at the disk's centre).
+    pub fn cut_by(&self, elevation: f64, horizon: LocalHorizon, radius: f64) -> Option<(f64, f64)> {
         let tilt = horizon.slope / elevation.cos().max(1e-6);
         let across = (1.0 + tilt * tilt).sqrt();
-        let seen = self.visible((elevation - horizon.elevation) / (radius * across));
-        (seen.fraction, elevation + radius * seen.centroid / across)
+        let d = (elevation - horizon.elevation) / (radius * across);
+        (d < 1.0).then(|| {
+            let seen = self.visible(d);
+            (seen.fraction, elevation + radius * seen.centroid / across)
+        })
     }
 
     /// The share of the disk's flux inside a circle of `radius` whose centre lies
