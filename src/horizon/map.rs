@@ -598,7 +598,10 @@ fn search_sky<'a>(
         sky.borrow_mut()
             .add_triangle(id, &mesh.corners(id as usize));
     }
-    let view = bvh.viewpoint(sky.borrow().c, sky.borrow().n, sky.borrow().widening);
+    let view = {
+        let sky = sky.borrow();
+        bvh.viewpoint(sky.c, sky.n, sky.widening)
+    };
     bvh.search(
         &view,
         |child| sky.borrow().box_priority(child),
