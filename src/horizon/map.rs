@@ -7,9 +7,10 @@
 //! (0.0014°):
 //!
 //! - **upper**: an exact upper bound of the elevation of every point of every other facet
-//!   that lies in the wedge (each triangle clipped to the wedge, its highest point found
-//!   at a corner, on an arc or straight up; widened by the exact predicate's rounding and
-//!   rounded up when quantised). A Sun above it in that wedge lights the facet for
+//!   that lies in the wedge (each triangle's highest point in the wedge found from its
+//!   outline, `super::outline`, or by clipping it to the wedge where the outline would be
+//!   ill conditioned: at a corner, on an arc or straight up; widened by the exact
+//!   predicate's rounding and rounded up when quantised). A Sun above it in that wedge lights the facet for
 //!   certain: the exact ray tracers would find nothing.
 //! - **centre**: the horizon at the wedge's centre azimuth, the highest point of any
 //!   facet in that vertical half-plane (exact, rounded to the nearest quantum). Linear
@@ -31,6 +32,7 @@ use super::geometry::{
     arc_max_sin, directions_max_sin, distance_to_triangle, polygon_max_sin, rounding_widening,
     signed_box_bound,
 };
+use super::outline::Outline;
 use crate::mesh::Mesh;
 use crate::trace::bvh::{Bvh, SearchBox};
 use glam::DVec3;
@@ -423,6 +425,16 @@ impl Wedges {
         TAU / self.count as f64
     }
 
+    /// Wedge `k`'s bounding azimuths as in-plane directions, each turned outward by an
+    /// overlap given as its `(cos, sin)`.
+    fn widened(&self, k: usize, (co, so): (f64, f64)) -> ((f64, f64), (f64, f64)) {
+        let ((c0, s0), (c1, s1)) = (self.edges[k], self.edges[k + 1]);
+        (
+            (c0 * co + s0 * so, s0 * co - c0 * so),
+            (c1 * co - s1 * so, s1 * co + c1 * so),
+        )
+    }
+
     /// The wedges met by an azimuth span, each once, in order.
     fn covering(&self, span: Span) -> impl Iterator<Item = usize> + '_ {
         let (first, len) = match span {
@@ -789,6 +801,9 @@ impl<'a> FacetSky<'a> {
         } else {
             self.box_bound(lo, hi)
         };
+        if boxed + margin <= self.lowest_anywhere {
+            return;
+        }
         // The corners' span, once: the box test and the exact test differ only in how
         // they learn that the zenith may lie inside.
         let corners = Span::of(&rel, self.t1, self.t2);
@@ -800,8 +815,13 @@ impl<'a> FacetSky<'a> {
         if boxed + margin <= self.lowest(rough.widened(margin + WEDGE_OVERLAP)) {
             return;
         }
-        let unit = rel.map(DVec3::normalize);
-        let top = directions_max_sin(self.n, unit);
+        // The triangle's outline gives its highest point, and each wedge's; where it
+        // would be ill conditioned, the triangle is clipped to each wedge instead.
+        let outline = Outline::new(&rel, self.n, self.t1, self.t2);
+        let top = match &outline {
+            Some(outline) => outline.highest(),
+            None => directions_max_sin(self.n, rel.map(DVec3::normalize)),
+        };
         let span = if top >= 1.0 { Span::All } else { corners };
         // Widening moves points by `margin` radians, which moves their azimuth by at
         // most `margin / cos e`: near the zenith the span is every azimuth.
@@ -822,6 +842,9 @@ impl<'a> FacetSky<'a> {
             if top + margin > self.upper[k] {
                 let sin = if near_zenith || in_one_wedge {
                     Some(top)
+                } else if let Some(outline) = &outline {
+                    let (lo, hi) = self.wedges.widened(k, overlap_turn);
+                    outline.max_within(lo, hi)
                 } else {
                     self.clipped_max_sin(&rel, k, overlap_turn)
                 };
@@ -831,12 +854,14 @@ impl<'a> FacetSky<'a> {
                 };
                 self.upper[k] = self.upper[k].max((sin + margin).min(1.0));
             }
-            if top > self.centre[k] && span.holds(self.wedges.centre_azimuths[k]) {
-                let (cos_c, sin_c) = self.wedges.centres[k];
-                let u = self.t1 * cos_c + self.t2 * sin_c;
-                let m = self.t2 * cos_c - self.t1 * sin_c;
-                let sin = half_plane_max_sin(&rel, self.n, u, m, self.floor);
-                if sin > self.centre[k] {
+            if top > self.centre[k] {
+                let sin = match &outline {
+                    Some(outline) => outline.top_at(self.wedges.centres[k]),
+                    None => span
+                        .holds(self.wedges.centre_azimuths[k])
+                        .then(|| self.half_plane_max_sin(&rel, k)),
+                };
+                if let Some(sin) = sin.filter(|&sin| sin > self.centre[k]) {
                     let was_lowest = self.centre[k] == self.lowest_anywhere;
                     self.centre[k] = sin;
                     self.highest_anywhere = self.highest_anywhere.max(sin);
@@ -848,6 +873,15 @@ impl<'a> FacetSky<'a> {
                 }
             }
         }
+    }
+
+    /// The highest elevation sine of the triangle `rel` (relative to the viewpoint) on
+    /// the vertical half-plane at wedge `k`'s centre azimuth, never below the floor.
+    fn half_plane_max_sin(&self, rel: &[DVec3; 3], k: usize) -> f64 {
+        let (cos_c, sin_c) = self.wedges.centres[k];
+        let u = self.t1 * cos_c + self.t2 * sin_c;
+        let m = self.t2 * cos_c - self.t1 * sin_c;
+        half_plane_max_sin(rel, self.n, u, m, self.floor)
     }
 
     /// The largest elevation sine of the part of the triangle `rel` (relative to the

@@ -8,7 +8,8 @@
 //!   step loop instead of rays when it pays;
 //! - [`disk::SolarDisk`]: the share of a limb-darkened solar disk above a horizon.
 //!
-//! `geometry` holds the elevation bounds of boxes and triangles they are built from.
+//! `geometry` holds the elevation bounds of boxes and triangles they are built from;
+//! `outline` a triangle's highest point per azimuth, from which a map's cells are filled.
 
 pub mod bound;
 pub mod cache;
@@ -16,6 +17,7 @@ pub mod disk;
 pub mod eclipse;
 mod geometry;
 pub mod map;
+mod outline;
 pub mod shadows;
 
 pub use shadows::{HorizonMode, ShadowMethod, Shadows, SunShape};
