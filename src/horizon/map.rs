@@ -10,8 +10,8 @@
 //!   that lies in the wedge (each triangle's highest point in the wedge found from its
 //!   outline, `super::outline`, or by clipping it to the wedge where the outline would be
 //!   ill conditioned: at a corner, on an arc or straight up; widened by the exact
-//!   predicate's rounding and rounded up when quantised). A Sun above it in that wedge lights the facet for
-//!   certain: the exact ray tracers would find nothing.
+//!   predicate's rounding and rounded up when quantised). A Sun above it in that wedge
+//!   lights the facet for certain: the exact ray tracers would find nothing.
 //! - **centre**: the horizon at the wedge's centre azimuth, the highest point of any
 //!   facet in that vertical half-plane (exact, rounded to the nearest quantum). Linear
 //!   interpolation between wedge centres is the approximate horizon.
@@ -465,33 +465,40 @@ impl Span {
     /// plane `(t1, t2)`. Their hull must not hold the zenith axis (then every azimuth is
     /// spanned, which the caller knows from another test).
     fn of(rel: &[DVec3], t1: DVec3, t2: DVec3) -> Span {
-        let first = (rel[0].dot(t1), rel[0].dot(t2));
-        let phi0 = first.1.atan2(first.0);
+        let in_plane = |p: &DVec3| (p.dot(t1), p.dot(t2));
+        let first = in_plane(&rel[0]);
         // Each point's turn from the first, as (cos, sin) up to a common factor. The
         // extremes are found by a pseudo-angle that orders turns as `atan2` does, so
         // only they need `atan2` (a box has eight corners).
-        let turns = rel[1..].iter().map(|p| {
-            let (x, y) = (p.dot(t1), p.dot(t2));
+        let turn = |(x, y): (f64, f64)| {
             // `+ 0.0` turns a −0 sine into +0, so that a turn of exactly π is π for the
-            // pseudo-angle and for `atan2` alike.
+            // pseudo-angle and for the cross product below alike.
             (first.0 * x + first.1 * y, first.0 * y - first.1 * x + 0.0)
-        });
-        let (mut lo, mut hi) = ((0.0, (1.0, 0.0)), (0.0, (1.0, 0.0)));
-        for turn in turns {
-            let order = pseudo_angle(turn);
+        };
+        let start = (0.0, (1.0, 0.0), first);
+        let (mut lo, mut hi) = (start, start);
+        for point in rel[1..].iter().map(in_plane) {
+            let t = turn(point);
+            let order = pseudo_angle(t);
             if order < lo.0 {
-                lo = (order, turn);
+                lo = (order, t, point);
             }
             if order > hi.0 {
-                hi = (order, turn);
+                hi = (order, t, point);
             }
         }
-        let angle = |(_, (c, s)): (f64, (f64, f64))| f64::atan2(s, c);
-        let (lo, hi) = (angle(lo), angle(hi));
-        if hi - lo >= std::f64::consts::PI {
+        // The turn from the lowest to the highest is half a turn or more when their
+        // cross product is negative, or zero with the two pointing apart.
+        let ((lx, ly), (hx, hy)) = (lo.1, hi.1);
+        let cross = lx * hy - ly * hx;
+        if cross < 0.0 || (cross == 0.0 && lx * hx + ly * hy < 0.0) {
             return Span::All;
         }
-        Span::Range(phi0 + lo, phi0 + hi)
+        let angle = |(x, y): (f64, f64)| y.atan2(x);
+        let (lo, hi) = (angle(lo.2), angle(hi.2));
+        // Less than half a turn apart: `hi` below `lo` by more than that has crossed ±π;
+        // by less, only rounding put it there.
+        Span::Range(lo, if hi < lo - PI { hi + TAU } else { hi.max(lo) })
     }
 
     /// The span widened by `by` radians on both sides.
@@ -736,7 +743,7 @@ impl<'a> FacetSky<'a> {
     /// can rise above the upper bounds of the wedges it spans.
     fn box_priority(&self, child: &SearchBox) -> Option<f64> {
         let bound = child.bound.max(self.floor);
-        if bound <= self.lowest(Span::All) {
+        if bound <= self.lowest_anywhere {
             return None;
         }
         if bound > self.highest_anywhere {
@@ -757,19 +764,22 @@ impl<'a> FacetSky<'a> {
         } else {
             Span::of(&corners, self.t1, self.t2)
         };
-        (bound > self.lowest(span)).then_some(bound)
+        self.rises_above(span, bound).then_some(bound)
     }
 
-    /// The least height something in `span` must exceed to change the row: per wedge it
-    /// meets, the centre horizon (never above the upper bound).
-    fn lowest(&self, span: Span) -> f64 {
+    /// Whether a height `sin` in `span` can change the row: whether it rises above the
+    /// centre horizon (never above the upper bound) of a wedge the span meets. The scan
+    /// stops at the first such wedge. A NaN height is never ruled out.
+    fn rises_above(&self, span: Span, sin: f64) -> bool {
+        if sin.is_nan() {
+            return true;
+        }
         if let Span::All = span {
-            return self.lowest_anywhere;
+            return sin > self.lowest_anywhere;
         }
         self.wedges
             .covering(span.widened(WEDGE_OVERLAP))
-            .map(|k| self.centre[k])
-            .fold(f64::INFINITY, f64::min)
+            .any(|k| sin > self.centre[k])
     }
 
     /// Raises the wedges' upper bounds and centre horizons by triangle `tri`.
@@ -812,7 +822,7 @@ impl<'a> FacetSky<'a> {
         } else {
             corners
         };
-        if boxed + margin <= self.lowest(rough.widened(margin + WEDGE_OVERLAP)) {
+        if !self.rises_above(rough.widened(margin + WEDGE_OVERLAP), boxed + margin) {
             return;
         }
         // The triangle's outline gives its highest point, and each wedge's; where it
@@ -827,7 +837,7 @@ impl<'a> FacetSky<'a> {
         // most `margin / cos e`: near the zenith the span is every azimuth.
         let cos_top = (1.0 - (top + margin).min(1.0).powi(2)).sqrt();
         let overlap = WEDGE_OVERLAP + margin / cos_top.max(1e-300);
-        if top + margin <= self.lowest(span.widened(overlap)) {
+        if !self.rises_above(span.widened(overlap), top + margin) {
             return;
         }
         let near_zenith = overlap >= 0.25 * self.wedges.width();
@@ -1201,6 +1211,57 @@ mod tests {
         assert!(worst <= ANGLE_ERROR, "worst error {worst:e} rad");
         assert_eq!(atan2_within(0.0, 0.0), 0.0);
     }
+    #[test]
+    fn a_span_holds_every_points_azimuth_and_no_more_and_half_a_turn_is_every_azimuth() {
+        let mut rng = TestRng::new(12);
+        let (t1, t2) = (DVec3::X, DVec3::Y);
+        for case in 0..2000 {
+            // Three to eight points within `width` of azimuth around a random start, at
+            // random heights and distances; every fourth case across ±π.
+            let width = PI * rng.unit() * if case % 2 == 0 { 0.99 } else { 1.6 };
+            let start = if case % 4 == 0 {
+                PI - 0.5 * width
+            } else {
+                TAU * rng.unit() - PI
+            };
+            let count = 3 + (rng.unit() * 6.0) as usize;
+            let mut azimuths: Vec<f64> = (0..count).map(|_| start + width * rng.unit()).collect();
+            azimuths.push(start + width);
+            azimuths.swap(0, count);
+            let points: Vec<DVec3> = azimuths
+                .iter()
+                .map(|&a| {
+                    let r = 10f64.powf(3.0 * rng.unit() - 1.0);
+                    DVec3::new(r * a.cos(), r * a.sin(), r * (rng.unit() - 0.5))
+                })
+                .collect();
+            // The shortest arc holding them all: from the point after the widest gap
+            // between neighbours around the circle to the point before it.
+            let mut turns: Vec<f64> = azimuths.iter().map(|a| a.rem_euclid(TAU)).collect();
+            turns.sort_by(f64::total_cmp);
+            let gap_after = |k: usize| (turns[(k + 1) % turns.len()] - turns[k]).rem_euclid(TAU);
+            let widest = (0..turns.len())
+                .max_by(|&a, &b| gap_after(a).total_cmp(&gap_after(b)))
+                .unwrap();
+            let least = turns[(widest + 1) % turns.len()];
+            let most = least + (TAU - gap_after(widest));
+            match Span::of(&points, t1, t2) {
+                Span::All => assert!(most - least > PI - 1e-9, "{width} spanned as all"),
+                Span::Range(lo, hi) => {
+                    assert!(most - least < PI + 1e-9, "{width} spanned as a range");
+                    assert!(hi - lo >= 0.0 && hi - lo < PI + 1e-12);
+                    // The same span up to whole turns and rounding.
+                    let shift = TAU * ((least - lo) / TAU).round();
+                    assert!((lo + shift - least).abs() < 1e-9, "{lo} against {least}");
+                    assert!((hi + shift - most).abs() < 1e-9, "{hi} against {most}");
+                    for &a in &azimuths {
+                        assert!(Span::Range(lo - 1e-12, hi + 1e-12).holds(a));
+                    }
+                }
+            }
+        }
+    }
+
     #[test]
     fn pseudo_angles_order_turns_as_atan2_does() {
         // Axes, signed zeros, the half-turn and random directions of every size: any two
