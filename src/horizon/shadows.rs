@@ -110,7 +110,9 @@ pub const SUN_SAMPLES_MAX: u32 = 1024;
 /// mesh, so the triangles that set it grow as √N. Fitted to the Itokawa builds of
 /// 2026-11-26 (12,288 facets 0.38 ms, 49,152 0.66 ms, 786,432 3.6 ms per facet; the fit
 /// says 0.49, 0.88 and 3.2; m1phobos's 32,070: 0.47 ms, the fit 0.73); terrain, whose
-/// horizons are far and low, costs more (Haworth: 1.2 ms, the fit 0.36). The saving:
+/// horizons are far and low, costs more (Haworth: 1.2 ms, the fit 0.36). Since the
+/// triangles' outlines the builds take less (12,288 facets 0.19 ms and 49,152 0.41 at
+/// cf4cf90, 786,432 2.6 at a8179cb): the fit is kept as an upper bound. The saving:
 /// what a map spares over Sun-view rays per facet and step in the exact mode (m1phobos,
 /// 360 steps: 0.37 µs).
 fn build_s_per_facet(casters: usize) -> f64 {
