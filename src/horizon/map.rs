@@ -99,14 +99,15 @@ pub struct LocalHorizon {
 
 impl HorizonMap {
     /// Builds the map of every facet of `mesh` with `azimuths` wedges (within
-    /// [`AZIMUTHS_MIN`]..=[`AZIMUTHS_MAX`]), searching `bvh` (built over the same mesh);
-    /// `None` when `cancelled` turns true (asked between batches of facets).
+    /// [`AZIMUTHS_MIN`]..=[`AZIMUTHS_MAX`]), searching `bvh` (built over the same mesh).
+    /// Before each batch of facets, `go_on(facets done)` says whether to go on (it may
+    /// report progress); `None` when it says no.
     pub fn build(
         mesh: &Mesh,
         receivers: usize,
         bvh: &Bvh,
         azimuths: u32,
-        cancelled: &(dyn Fn() -> bool + Sync),
+        go_on: &dyn Fn(usize) -> bool,
     ) -> Option<HorizonMap> {
         const BATCH: usize = 4096;
         let azimuths = azimuths.clamp(AZIMUTHS_MIN, AZIMUTHS_MAX);
@@ -114,7 +115,7 @@ impl HorizonMap {
         let widening = rounding_widening(mesh);
         let mut cells = Vec::with_capacity(receivers * azimuths as usize);
         for first in (0..receivers).step_by(BATCH) {
-            if cancelled() {
+            if !go_on(first) {
                 return None;
             }
             let end = (first + BATCH).min(receivers);
@@ -1050,7 +1051,7 @@ mod tests {
     use crate::TestRng;
 
     fn build(mesh: &Mesh, azimuths: u32) -> HorizonMap {
-        HorizonMap::build(mesh, mesh.len(), &Bvh::build(mesh), azimuths, &|| false)
+        HorizonMap::build(mesh, mesh.len(), &Bvh::build(mesh), azimuths, &|_| true)
             .expect("not cancelled")
     }
 

@@ -21,6 +21,7 @@ use crate::trace::bvh::Bvh;
 use crate::trace::TracerKind;
 use crate::world::{Body, World};
 use serde::{Deserialize, Serialize};
+use std::cell::Cell;
 use std::path::PathBuf;
 use std::time::Instant;
 
@@ -319,10 +320,18 @@ impl Shadows {
         let started = Instant::now();
         let casters = body.shadow_mesh();
         let bvh = Bvh::build(casters);
-        let map = HorizonMap::build(casters, body.mesh.len(), &bvh, self.azimuths, &|| {
-            progress.cancelled()
-        })
-        .ok_or(Error::Cancelled)?;
+        let facets = body.mesh.len();
+        let last_note = Cell::new(0.0);
+        let go_on = |done: usize| {
+            let elapsed = started.elapsed().as_secs_f64();
+            if done > 0 && elapsed - last_note.get() >= BUILD_NOTE_EVERY_S {
+                last_note.set(elapsed);
+                progress.note(&build_progress(&body.name, done, facets, elapsed));
+            }
+            !progress.cancelled()
+        };
+        let map = HorizonMap::build(casters, facets, &bvh, self.azimuths, &go_on)
+            .ok_or(Error::Cancelled)?;
         record.build_s = started.elapsed().as_secs_f64();
         record.bytes = map.bytes();
         if let Some(file) = &file {
@@ -332,6 +341,31 @@ impl Shadows {
             }
         }
         Ok((map, record))
+    }
+}
+
+/// Seconds between two notes of a map build's progress.
+const BUILD_NOTE_EVERY_S: f64 = 30.0;
+
+/// How far the map build of `body` has come: `done` of `facets` after `elapsed_s`, and
+/// the time left at that pace.
+fn build_progress(body: &str, done: usize, facets: usize, elapsed_s: f64) -> String {
+    let left_s = elapsed_s * (facets - done) as f64 / done as f64;
+    format!(
+        "horizon map of '{body}': {done} of {facets} facets ({:.0} %) in {}, about {} left",
+        100.0 * done as f64 / facets as f64,
+        minutes_and_seconds(elapsed_s),
+        minutes_and_seconds(left_s)
+    )
+}
+
+/// A duration as "42 s" or "3 min 05 s".
+fn minutes_and_seconds(s: f64) -> String {
+    let whole = s.round() as u64;
+    if whole < 60 {
+        format!("{whole} s")
+    } else {
+        format!("{} min {:02} s", whole / 60, whole % 60)
     }
 }
 
@@ -353,6 +387,18 @@ pub struct MapRecord {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_builds_progress_says_how_far_it_is_and_how_long_is_left() {
+        assert_eq!(
+            build_progress("phobos", 196_608, 786_432, 300.0),
+            "horizon map of 'phobos': 196608 of 786432 facets (25 %) in 5 min 00 s, about 15 min 00 s left"
+        );
+        assert_eq!(
+            build_progress("b", 1, 3, 20.4),
+            "horizon map of 'b': 1 of 3 facets (33 %) in 20 s, about 41 s left"
+        );
+    }
     use crate::mesh::generate::floor_and_wall;
     use crate::mesh::{LengthUnit, Mesh};
 
