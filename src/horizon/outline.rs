@@ -119,10 +119,11 @@ impl Outline {
             if self.turns[j] * qa < 0.0 || self.turns[j] * qb > 0.0 || qa == qb {
                 continue;
             }
-            let s = qa / (qa - qb);
+            // The cut is at `a + (b − a)·qa/(qa − qb)`; scaled by `qa − qb`, whose sign is
+            // the edge's turn, it needs no division.
             let (a, b) = (self.corners[j], self.corners[(j + 1) % 3]);
-            let cut = a + (b - a) * s;
-            let sine = cut.z / cut.length();
+            let cut = b * qa - a * qb;
+            let sine = self.turns[j] * cut.z / cut.length();
             best = Some(best.map_or(sine, |m| m.max(sine)));
         }
         best
