@@ -438,18 +438,32 @@ impl Wedges {
 
     /// The wedges met by an azimuth span, each once, in order.
     fn covering(&self, span: Span) -> impl Iterator<Item = usize> + '_ {
+        let count = self.count;
         let (first, len) = match span {
-            Span::All => (0, self.count),
+            Span::All => (0, count),
             Span::Range(lo, hi) => {
-                let first = (lo / self.width()).floor();
-                let last = (hi / self.width()).floor();
+                let per_radian = count as f64 / TAU;
+                let (first, last) = (floor(lo * per_radian), floor(hi * per_radian));
                 (
-                    (first as isize).rem_euclid(self.count as isize) as usize,
-                    ((last - first) as usize + 1).min(self.count),
+                    first.rem_euclid(count as i64) as usize,
+                    ((last - first) as usize + 1).min(count),
                 )
             }
         };
-        (first..first + len).map(move |k| k % self.count)
+        // `k` stays below twice the count: one subtraction, not a division, wraps it.
+        (first..first + len).map(move |k| if k >= count { k - count } else { k })
+    }
+}
+
+/// The largest integer not above `x` (finite, within ±2⁶³), by truncation: libm's
+/// `floor` is a call on the baseline x86-64.
+#[inline]
+fn floor(x: f64) -> i64 {
+    let t = x as i64;
+    if (t as f64) > x {
+        t - 1
+    } else {
+        t
     }
 }
 
