@@ -9,8 +9,9 @@
 //! two of its edges; elevation along a straight segment seen from a point off it changes
 //! monotonically, so the triangle's highest point at that azimuth is the higher of those
 //! two ends. Each end is found by where the half-plane meets the edge's projection on the
-//! tangent plane: a convex combination of the edge's corners, with a weight that is a
-//! ratio of two numbers of one sign, so it stays on the edge whatever the rounding.
+//! tangent plane: a combination of the edge's two corners whose weights (the turns from
+//! each corner to the azimuth) have one sign, so it stays on the edge whatever the
+//! rounding.
 //! Over a wedge, the triangle's part is bounded by its edges and the wedge's two
 //! half-planes; its highest point is a corner inside the wedge, the top of an edge's arc
 //! inside it, or the highest point at one of the wedge's bounding azimuths.
