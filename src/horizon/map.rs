@@ -443,7 +443,7 @@ impl Wedges {
             Span::All => (0, count),
             Span::Range(lo, hi) => {
                 let per_radian = count as f64 / TAU;
-                let (first, last) = (floor(lo * per_radian), floor(hi * per_radian));
+                let (first, last) = (floor_i64(lo * per_radian), floor_i64(hi * per_radian));
                 (
                     first.rem_euclid(count as i64) as usize,
                     ((last - first) as usize + 1).min(count),
@@ -458,7 +458,7 @@ impl Wedges {
 /// The largest integer not above `x` (finite, within ±2⁶³), by truncation: libm's
 /// `floor` is a call on the baseline x86-64.
 #[inline]
-fn floor(x: f64) -> i64 {
+fn floor_i64(x: f64) -> i64 {
     let t = x as i64;
     if (t as f64) > x {
         t - 1
