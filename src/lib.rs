@@ -45,6 +45,7 @@
 //! | sight | [`sight`] | a place and another body → its elevation over the horizon, windows of sight |
 //! | traverses | [`route`] | a body's facets, their light over time and a rover → a planned or evaluated route: times, energy, charge, darkness, cost |
 //! | caches | [`cache`] | horizon maps and form factors kept on disk between runs |
+//! | build journals | [`journal`] | a long build's finished parts, kept so that a stopped build resumes |
 //! | step loop | [`simulate`] | world and states → statistics, each step's irradiance |
 //! | statistics | [`stats`] | per-step W/m² → min, max, mean, std, lit fraction, CDF |
 //! | files | [`output`] | statistics → Parquet/CSV tables, PLY, `run.json`; and read back |
@@ -79,6 +80,7 @@ pub mod horizon;
 pub mod illum;
 #[cfg(feature = "imaging")]
 pub mod image;
+pub mod journal;
 pub mod mesh;
 pub mod output;
 pub mod panel;

@@ -3,7 +3,10 @@
 //!
 //! In: a mesh (its vertices in metres and its triangles), how many of its facets receive,
 //! the number of azimuth wedges and a file. Out: a [`HorizonMap`] read back when the file
-//! holds exactly that content intact, and a file written after a build.
+//! holds exactly that content intact, and a file written after a build. While a map is
+//! built, its finished parts ([`MapParts`]) go to a build journal beside the file
+//! (`horizon-<key>.bin.journal`, [`crate::journal`]), each part's cells laid out as in
+//! the payload, so that a build stopped part-way resumes from them.
 //!
 //! Payload (little-endian), in files named `horizon-<key>.bin`:
 //!
@@ -18,9 +21,10 @@
 //! tests left out: changed code never reads an old map), A, the receiving facets, every
 //! vertex (f64 m) and every triangle.
 
-use super::map::HorizonMap;
+use super::map::{HorizonMap, MapParts};
 use crate::cache::{self, Kind, Lookup, Reader};
 use crate::error::Result;
+use crate::journal::{Journal, Opened};
 use crate::mesh::Mesh;
 use sha2::{Digest, Sha256};
 use std::path::{Path, PathBuf};
@@ -77,16 +81,7 @@ fn decode(payload: &[u8], facets: usize, azimuths: u32) -> std::result::Result<H
         ));
     }
     let cells = facets.checked_mul(azimuths as usize).ok_or("absurd size")?;
-    let cells: Vec<[u16; 2]> = r
-        .take(4 * cells, "the elevations")?
-        .chunks_exact(4)
-        .map(|c| {
-            [
-                u16::from_le_bytes([c[0], c[1]]),
-                u16::from_le_bytes([c[2], c[3]]),
-            ]
-        })
-        .collect();
+    let cells = cells_from(r.take(4 * cells, "the elevations")?);
     r.finish()?;
     HorizonMap::from_cells(azimuths, facets, cells).ok_or_else(|| "inconsistent sizes".into())
 }
@@ -96,11 +91,77 @@ pub fn store(path: &Path, key: &[u8; 32], map: &HorizonMap) -> Result<()> {
     let mut payload = Vec::with_capacity(12 + map.bytes());
     payload.extend_from_slice(&map.azimuths().to_le_bytes());
     payload.extend_from_slice(&(map.facets() as u64).to_le_bytes());
-    for [up, mid] in map.cells() {
-        payload.extend_from_slice(&up.to_le_bytes());
-        payload.extend_from_slice(&mid.to_le_bytes());
-    }
+    payload.extend(cells_bytes(map.cells()));
     cache::store(path, &KIND, key, &payload)
+}
+
+/// Cells as the payload holds them: upper, then centre, 2 bytes each.
+fn cells_bytes(cells: &[[u16; 2]]) -> Vec<u8> {
+    cells
+        .iter()
+        .flat_map(|[up, mid]| [up.to_le_bytes(), mid.to_le_bytes()])
+        .flatten()
+        .collect()
+}
+
+/// The cells of [`cells_bytes`]'s bytes (a whole number of cells).
+fn cells_from(bytes: &[u8]) -> Vec<[u16; 2]> {
+    bytes
+        .chunks_exact(4)
+        .map(|c| {
+            [
+                u16::from_le_bytes([c[0], c[1]]),
+                u16::from_le_bytes([c[2], c[3]]),
+            ]
+        })
+        .collect()
+}
+
+/// A map's build journal, opened to go on with.
+pub struct Resumable {
+    pub journal: Journal,
+    /// The rows of the parts it holds, in facet order.
+    pub cells: Vec<[u16; 2]>,
+    /// How many of `parts`' parts they are.
+    pub parts: usize,
+}
+
+/// Opens the build journal ([`crate::journal`]) beside the map file `path` for `key`,
+/// with the rows of the parts of `parts` it holds: each part must have exactly the rows
+/// its facets ask for. `None` when another process is building the same map.
+pub fn resume(path: &Path, key: &[u8; 32], parts: &MapParts) -> Result<Option<Resumable>> {
+    let row_bytes = 4 * parts.azimuths() as usize;
+    let mut cells = Vec::new();
+    let opened = Journal::open(path, &KIND, key, |n, bytes| {
+        let n = n as usize;
+        let fits = n < parts.count() && bytes.len() == parts.facets(n).len() * row_bytes;
+        if fits {
+            cells.extend(cells_from(bytes));
+        }
+        fits
+    })?;
+    Ok(match opened {
+        Opened::Ready { journal, parts } => Some(Resumable {
+            journal,
+            cells,
+            parts: parts as usize,
+        }),
+        Opened::Busy => None,
+    })
+}
+
+/// About how many facets' rows the build journal beside the map file `path` holds,
+/// judged by its size (another process may be writing it).
+pub fn facets_journaled(path: &Path, parts: &MapParts) -> usize {
+    let row_bytes = 4 * parts.azimuths() as u64;
+    let whole = parts.facets(0).len() as u64;
+    let held = crate::journal::parts_held(path, whole * row_bytes) as usize;
+    (held * whole as usize).min(parts.facets(parts.count().saturating_sub(1)).end)
+}
+
+/// Adds a finished part's rows to its build's journal.
+pub fn keep(journal: &mut Journal, rows: &[[u16; 2]]) -> Result<()> {
+    journal.append(&cells_bytes(rows))
 }
 
 #[cfg(test)]

@@ -75,6 +75,78 @@ pub struct HorizonMap {
     octant_ceilings: Vec<[f32; 8]>,
 }
 
+/// Facets in a part of a map's build ([`MapParts`]): a few seconds of work at most, and
+/// a whole number of [`in_seeded_runs`]' runs.
+pub const MAP_PART: usize = 4096;
+
+/// A map's build cut into parts of consecutive facets that can be built one by one, in
+/// separate processes too (a build resumed from its journal): every part starts
+/// [`in_seeded_runs`]' runs afresh at the same facets, so the parts give the map of one
+/// whole build, bit for bit.
+pub struct MapParts<'a> {
+    mesh: &'a Mesh,
+    bvh: &'a Bvh<'a>,
+    receivers: usize,
+    part: usize,
+    wedges: Wedges,
+    widening: f64,
+}
+
+impl<'a> MapParts<'a> {
+    /// The parts of the map of the first `receivers` facets of `mesh` (as
+    /// [`HorizonMap::build`]), `part` facets each (a multiple of 64, the seeded runs).
+    pub fn new(
+        mesh: &'a Mesh,
+        receivers: usize,
+        bvh: &'a Bvh<'a>,
+        azimuths: u32,
+        part: usize,
+    ) -> MapParts<'a> {
+        assert!(
+            part > 0 && part.is_multiple_of(SEEDED_RUN),
+            "a part of {part} facets splits a seeded run"
+        );
+        let azimuths = azimuths.clamp(AZIMUTHS_MIN, AZIMUTHS_MAX);
+        MapParts {
+            mesh,
+            bvh,
+            receivers,
+            part,
+            wedges: Wedges::new(azimuths as usize),
+            widening: rounding_widening(mesh),
+        }
+    }
+
+    /// Wedges per facet (the count asked for, clamped).
+    pub fn azimuths(&self) -> u32 {
+        self.wedges.count as u32
+    }
+
+    /// How many parts.
+    pub fn count(&self) -> usize {
+        self.receivers.div_ceil(self.part)
+    }
+
+    /// The facets of part `p`.
+    pub fn facets(&self, p: usize) -> std::ops::Range<usize> {
+        p * self.part..((p + 1) * self.part).min(self.receivers)
+    }
+
+    /// The rows of part `p`'s facets, in facet order: `azimuths` cells each.
+    pub fn rows(&self, p: usize) -> Vec<[u16; 2]> {
+        // Each facet is seeded with the triangles that set its neighbour's horizon.
+        let rows = in_seeded_runs(self.facets(p), |i, seeds: &Vec<u32>| {
+            facet_horizon(self.mesh, self.bvh, i, &self.wedges, self.widening, seeds)
+        });
+        rows.into_iter().flatten().collect()
+    }
+
+    /// The map from every part's rows, in order; `None` when their number does not fit.
+    pub fn assemble(&self, cells: Vec<[u16; 2]>) -> Option<HorizonMap> {
+        HorizonMap::from_cells(self.azimuths(), self.receivers, cells)
+    }
+}
+
 /// Where the Sun stands in a facet's sky: its wedge, its place between wedge centres
 /// and its elevation above the facet's plane.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -100,8 +172,8 @@ pub struct LocalHorizon {
 impl HorizonMap {
     /// Builds the map of every facet of `mesh` with `azimuths` wedges (within
     /// [`AZIMUTHS_MIN`]..=[`AZIMUTHS_MAX`]), searching `bvh` (built over the same mesh).
-    /// Before each batch of facets, `go_on(facets done)` says whether to go on (it may
-    /// report progress); `None` when it says no.
+    /// Before each part of [`MAP_PART`] facets, `go_on(facets done)` says whether to go
+    /// on (it may report progress); `None` when it says no.
     pub fn build(
         mesh: &Mesh,
         receivers: usize,
@@ -109,23 +181,15 @@ impl HorizonMap {
         azimuths: u32,
         go_on: &dyn Fn(usize) -> bool,
     ) -> Option<HorizonMap> {
-        const BATCH: usize = 4096;
-        let azimuths = azimuths.clamp(AZIMUTHS_MIN, AZIMUTHS_MAX);
-        let wedges = Wedges::new(azimuths as usize);
-        let widening = rounding_widening(mesh);
-        let mut cells = Vec::with_capacity(receivers * azimuths as usize);
-        for first in (0..receivers).step_by(BATCH) {
-            if !go_on(first) {
+        let parts = MapParts::new(mesh, receivers, bvh, azimuths, MAP_PART);
+        let mut cells = Vec::with_capacity(receivers * parts.azimuths() as usize);
+        for p in 0..parts.count() {
+            if !go_on(parts.facets(p).start) {
                 return None;
             }
-            let end = (first + BATCH).min(receivers);
-            // Each facet is seeded with the triangles that set its neighbour's horizon.
-            let rows = in_seeded_runs(first..end, |i, seeds: &Vec<u32>| {
-                facet_horizon(mesh, bvh, i, &wedges, widening, seeds)
-            });
-            rows.into_iter().for_each(|r| cells.extend(r));
+            cells.extend(parts.rows(p));
         }
-        Some(HorizonMap::with_ceilings(azimuths, cells))
+        parts.assemble(cells)
     }
 
     /// A map from stored cells (the cache); `None` when their number does not fit.
@@ -554,6 +618,9 @@ fn pseudo_angle((x, y): (f64, f64)) -> f64 {
     }
 }
 
+/// Facets in a run of [`in_seeded_runs`].
+const SEEDED_RUN: usize = 64;
+
 /// Neighbouring facets taken in turn, so that each search starts from what the last one
 /// found: `each(i, seed)` for every facet `i` of `facets`, in parallel runs of 64
 /// neighbours (in file order, which is spatially coherent in shape models and terrain).
@@ -564,15 +631,14 @@ pub(super) fn in_seeded_runs<T: Send, S: Default>(
     facets: std::ops::Range<usize>,
     each: impl Fn(usize, &S) -> (T, S) + Sync,
 ) -> Vec<T> {
-    const RUN: usize = 64;
     facets
         .clone()
-        .step_by(RUN)
+        .step_by(SEEDED_RUN)
         .collect::<Vec<_>>()
         .into_par_iter()
         .flat_map_iter(|start| {
             let mut seed = S::default();
-            (start..(start + RUN).min(facets.end))
+            (start..(start + SEEDED_RUN).min(facets.end))
                 .map(|i| {
                     let (result, next) = each(i, &seed);
                     seed = next;

@@ -13,16 +13,16 @@
 
 use super::cache;
 use super::disk::SolarDisk;
-use super::map::{HorizonMap, AZIMUTHS_MAX, AZIMUTHS_MIN, CEILING_BYTES};
+use super::map::{HorizonMap, MapParts, AZIMUTHS_MAX, AZIMUTHS_MIN, CEILING_BYTES, MAP_PART};
 use crate::cache::Lookup;
 use crate::error::{Error, Result};
+use crate::journal::Journal;
 use crate::progress::Progress;
 use crate::trace::bvh::Bvh;
 use crate::trace::TracerKind;
 use crate::world::{Body, World};
 use serde::{Deserialize, Serialize};
-use std::cell::Cell;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 /// `[run] shadows`: how a body's own shadows are found.
@@ -279,30 +279,42 @@ impl Shadows {
     }
 
     /// The map of `body`: read from the cache when an intact one is there, built (and
-    /// stored) otherwise.
+    /// stored) otherwise. A build keeps its finished parts in a journal beside the cache
+    /// file and goes on from the parts an earlier, stopped build left there; while
+    /// another process builds the same map, this one waits for it.
     pub fn obtain(&self, body: &Body, progress: &dyn Progress) -> Result<(HorizonMap, MapRecord)> {
+        self.obtain_in_parts(body, progress, MAP_PART)
+    }
+
+    /// [`Shadows::obtain`], a build going by parts of `part` facets.
+    fn obtain_in_parts(
+        &self,
+        body: &Body,
+        progress: &dyn Progress,
+        part: usize,
+    ) -> Result<(HorizonMap, MapRecord)> {
         let key = cache::content_key(body.shadow_mesh(), body.mesh.len(), self.azimuths);
         let file = self.cache_dir.as_deref().map(|d| cache::file_for(d, &key));
         let mut record = MapRecord {
             body: body.name.clone(),
             azimuths: self.azimuths,
             bytes: 0,
-            source: "built".into(),
+            source: "cache".into(),
             file: file.clone(),
             build_s: 0.0,
         };
+        let cached = |map: HorizonMap, record: MapRecord| {
+            progress.note(&format!(
+                "horizon map of '{}': read from {}",
+                body.name,
+                file.as_deref().unwrap_or(Path::new("")).display()
+            ));
+            let bytes = map.bytes();
+            Ok((map, MapRecord { bytes, ..record }))
+        };
         if let Some(file) = &file {
-            match cache::load(file, &key, body.mesh.len(), self.azimuths) {
-                Lookup::Hit(map) => {
-                    progress.note(&format!(
-                        "horizon map of '{}': read from {}",
-                        body.name,
-                        file.display()
-                    ));
-                    record.source = "cache".into();
-                    record.bytes = map.bytes();
-                    return Ok((map, record));
-                }
+            match self.load(body, file, &key) {
+                Lookup::Hit(map) => return cached(map, record),
                 Lookup::Missing => {}
                 Lookup::Rejected(why) => progress.note(&format!(
                     "warning: horizon map cache {} not used ({why}); rebuilding it",
@@ -310,47 +322,204 @@ impl Shadows {
                 )),
             }
         }
-        progress.note(&format!(
-            "building the horizon map of '{}' ({} facets × {} wedges; about {:.0} s on one core)",
-            body.name,
-            body.mesh.len(),
-            self.azimuths,
-            build_seconds(body)
-        ));
-        let started = Instant::now();
         let casters = body.shadow_mesh();
         let bvh = Bvh::build(casters);
-        let facets = body.mesh.len();
-        let last_note = Cell::new(0.0);
-        let go_on = |done: usize| {
-            let elapsed = started.elapsed().as_secs_f64();
-            if done > 0 && elapsed - last_note.get() >= BUILD_NOTE_EVERY_S {
-                last_note.set(elapsed);
-                progress.note(&build_progress(&body.name, done, facets, elapsed));
-            }
-            !progress.cancelled()
+        let parts = MapParts::new(casters, body.mesh.len(), &bvh, self.azimuths, part);
+        let journal = match &file {
+            Some(file) => match self.journal_or_wait(body, (file, &key), &parts, progress)? {
+                Start::Cached(map) => return cached(map, record),
+                Start::Journal(j) => Some(j),
+                Start::Alone => None,
+            },
+            None => None,
         };
-        let map = HorizonMap::build(casters, facets, &bvh, self.azimuths, &go_on)
-            .ok_or(Error::Cancelled)?;
-        record.build_s = started.elapsed().as_secs_f64();
-        record.bytes = map.bytes();
+        let built = build_parts(body, &parts, journal, self.azimuths, progress)?;
+        record.source = if built.resumed { "resumed" } else { "built" }.into();
+        record.build_s = built.seconds;
+        record.bytes = built.map.bytes();
         if let Some(file) = &file {
-            if let Err(e) = cache::store(file, &key, &map) {
-                progress.note(&format!("warning: horizon map not cached: {e}"));
-                record.file = None;
+            match cache::store(file, &key, &built.map) {
+                // Stored: the journal has served. A failure to delete it only leaves a
+                // file that a rebuild of this map would resume from.
+                Ok(()) => {
+                    if let Some(j) = built.journal {
+                        j.finish().ok();
+                    }
+                }
+                Err(e) => {
+                    progress.note(&format!("warning: horizon map not cached: {e}"));
+                    record.file = None;
+                }
             }
         }
-        Ok((map, record))
+        Ok((built.map, record))
     }
+
+    /// The build journal beside the cache `file` of content `key`, with the parts it
+    /// holds; while another process holds it (building the same map), waits until that
+    /// process has stored the map (then read) or let go of the journal.
+    fn journal_or_wait(
+        &self,
+        body: &Body,
+        (file, key): (&Path, &[u8; 32]),
+        parts: &MapParts,
+        progress: &dyn Progress,
+    ) -> Result<Start> {
+        let mut waiting = false;
+        let started = Instant::now();
+        let mut last_note = 0.0;
+        loop {
+            match cache::resume(file, key, parts) {
+                Ok(Some(resumable)) => {
+                    // The other process may have stored the map and let go just before.
+                    if waiting {
+                        if let Lookup::Hit(map) = self.load(body, file, key) {
+                            return Ok(Start::Cached(map));
+                        }
+                    }
+                    return Ok(Start::Journal(resumable));
+                }
+                Ok(None) => {}
+                Err(e) => {
+                    progress.note(&format!("warning: horizon map build journal not used: {e}"));
+                    return Ok(Start::Alone);
+                }
+            }
+            if !waiting {
+                waiting = true;
+                progress.note(&format!(
+                    "another process is building the horizon map {} now: waiting for it \
+                     (should it stop, this run goes on from its build journal)",
+                    file.display()
+                ));
+            }
+            let waited = started.elapsed().as_secs_f64();
+            if waited - last_note >= BUILD_NOTE_EVERY_S {
+                last_note = waited;
+                progress.note(&format!(
+                    "horizon map of '{}': the other process has built about {} of {} facets; \
+                     waited {}",
+                    body.name,
+                    cache::facets_journaled(file, parts),
+                    body.mesh.len(),
+                    minutes_and_seconds(waited)
+                ));
+            }
+            if progress.cancelled() {
+                return Err(Error::Cancelled);
+            }
+            std::thread::sleep(WAIT_POLL);
+            if let Lookup::Hit(map) = self.load(body, file, key) {
+                return Ok(Start::Cached(map));
+            }
+        }
+    }
+
+    /// `body`'s map from the cache `file` of content `key`.
+    fn load(&self, body: &Body, file: &Path, key: &[u8; 32]) -> Lookup<HorizonMap> {
+        cache::load(file, key, body.mesh.len(), self.azimuths)
+    }
+}
+
+/// How often a run waiting for another process's build of the same map looks again.
+const WAIT_POLL: std::time::Duration = std::time::Duration::from_millis(500);
+
+/// How a map's build starts.
+enum Start {
+    /// From its journal (and the parts it holds).
+    Journal(cache::Resumable),
+    /// Without one (no cache folder, or the journal cannot be used).
+    Alone,
+    /// Not at all: another process built it meanwhile.
+    Cached(HorizonMap),
+}
+
+/// Builds `body`'s map part by part, beginning after the parts `journal` holds and
+/// adding each part built to it.
+fn build_parts(
+    body: &Body,
+    parts: &MapParts,
+    journal: Option<cache::Resumable>,
+    azimuths: u32,
+    progress: &dyn Progress,
+) -> Result<Built> {
+    let started = Instant::now();
+    let facets = body.mesh.len();
+    let (mut journal, mut cells, first) = match journal {
+        Some(r) => (Some(r.journal), r.cells, r.parts),
+        None => (None, Vec::new(), 0),
+    };
+    let done_before = parts.facets(first).start.min(facets);
+    let left_s = build_seconds(body) * (facets - done_before) as f64 / facets.max(1) as f64;
+    progress.note(&if done_before > 0 {
+        format!(
+            "resuming the horizon map of '{}' from its build journal: {done_before} of \
+             {facets} facets done, about {left_s:.0} s left on one core",
+            body.name
+        )
+    } else {
+        format!(
+            "building the horizon map of '{}' ({facets} facets × {azimuths} wedges; about \
+             {left_s:.0} s on one core)",
+            body.name
+        )
+    });
+    let mut last_note = 0.0;
+    for p in first..parts.count() {
+        let elapsed = started.elapsed().as_secs_f64();
+        let done = parts.facets(p).start;
+        if done > done_before && elapsed - last_note >= BUILD_NOTE_EVERY_S {
+            last_note = elapsed;
+            progress.note(&build_progress(
+                &body.name,
+                (done_before, done, facets),
+                elapsed,
+            ));
+        }
+        if progress.cancelled() {
+            return Err(Error::Cancelled);
+        }
+        let rows = parts.rows(p);
+        if let Some(j) = &mut journal {
+            if let Err(e) = cache::keep(j, &rows) {
+                progress.note(&format!("warning: horizon map build journal dropped: {e}"));
+                journal = None;
+            }
+        }
+        cells.extend(rows);
+    }
+    Ok(Built {
+        map: parts
+            .assemble(cells)
+            .expect("the parts' rows make the whole map"),
+        seconds: started.elapsed().as_secs_f64(),
+        resumed: done_before > 0,
+        journal,
+    })
+}
+
+/// A map just built.
+struct Built {
+    map: HorizonMap,
+    /// Seconds the build took in this run.
+    seconds: f64,
+    /// Whether it went on from parts a journal held.
+    resumed: bool,
+    /// Its journal (all parts), to delete once the map is stored.
+    journal: Option<Journal>,
 }
 
 /// Seconds between two notes of a map build's progress.
 const BUILD_NOTE_EVERY_S: f64 = 30.0;
 
-/// How far the map build of `body` has come: `done` of `facets` after `elapsed_s`, and
-/// the time left at that pace.
-fn build_progress(body: &str, done: usize, facets: usize, elapsed_s: f64) -> String {
-    let left_s = elapsed_s * (facets - done) as f64 / done as f64;
+/// How far the map build of `body` has come: `done` of `facets` (`before` of them taken
+/// from its journal) after `elapsed_s` in this run, and the time left at that pace.
+fn build_progress(
+    body: &str,
+    (before, done, facets): (usize, usize, usize),
+    elapsed_s: f64,
+) -> String {
+    let left_s = elapsed_s * (facets - done) as f64 / (done - before) as f64;
     format!(
         "horizon map of '{body}': {done} of {facets} facets ({:.0} %) in {}, about {} left",
         100.0 * done as f64 / facets as f64,
@@ -376,7 +545,8 @@ pub struct MapRecord {
     pub azimuths: u32,
     /// Memory the map holds, bytes.
     pub bytes: usize,
-    /// "cache" or "built".
+    /// "cache", "built", or "resumed" (built on from the parts its build journal held,
+    /// left by an earlier run that stopped part-way).
     pub source: String,
     /// The cache file read or written.
     pub file: Option<PathBuf>,
@@ -391,16 +561,201 @@ mod tests {
     #[test]
     fn a_builds_progress_says_how_far_it_is_and_how_long_is_left() {
         assert_eq!(
-            build_progress("phobos", 196_608, 786_432, 300.0),
+            build_progress("phobos", (0, 196_608, 786_432), 300.0),
             "horizon map of 'phobos': 196608 of 786432 facets (25 %) in 5 min 00 s, about 15 min 00 s left"
         );
         assert_eq!(
-            build_progress("b", 1, 3, 20.4),
+            build_progress("b", (0, 1, 3), 20.4),
             "horizon map of 'b': 1 of 3 facets (33 %) in 20 s, about 41 s left"
         );
+        // Resumed from a journal: the pace counts only the facets of this run.
+        assert_eq!(
+            build_progress("b", (4, 5, 7), 20.4),
+            "horizon map of 'b': 5 of 7 facets (71 %) in 20 s, about 41 s left"
+        );
     }
-    use crate::mesh::generate::floor_and_wall;
+
+    /// Notes taken, and a cancel once `cancel_after` parts were allowed.
+    struct StopAfter {
+        cancel_after: usize,
+        checks: AtomicUsize,
+        notes: Mutex<Vec<String>>,
+    }
+
+    impl StopAfter {
+        fn new(cancel_after: usize) -> StopAfter {
+            StopAfter {
+                cancel_after,
+                checks: AtomicUsize::new(0),
+                notes: Mutex::new(Vec::new()),
+            }
+        }
+
+        fn noted(&self, part: &str) -> bool {
+            self.notes
+                .lock()
+                .expect("notes")
+                .iter()
+                .any(|n| n.contains(part))
+        }
+    }
+
+    impl Progress for StopAfter {
+        fn note(&self, line: &str) {
+            self.notes.lock().expect("notes").push(line.to_string());
+        }
+        fn begin_steps(&self, _: u64) {}
+        fn step_done(&self) {}
+        fn end_steps(&self) {}
+        fn cancelled(&self) -> bool {
+            self.checks.fetch_add(1, Ordering::Relaxed) >= self.cancel_after
+        }
+    }
+
+    /// Rough terrain of 512 facets, and settings that cache its map in `dir`.
+    fn bumps_in(dir: &Path) -> (Body, Shadows) {
+        let raw = height_field((16, 16), (-8.0, 8.0), (-8.0, 8.0), |x, y| {
+            1.5 * (0.9 * x).sin() * (0.7 * y).cos()
+        });
+        let body = Body::new("bumps", Mesh::from_raw(raw, LengthUnit::M), false);
+        let shadows = Shadows {
+            azimuths: 32,
+            cache_dir: Some(dir.to_path_buf()),
+            ..Shadows::default()
+        };
+        (body, shadows)
+    }
+
+    fn whole_build(body: &Body, shadows: &Shadows) -> HorizonMap {
+        let mesh = body.shadow_mesh();
+        HorizonMap::build(
+            mesh,
+            mesh.len(),
+            &Bvh::build(mesh),
+            shadows.azimuths,
+            &|_| true,
+        )
+        .expect("map")
+    }
+
+    fn scratch(name: &str) -> PathBuf {
+        let dir =
+            std::env::temp_dir().join(format!("slim-map-journal-{}-{name}", std::process::id()));
+        std::fs::remove_dir_all(&dir).ok();
+        dir
+    }
+
+    #[test]
+    fn a_build_stopped_part_way_goes_on_from_its_journal_to_the_same_map() {
+        let dir = scratch("resume");
+        let (body, shadows) = bumps_in(&dir);
+        let whole = whole_build(&body, &shadows);
+        // Cancelled before the fourth part of eight: three parts are in the journal.
+        let stopped = StopAfter::new(3);
+        assert!(matches!(
+            shadows.obtain_in_parts(&body, &stopped, 64),
+            Err(Error::Cancelled)
+        ));
+        let file = shadows.cached_file(&body);
+        assert!(file.is_none(), "no map file after a stop");
+        let key = cache::content_key(body.shadow_mesh(), body.mesh.len(), 32);
+        let journal = crate::journal::path_for(&cache::file_for(&dir, &key));
+        assert!(journal.is_file());
+
+        let resumed = StopAfter::new(usize::MAX);
+        let (map, record) = shadows
+            .obtain_in_parts(&body, &resumed, 64)
+            .expect("resumed");
+        assert_eq!(map, whole, "the map of one whole build, bit for bit");
+        assert_eq!(record.source, "resumed");
+        assert!(resumed.noted("192 of 512 facets done"));
+        assert!(
+            !journal.exists(),
+            "the journal is deleted once the map is stored"
+        );
+        assert!(shadows.cached_file(&body).is_some());
+
+        // Read back from the cache now.
+        let (again, record) = shadows
+            .obtain_in_parts(&body, &StopAfter::new(usize::MAX), 64)
+            .expect("cached");
+        assert_eq!((again, record.source.as_str()), (whole, "cache"));
+        std::fs::remove_dir_all(&dir).ok();
+    }
+
+    #[test]
+    fn a_journal_of_parts_of_another_size_is_not_taken() {
+        let dir = scratch("other");
+        let (body, shadows) = bumps_in(&dir);
+        assert!(shadows
+            .obtain_in_parts(&body, &StopAfter::new(2), 64)
+            .is_err());
+        let progress = StopAfter::new(usize::MAX);
+        let (map, record) = shadows
+            .obtain_in_parts(&body, &progress, 128)
+            .expect("built");
+        assert_eq!(
+            (map, record.source.as_str()),
+            (whole_build(&body, &shadows), "built")
+        );
+        std::fs::remove_dir_all(&dir).ok();
+    }
+
+    /// Another build holding the journal with its first `parts` parts.
+    fn another_build(body: &Body, dir: &Path, parts: usize) -> Journal {
+        let mesh = body.shadow_mesh();
+        let key = cache::content_key(mesh, mesh.len(), 32);
+        let bvh = Bvh::build(mesh);
+        let map_parts = MapParts::new(mesh, mesh.len(), &bvh, 32, 64);
+        let file = cache::file_for(dir, &key);
+        let mut journal = cache::resume(&file, &key, &map_parts)
+            .expect("open")
+            .expect("not held")
+            .journal;
+        for p in 0..parts {
+            cache::keep(&mut journal, &map_parts.rows(p)).expect("keep");
+        }
+        journal
+    }
+
+    #[test]
+    fn a_run_waits_for_another_build_of_its_map_and_reads_it_or_goes_on_from_it() {
+        let dir = scratch("wait");
+        let (body, shadows) = bumps_in(&dir);
+        let whole = whole_build(&body, &shadows);
+        let key = cache::content_key(body.shadow_mesh(), body.mesh.len(), 32);
+        let file = cache::file_for(&dir, &key);
+        let obtain_beside = |other: Journal, finish: bool| {
+            let progress = StopAfter::new(usize::MAX);
+            let got = std::thread::scope(|scope| {
+                let waiting = scope.spawn(|| shadows.obtain_in_parts(&body, &progress, 64));
+                std::thread::sleep(std::time::Duration::from_millis(700));
+                assert!(!waiting.is_finished(), "it waits while the other builds");
+                if finish {
+                    cache::store(&file, &key, &whole).expect("store");
+                    other.finish().expect("finish");
+                } else {
+                    drop(other);
+                }
+                waiting.join().expect("thread").expect("obtained")
+            });
+            assert!(progress.noted("waiting for it"));
+            (got, progress)
+        };
+        // The other build stores the map: it is read.
+        let ((map, record), _) = obtain_beside(another_build(&body, &dir, 2), true);
+        assert_eq!((&map, record.source.as_str()), (&whole, "cache"));
+        // The other build stops after two parts: this one goes on from them.
+        std::fs::remove_file(&file).expect("remove the map");
+        let ((map, record), progress) = obtain_beside(another_build(&body, &dir, 2), false);
+        assert_eq!((&map, record.source.as_str()), (&whole, "resumed"));
+        assert!(progress.noted("128 of 512 facets done"));
+        std::fs::remove_dir_all(&dir).ok();
+    }
+    use crate::mesh::generate::{floor_and_wall, height_field};
     use crate::mesh::{LengthUnit, Mesh};
+    use std::sync::atomic::{AtomicUsize, Ordering};
+    use std::sync::Mutex;
 
     /// A floor with a wall beside it: a body that shadows itself.
     fn floor_and_wall_body() -> Body {

@@ -391,7 +391,8 @@ mod tests {
                 ((i + 1)..n)
                     .filter_map(|j| {
                         let r = rng.next_u64();
-                        (r % 5 == 0).then(|| (j as u32, (r >> 8) as f32 % 1000.0 / 7.0))
+                        r.is_multiple_of(5)
+                            .then(|| (j as u32, (r >> 8) as f32 % 1000.0 / 7.0))
                     })
                     .collect()
             })

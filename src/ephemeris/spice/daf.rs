@@ -115,7 +115,7 @@ impl Daf<'_> {
 
     fn layout(&self) -> std::result::Result<Layout, &'static str> {
         let size = self.bytes.len();
-        if size < RECORD || (self.big && size % RECORD != 0) {
+        if size < RECORD || (self.big && !size.is_multiple_of(RECORD)) {
             return Err("its size is not a whole number of 1024-byte records");
         }
         let (nd, ni, fward) = (self.int(8), self.int(12), self.int(76));
