@@ -108,16 +108,15 @@ pub const SUN_SAMPLES_MAX: u32 = 1024;
 /// Measured costs behind `auto` and the build's announced time (CPU seconds, 128 wedges;
 /// see docs/performance.md). Building a map costs per facet a fixed part and a part that
 /// grows with the square root of the casting facets: a horizon is a line across the
-/// mesh, so the triangles that set it grow as √N. Fitted to the Itokawa builds of
-/// 2026-11-26 (12,288 facets 0.38 ms, 49,152 0.66 ms, 786,432 3.6 ms per facet; the fit
-/// says 0.49, 0.88 and 3.2; m1phobos's 32,070: 0.47 ms, the fit 0.73); terrain, whose
-/// horizons are far and low, costs more (Haworth: 1.2 ms, the fit 0.36). Since the
-/// triangles' outlines the builds take less (12,288 facets 0.19 ms and 49,152 0.41 at
-/// cf4cf90, 786,432 2.6 at a8179cb): the fit is kept as an upper bound. The saving:
-/// what a map spares over Sun-view rays per facet and step in the exact mode (m1phobos,
-/// 360 steps: 0.37 µs).
+/// mesh, so the triangles that set it grow as √N. Re-fitted on 2026-11-26 (ff278ab) as a
+/// bound above the Itokawa builds, one thread: 12,288 facets 0.18 ms, 49,152 0.39 ms,
+/// 786,432 (subdivided) 2.5 ms per facet, where the fit says 0.36, 0.67 and 2.5; m1phobos's
+/// 32,070: 0.24 ms, the fit 0.55. Terrain, whose horizons are far and low all around,
+/// costs more: Haworth's 5,412 facets 0.84 ms, the fit 0.26. The saving: what a map
+/// spares over Sun-view rays per facet and step in the exact mode (m1phobos, 360 steps:
+/// 0.37 µs).
 fn build_s_per_facet(casters: usize) -> f64 {
-    0.1e-3 + 3.5e-6 * (casters as f64).sqrt()
+    0.05e-3 + 2.8e-6 * (casters as f64).sqrt()
 }
 
 /// CPU seconds the map of `body` takes to build (its facets against all it casts from).
