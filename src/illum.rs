@@ -145,7 +145,7 @@ impl<'w> Direct<'w> {
                 ),
                 (None, TracerKind::Bvh) if !b.convex => {
                     let bvh = Arc::new(Bvh::build(b.shadow_mesh()));
-                    let bound = HorizonBound::new(b.shadow_mesh(), b.mesh.len(), &bvh);
+                    let bound = shadows.bound(b, &bvh);
                     let tracer = Box::new(Arc::clone(&bvh)) as Box<dyn Tracer + 'w>;
                     (tracer, OwnHorizon::Bound { bound, bvh })
                 }

@@ -135,9 +135,16 @@ pub fn simulate(
         obtain_maps(world, &shadows, &horizon_maps, progress)
     })?;
     let mapped: Vec<bool> = maps.iter().map(Option::is_some).collect();
-    let (tracer, _) = choice::choose(tracer, world, states.len(), shadows.disk_samples(), &mapped);
+    let cached = shadows.cached_bounds(world);
+    let (tracer, _) = choice::choose(
+        tracer,
+        world,
+        states.len(),
+        shadows.disk_samples(),
+        (&mapped, &cached),
+    );
     if tracer == TracerKind::Bvh {
-        announce_bvh_build(world, &mapped, progress);
+        announce_bvh_build(world, (&mapped, &cached), progress);
     }
     // A body without outputs needs its own light only when its facets scatter it.
     let needed = world
@@ -239,17 +246,24 @@ fn obtain_maps(
 }
 
 /// Tells the user about the one long silent stage of a BVH run: the tree and horizon
-/// bound of every body that shadows itself without a map, and roughly how long they take.
-fn announce_bvh_build(world: &World, mapped: &[bool], progress: &dyn Progress) {
-    let bounded: usize = choice::bounded(world, mapped)
-        .iter()
-        .map(|b| b.mesh.len())
-        .sum();
-    if bounded > 0 {
+/// bound of every body that shadows itself without a map (the bound read from the cache
+/// where `cached`), and roughly how long they take.
+fn announce_bvh_build(
+    world: &World,
+    (mapped, cached): (&[bool], &[bool]),
+    progress: &dyn Progress,
+) {
+    let bounded = choice::bounded(world, mapped);
+    let facets: usize = bounded.iter().map(|b| b.mesh.len()).sum();
+    if facets > 0 {
+        let what = if choice::bounds_all_cached(world, mapped, cached) {
+            "the tree (the horizon bound read from the cache)"
+        } else {
+            "the tree and the horizon bound"
+        };
         progress.note(&format!(
-            "tracer bvh: building the tree and the horizon bound of {bounded} facets once \
-             (about {:.1} s on one core)",
-            choice::bound_seconds(world, mapped)
+            "tracer bvh: building {what} of {facets} facets once ({} on one core)",
+            choice::about_seconds(choice::bound_seconds(world, mapped, cached))
         ));
     }
 }

@@ -21,8 +21,9 @@
 //!
 //! Cost: a tree search per facet, parallel over facets, each seeded with the triangle
 //! that set its neighbour's bound; about 0.6 s per 49k facets on one core, growing a
-//! little faster than the facet count. Memory: 4 bytes per facet (the sine rounded up to
-//! `f32`).
+//! little faster than the facet count; kept on disk beside the horizon maps and read
+//! back by later runs (`super::cache`). Memory: 4 bytes per facet (the sine rounded up
+//! to `f32`).
 
 use super::geometry::{distance_to_triangle, rounding_widening, triangle_bound};
 use super::map::{f32_at_least, in_seeded_runs};
@@ -99,6 +100,20 @@ impl HorizonBound {
             (f32_at_least(sin), setter)
         });
         HorizonBound { sin_max, widening }
+    }
+
+    /// The bound of `mesh`'s first facets from their stored sines (the cache), as
+    /// [`HorizonBound::new`] built them over the same mesh.
+    pub(super) fn from_sines(mesh: &Mesh, sin_max: Vec<f32>) -> HorizonBound {
+        HorizonBound {
+            sin_max,
+            widening: rounding_widening(mesh),
+        }
+    }
+
+    /// Per facet, the sine kept (for the cache).
+    pub(super) fn sines(&self) -> &[f32] {
+        &self.sin_max
     }
 
     /// What facet `i`'s centroid sees of the `cone` of directions, through the other

@@ -1,5 +1,6 @@
-//! The horizon-map cache: maps built once per (mesh content, settings) and kept on disk
-//! ([`crate::cache`]: the file's envelope, checksum and folder).
+//! The horizon cache: maps, and the BVH tracer's horizon bounds, built once per (mesh
+//! content, settings) and kept on disk ([`crate::cache`]: the file's envelope, checksum
+//! and folder).
 //!
 //! In: a mesh (its vertices in metres and its triangles), how many of its facets receive,
 //! the number of azimuth wedges and a file. Out: a [`HorizonMap`] read back when the file
@@ -21,6 +22,7 @@
 //! tests left out: changed code never reads an old map), A, the receiving facets, every
 //! vertex (f64 m) and every triangle.
 
+use super::bound::HorizonBound;
 use super::map::{HorizonMap, MapParts};
 use crate::cache::{self, Kind, Lookup, Reader};
 use crate::error::Result;
@@ -35,6 +37,69 @@ pub const KIND: Kind = Kind {
     version: 2,
     prefix: "horizon",
 };
+
+/// Horizon-bound files ([`HorizonBound`]): payload the facet count F (u64), then per
+/// facet its bound's sine (f32), in files named `horizon-bound-<key>.bin`. The key hashes
+/// the format version, the code that builds a bound (the bound, its geometry, the map's
+/// seeded runs, this file, the tree and the ray predicate), the receiving facets and the
+/// mesh's content.
+pub const BOUND_KIND: Kind = Kind {
+    magic: b"SLIMHZB\0",
+    version: 1,
+    prefix: "horizon-bound",
+};
+
+/// The content key of the horizon bound of `mesh`'s first `receivers` facets.
+pub fn bound_key(mesh: &Mesh, receivers: usize) -> [u8; 32] {
+    let mut h = Sha256::new();
+    h.update(b"slim horizon bound");
+    h.update(BOUND_KIND.version.to_le_bytes());
+    cache::code(
+        &mut h,
+        &[
+            include_str!("bound.rs"),
+            include_str!("map.rs"),
+            include_str!("geometry.rs"),
+            include_str!("cache.rs"),
+            include_str!("../trace/bvh.rs"),
+            include_str!("../trace/ray.rs"),
+        ],
+    );
+    h.update((receivers as u64).to_le_bytes());
+    cache::mesh_content(&mut h, mesh);
+    h.finalize().into()
+}
+
+/// Reads the bound for `key` of `mesh`'s first `receivers` facets from `path`.
+pub fn load_bound(
+    path: &Path,
+    key: &[u8; 32],
+    mesh: &Mesh,
+    receivers: usize,
+) -> Lookup<HorizonBound> {
+    cache::load(path, &BOUND_KIND, key).decode(|payload| {
+        let mut r = Reader::new(&payload);
+        let stored = r.u64("the facet count")?;
+        if stored != receivers as u64 {
+            return Err(format!("holds {stored} facets, expected {receivers}"));
+        }
+        let sines = r
+            .items(receivers, 4, "the sines")?
+            .map(|b| f32::from_le_bytes(b.try_into().expect("4 bytes")))
+            .collect();
+        r.finish()?;
+        Ok(HorizonBound::from_sines(mesh, sines))
+    })
+}
+
+/// Writes `bound` for `key` to `path` (temporary file, then rename).
+pub fn store_bound(path: &Path, key: &[u8; 32], bound: &HorizonBound) -> Result<()> {
+    let sines = bound.sines();
+    let mut payload = Vec::with_capacity(8 + 4 * sines.len());
+    payload.extend_from_slice(&(sines.len() as u64).to_le_bytes());
+    payload.extend(sines.iter().flat_map(|s| s.to_le_bytes()));
+    cache::store(path, &BOUND_KIND, key, &payload)
+}
 
 /// The content key of `mesh`'s map with `azimuths` wedges.
 pub fn content_key(mesh: &Mesh, receivers: usize, azimuths: u32) -> [u8; 32] {

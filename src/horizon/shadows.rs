@@ -11,6 +11,7 @@
 //! traced, so the choice never changes a result; the approximate mode and the Sun as a
 //! disk read the horizon from the map alone.
 
+use super::bound::HorizonBound;
 use super::cache;
 use super::disk::SolarDisk;
 use super::map::{HorizonMap, MapParts, AZIMUTHS_MAX, AZIMUTHS_MIN, CEILING_BYTES, MAP_PART};
@@ -259,6 +260,39 @@ impl Shadows {
         let key = cache::content_key(body.shadow_mesh(), body.mesh.len(), self.azimuths);
         let file = cache::file_for(dir, &key);
         file.is_file().then_some(file)
+    }
+
+    /// The BVH tracer's horizon bound of `body` (over `bvh`, built on its shadow mesh):
+    /// read from the cache when an intact one is there, else built and stored (a bound
+    /// that cannot be stored is only built again next time).
+    pub fn bound(&self, body: &Body, bvh: &Bvh) -> HorizonBound {
+        let (mesh, receivers) = (body.shadow_mesh(), body.mesh.len());
+        let file = self.bound_file(body);
+        if let Some((file, key)) = &file {
+            if let Lookup::Hit(bound) = cache::load_bound(file, key, mesh, receivers) {
+                return bound;
+            }
+        }
+        let bound = HorizonBound::new(mesh, receivers, bvh);
+        if let Some((file, key)) = &file {
+            cache::store_bound(file, key, &bound).ok();
+        }
+        bound
+    }
+
+    /// Per body, whether its horizon bound is in the cache (a file is there; it is
+    /// checked when read).
+    pub fn cached_bounds(&self, world: &World) -> Vec<bool> {
+        (world.bodies.iter())
+            .map(|b| self.bound_file(b).is_some_and(|(f, _)| f.is_file()))
+            .collect()
+    }
+
+    /// The cache file of `body`'s horizon bound and its content key.
+    fn bound_file(&self, body: &Body) -> Option<(PathBuf, [u8; 32])> {
+        let dir = self.cache_dir.as_deref()?;
+        let key = cache::bound_key(body.shadow_mesh(), body.mesh.len());
+        Some((crate::cache::file_for(dir, &cache::BOUND_KIND, &key), key))
     }
 
     /// Memory the maps of the bodies in `uses` hold, bytes.
@@ -679,6 +713,44 @@ mod tests {
             .obtain_in_parts(&body, &StopAfter::new(usize::MAX), 64)
             .expect("cached");
         assert_eq!((again, record.source.as_str()), (whole, "cache"));
+        std::fs::remove_dir_all(&dir).ok();
+    }
+
+    /// The BVH's horizon bound is stored once built and read back as it was; a damaged
+    /// file is built again, never used.
+    #[test]
+    fn a_bound_is_kept_in_the_cache_and_read_back_as_built() {
+        let dir = scratch("bound");
+        let (body, shadows) = bumps_in(&dir);
+        let bvh = Bvh::build(body.shadow_mesh());
+        let world = World {
+            bodies: vec![body.clone()],
+        };
+        assert_eq!(shadows.cached_bounds(&world), vec![false]);
+        let fresh = HorizonBound::new(body.shadow_mesh(), body.mesh.len(), &bvh);
+        let sines = |b: &HorizonBound| {
+            (0..body.mesh.len())
+                .map(|i| b.sin_max(i))
+                .collect::<Vec<_>>()
+        };
+        assert!(sines(&fresh).iter().any(|&s| s > 0.1), "the bumps rise");
+        assert_eq!(sines(&shadows.bound(&body, &bvh)), sines(&fresh));
+        assert_eq!(shadows.cached_bounds(&world), vec![true]);
+        let (file, _) = shadows.bound_file(&body).expect("a cache folder");
+        let stored = std::fs::read(&file).expect("stored");
+        assert_eq!(sines(&shadows.bound(&body, &bvh)), sines(&fresh));
+        // Read back, not rebuilt: a file holding other sines (with a valid checksum)
+        // would be believed, so fake one and see it come back.
+        let key = cache::bound_key(body.shadow_mesh(), body.mesh.len());
+        let faked = HorizonBound::from_sines(body.shadow_mesh(), vec![0.5; body.mesh.len()]);
+        cache::store_bound(&file, &key, &faked).expect("store");
+        assert!(sines(&shadows.bound(&body, &bvh)).iter().all(|&s| s == 0.5));
+        // A damaged file is refused and replaced by a fresh build.
+        let mut damaged = stored.clone();
+        damaged[crate::cache::PAYLOAD_OFFSET + 9] ^= 1;
+        std::fs::write(&file, &damaged).expect("write");
+        assert_eq!(sines(&shadows.bound(&body, &bvh)), sines(&fresh));
+        assert_eq!(std::fs::read(&file).expect("rewritten"), stored);
         std::fs::remove_dir_all(&dir).ok();
     }
 
