@@ -19,12 +19,19 @@
 //!
 //! A file whose magic, version, key or checksum does not match is never trusted: the
 //! caller is told why, rebuilds the result and replaces the file.
+//!
+//! Keys change with the code, so a folder gathers files no later run will read (a
+//! 786k-facet horizon map is 400 MB). Each read marks its file used (its modification
+//! time); [`entries`] lists a folder's files and [`prune`] deletes those unused since a
+//! given time (`slim cache`).
 
 use crate::atomic::write_atomic;
 use crate::error::{Error, Result};
 use crate::mesh::Mesh;
 use sha2::{Digest, Sha256};
+use std::fs::File;
 use std::path::{Path, PathBuf};
+use std::time::SystemTime;
 
 /// One kind of cached file.
 #[derive(Debug, Clone, Copy)]
@@ -64,6 +71,16 @@ impl<T> Lookup<T> {
             Lookup::Rejected(why) => Lookup::Rejected(why),
         }
     }
+}
+
+/// A content key's hash begun with what every key holds: what the file is for (`label`),
+/// its kind's format version and the source of the code that builds it ([`code`]).
+pub fn key_hasher(label: &[u8], kind: &Kind, sources: &[&str]) -> Sha256 {
+    let mut h = Sha256::new();
+    h.update(label);
+    h.update(kind.version.to_le_bytes());
+    code(&mut h, sources);
+    h
 }
 
 /// Adds a mesh's content to a key: facet count, every vertex (f64 m) and every triangle.
@@ -118,7 +135,8 @@ pub fn file_for(dir: &Path, kind: &Kind, key: &[u8; 32]) -> PathBuf {
     dir.join(format!("{}-{hex}.bin", kind.prefix))
 }
 
-/// Reads the payload for `key` from `path`.
+/// Reads the payload for `key` from `path`, and marks the file used now (its
+/// modification time, which [`prune`] goes by).
 pub fn load(path: &Path, kind: &Kind, key: &[u8; 32]) -> Lookup<Vec<u8>> {
     let bytes = match std::fs::read(path) {
         Ok(b) => b,
@@ -126,9 +144,99 @@ pub fn load(path: &Path, kind: &Kind, key: &[u8; 32]) -> Lookup<Vec<u8>> {
         Err(e) => return Lookup::Rejected(format!("cannot be read: {e}")),
     };
     match open(bytes, kind, key) {
-        Ok(payload) => Lookup::Hit(payload),
+        Ok(payload) => {
+            // A folder we may read but not write keeps its old times: only pruning
+            // comes sooner.
+            File::open(path)
+                .and_then(|f| f.set_modified(SystemTime::now()))
+                .ok();
+            Lookup::Hit(payload)
+        }
         Err(why) => Lookup::Rejected(why),
     }
+}
+
+/// One file of a cache folder that slim wrote.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Entry {
+    pub path: PathBuf,
+    /// What it holds: the kind's prefix ("horizon", "horizon-bound", "form-factors"),
+    /// with " journal" for a build's journal and " unfinished" for a write a run did
+    /// not finish.
+    pub what: String,
+    pub bytes: u64,
+    /// When a run last wrote or read it.
+    pub last_used: SystemTime,
+}
+
+/// The files of `dir` that slim wrote (`<prefix>-<32 hex digits>.bin`, their journals
+/// and unfinished writes), least recently used first; nothing else in the folder is
+/// listed. An absent folder has none.
+pub fn entries(dir: &Path) -> Result<Vec<Entry>> {
+    let listing = match std::fs::read_dir(dir) {
+        Ok(l) => l,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(Vec::new()),
+        Err(e) => return Err(Error::io(dir, e)),
+    };
+    let mut found = Vec::new();
+    for item in listing {
+        let item = item.map_err(|e| Error::io(dir, e))?;
+        let Some(what) = item.file_name().to_str().and_then(kind_of_name) else {
+            continue;
+        };
+        let path = item.path();
+        let meta = item.metadata().map_err(|e| Error::io(&path, e))?;
+        if meta.is_file() {
+            found.push(Entry {
+                what,
+                bytes: meta.len(),
+                last_used: meta.modified().map_err(|e| Error::io(&path, e))?,
+                path,
+            });
+        }
+    }
+    found.sort_by(|a, b| (a.last_used, &a.path).cmp(&(b.last_used, &b.path)));
+    Ok(found)
+}
+
+/// What a file named `name` holds, when slim wrote it ([`file_for`]'s names, and their
+/// `.journal` and `.partial` companions).
+fn kind_of_name(name: &str) -> Option<String> {
+    let (stem, suffix) = match name.rsplit_once(".bin") {
+        Some((stem, "")) => (stem, ""),
+        Some((stem, ".journal")) => (stem, " journal"),
+        Some((stem, ".partial")) => (stem, " unfinished"),
+        _ => return None,
+    };
+    let (prefix, hex) = stem.rsplit_once('-')?;
+    let named = !prefix.is_empty()
+        && prefix.bytes().all(|b| b.is_ascii_lowercase() || b == b'-')
+        && hex.len() == 32
+        && hex
+            .bytes()
+            .all(|b| b.is_ascii_digit() || (b'a'..=b'f').contains(&b));
+    named.then(|| format!("{prefix}{suffix}"))
+}
+
+/// Deletes the files of `dir` that slim wrote and no run has used since `before`, but
+/// not a build's journal that a running build holds; gives what it deleted.
+pub fn prune(dir: &Path, before: SystemTime) -> Result<Vec<Entry>> {
+    let mut deleted = Vec::new();
+    for entry in entries(dir)? {
+        if entry.last_used >= before || held(&entry) {
+            continue;
+        }
+        std::fs::remove_file(&entry.path).map_err(|e| Error::io(&entry.path, e))?;
+        deleted.push(entry);
+    }
+    Ok(deleted)
+}
+
+/// Whether `entry` is a journal a running build holds locked.
+fn held(entry: &Entry) -> bool {
+    entry.what.ends_with(" journal")
+        && File::open(&entry.path)
+            .is_ok_and(|f| matches!(f.try_lock(), Err(std::fs::TryLockError::WouldBlock)))
 }
 
 fn open(mut bytes: Vec<u8>, kind: &Kind, key: &[u8; 32]) -> std::result::Result<Vec<u8>, String> {
@@ -301,6 +409,84 @@ mod tests {
         version: 3,
         prefix: "test",
     };
+
+    #[test]
+    fn only_the_names_slim_writes_are_cache_files() {
+        let hex = "0123456789abcdef0123456789abcdef";
+        let kind = |name: String| kind_of_name(&name);
+        for (name, what) in [
+            (format!("horizon-{hex}.bin"), "horizon"),
+            (format!("horizon-bound-{hex}.bin"), "horizon-bound"),
+            (format!("horizon-{hex}.bin.journal"), "horizon journal"),
+            (
+                format!("form-factors-{hex}.bin.partial"),
+                "form-factors unfinished",
+            ),
+        ] {
+            assert_eq!(kind(name).as_deref(), Some(what));
+        }
+        for other in [
+            format!("horizon-{}.bin", &hex[1..]),
+            format!("horizon-{}.bin", hex.to_uppercase()),
+            format!("horizon-{hex}.bin.bak"),
+            format!("-{hex}.bin"),
+            format!("Notes-{hex}.bin"),
+            "results.csv".to_string(),
+        ] {
+            assert_eq!(kind(other.clone()), None, "{other}");
+        }
+    }
+
+    #[test]
+    fn pruning_deletes_only_slims_files_unused_since_then_and_no_held_journal() {
+        let dir = std::env::temp_dir().join(format!("slim-cache-prune-{}", std::process::id()));
+        std::fs::remove_dir_all(&dir).ok();
+        std::fs::create_dir_all(&dir).expect("dir");
+        let day = std::time::Duration::from_secs(86_400);
+        let now = SystemTime::now();
+        let (old_key, new_key, held_key) = ([1u8; 32], [2u8; 32], [3u8; 32]);
+        let (old, new) = (
+            file_for(&dir, &KIND, &old_key),
+            file_for(&dir, &KIND, &new_key),
+        );
+        store(&old, &KIND, &old_key, b"old").expect("store");
+        store(&new, &KIND, &new_key, b"new").expect("store");
+        let mut journal = file_for(&dir, &KIND, &held_key).into_os_string();
+        journal.push(".journal");
+        let journal = PathBuf::from(journal);
+        std::fs::write(&journal, b"parts").expect("write");
+        // A running build holds its journal locked.
+        let held = File::open(&journal).expect("open");
+        held.try_lock().expect("lock");
+        let stranger = dir.join("notes.txt");
+        std::fs::write(&stranger, b"mine").expect("write");
+        let age = |path: &Path, days: u32| {
+            File::open(path)
+                .and_then(|f| f.set_modified(now - day * days))
+                .expect("age");
+        };
+        for path in [&old, &journal, &stranger] {
+            age(path, 40);
+        }
+        age(&new, 40);
+        // Reading a file marks it used.
+        assert!(matches!(load(&new, &KIND, &new_key), Lookup::Hit(_)));
+        let listed = entries(&dir).expect("list");
+        assert_eq!(listed.len(), 3, "{listed:?}");
+        assert_eq!(listed[2].path, new, "the one just read is the most recent");
+        let deleted = prune(&dir, now - day * 30).expect("prune");
+        assert_eq!(
+            deleted.iter().map(|e| &e.path).collect::<Vec<_>>(),
+            vec![&old]
+        );
+        assert!(new.exists() && journal.exists() && stranger.exists());
+        // Once no build holds it, an old journal goes too.
+        drop(held);
+        assert_eq!(prune(&dir, now - day * 30).expect("prune").len(), 1);
+        assert!(!journal.exists() && new.exists());
+        assert!(entries(&dir.join("absent")).expect("absent").is_empty());
+        std::fs::remove_dir_all(&dir).ok();
+    }
 
     #[test]
     fn a_stored_payload_reads_back_and_any_damage_or_other_key_is_refused() {

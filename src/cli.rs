@@ -207,6 +207,19 @@ enum Command {
         #[arg(short, long)]
         quiet: bool,
     },
+    /// List the cache folder's files (horizon maps and bounds, form factors, build
+    /// journals), least recently used first, and delete those no run has used for a while.
+    Cache {
+        /// The folder (default: $SLIM_CACHE_DIR, else $XDG_CACHE_HOME/slim, else
+        /// ~/.cache/slim; a scene's run.cache_dir names its own).
+        #[arg(long)]
+        dir: Option<PathBuf>,
+        /// Delete the files no run has read or written for this many days (a build's
+        /// journal only when no build holds it); other files in the folder are never
+        /// touched.
+        #[arg(long, value_name = "DAYS")]
+        prune_unused: Option<f64>,
+    },
     /// Load a mesh and report its size, topology and orientation.
     Info {
         /// The mesh file.
@@ -581,6 +594,55 @@ fn usage_error(e: &clap::Error) -> String {
 
 /// Writes `text` to stdout. A reader that has gone away (a closed pipe) is an
 /// [`Error::Io`] of kind `BrokenPipe`, which [`main`] ends on quietly.
+/// `slim cache`: the folder's files, or (with `prune_unused` days) those it deleted.
+fn cache_folder(dir: Option<PathBuf>, prune_unused: Option<f64>) -> Result<String> {
+    use slim::budget::human_bytes;
+    use std::time::{Duration, SystemTime};
+    let dir = dir.or_else(slim::cache::default_dir).ok_or_else(|| {
+        Error::Usage(
+            "no cache folder: none of SLIM_CACHE_DIR, XDG_CACHE_HOME, HOME is set; give --dir"
+                .into(),
+        )
+    })?;
+    let now = SystemTime::now();
+    let days_ago =
+        |t: SystemTime| now.duration_since(t).unwrap_or_default().as_secs_f64() / 86_400.0;
+    let line = |e: &slim::cache::Entry| {
+        let name = e.path.file_name().unwrap_or_default().to_string_lossy();
+        format!(
+            "{:<24} {:>10}  {:>7.1} days ago  {name}\n",
+            e.what,
+            human_bytes(e.bytes),
+            days_ago(e.last_used)
+        )
+    };
+    let total = |entries: &[slim::cache::Entry]| {
+        let n = entries.len();
+        let bytes = human_bytes(entries.iter().map(|e| e.bytes).sum());
+        format!("{n} file{}, {bytes}", if n == 1 { "" } else { "s" })
+    };
+    let Some(days) = prune_unused else {
+        let entries = slim::cache::entries(&dir)?;
+        let mut text = format!("{}: {}\n", dir.display(), total(&entries));
+        entries.iter().for_each(|e| text += &line(e));
+        return Ok(text);
+    };
+    if !(days.is_finite() && days >= 0.0) {
+        return Err(Error::Usage(format!(
+            "--prune-unused {days}: give a number of days, 0 or more"
+        )));
+    }
+    let before = now - Duration::from_secs_f64(days * 86_400.0);
+    let deleted = slim::cache::prune(&dir, before)?;
+    let mut text = format!(
+        "{}: deleted {} (unused for {days} days or more)\n",
+        dir.display(),
+        total(&deleted)
+    );
+    deleted.iter().for_each(|e| text += &line(e));
+    Ok(text)
+}
+
 fn emit(text: &str) -> Result<()> {
     let mut out = std::io::stdout().lock();
     out.write_all(text.as_bytes())
@@ -884,6 +946,7 @@ fn execute(cli: Cli) -> Result<()> {
             budget_of(max_memory),
             &TerminalProgress::new(quiet),
         ),
+        Command::Cache { dir, prune_unused } => emit(&cache_folder(dir, prune_unused)?),
         Command::Info {
             mesh,
             units,

@@ -895,3 +895,48 @@ fn route_errors_name_the_mesh_and_the_bad_field() {
     let out = slim(&["route", "s.toml", "r.json"], &dir.0);
     assert_one_line_error(&out, &["rover.speed_m_s", "bad_route"]);
 }
+
+/// The BVH's horizon bound goes to the scene's cache folder and is read back by the next
+/// run (same results); `slim cache` lists it and deletes it once unused.
+#[test]
+fn a_runs_bound_is_cached_listed_and_pruned() {
+    let dir = TempDir::new("cache");
+    let scene = write_scene(&dir, "s.toml");
+    let body = std::fs::read_to_string(&scene).unwrap();
+    std::fs::write(
+        &scene,
+        format!("[run]\ntracer = \"bvh\"\ncache_dir = \"cache\"\n\n{body}"),
+    )
+    .unwrap();
+    let first = slim(&["run", "s.toml", "-o", "first"], &dir.0);
+    assert!(first.status.success(), "{}", text(&first.stderr));
+    let listed = slim(&["cache", "--dir", "cache"], &dir.0);
+    let listing = text(&listed.stdout);
+    assert!(listed.status.success(), "{}", text(&listed.stderr));
+    assert!(
+        listing.contains(": 1 file,") && listing.contains("horizon-bound "),
+        "{listing}"
+    );
+    let second = slim(&["run", "s.toml", "-o", "second"], &dir.0);
+    assert!(
+        text(&second.stderr).contains("the horizon bound read from the cache"),
+        "{}",
+        text(&second.stderr)
+    );
+    for file in ["summary.csv", "cdf.csv"] {
+        assert_eq!(
+            std::fs::read(dir.join("first").join(file)).unwrap(),
+            std::fs::read(dir.join("second").join(file)).unwrap(),
+            "{file}"
+        );
+    }
+    let kept = slim(&["cache", "--dir", "cache", "--prune-unused", "1"], &dir.0);
+    assert!(text(&kept.stdout).contains("deleted 0 files"));
+    let pruned = slim(&["cache", "--dir", "cache", "--prune-unused", "0"], &dir.0);
+    assert!(
+        text(&pruned.stdout).contains("deleted 1 file,"),
+        "{}",
+        text(&pruned.stdout)
+    );
+    assert_eq!(std::fs::read_dir(dir.join("cache")).unwrap().count(), 0);
+}

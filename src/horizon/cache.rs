@@ -28,7 +28,7 @@ use crate::cache::{self, Kind, Lookup, Reader};
 use crate::error::Result;
 use crate::journal::{Journal, Opened};
 use crate::mesh::Mesh;
-use sha2::{Digest, Sha256};
+use sha2::Digest;
 use std::path::{Path, PathBuf};
 
 /// Horizon-map files; version 2 moved to the shared envelope.
@@ -51,11 +51,9 @@ pub const BOUND_KIND: Kind = Kind {
 
 /// The content key of the horizon bound of `mesh`'s first `receivers` facets.
 pub fn bound_key(mesh: &Mesh, receivers: usize) -> [u8; 32] {
-    let mut h = Sha256::new();
-    h.update(b"slim horizon bound");
-    h.update(BOUND_KIND.version.to_le_bytes());
-    cache::code(
-        &mut h,
+    let mut h = cache::key_hasher(
+        b"slim horizon bound",
+        &BOUND_KIND,
         &[
             include_str!("bound.rs"),
             include_str!("map.rs"),
@@ -103,11 +101,9 @@ pub fn store_bound(path: &Path, key: &[u8; 32], bound: &HorizonBound) -> Result<
 
 /// The content key of `mesh`'s map with `azimuths` wedges.
 pub fn content_key(mesh: &Mesh, receivers: usize, azimuths: u32) -> [u8; 32] {
-    let mut h = Sha256::new();
-    h.update(b"slim horizon map");
-    h.update(KIND.version.to_le_bytes());
-    cache::code(
-        &mut h,
+    let mut h = cache::key_hasher(
+        b"slim horizon map",
+        &KIND,
         &[
             include_str!("map.rs"),
             include_str!("geometry.rs"),

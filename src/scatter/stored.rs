@@ -19,7 +19,7 @@ use super::form_factor::NearField;
 use crate::cache::{self, Kind, Lookup, Reader};
 use crate::error::Result;
 use crate::mesh::Mesh;
-use sha2::{Digest, Sha256};
+use sha2::Digest;
 use std::path::Path;
 
 /// Form-factor files.
@@ -41,11 +41,9 @@ pub struct OwnBlock {
 
 /// The content key of `mesh`'s own block with these near-field settings.
 pub fn content_key(mesh: &Mesh, near: &NearField) -> [u8; 32] {
-    let mut h = Sha256::new();
-    h.update(b"slim form factors");
-    h.update(KIND.version.to_le_bytes());
-    cache::code(
-        &mut h,
+    let mut h = cache::key_hasher(
+        b"slim form factors",
+        &KIND,
         &[
             include_str!("mod.rs"),
             include_str!("form_factor.rs"),
