@@ -151,7 +151,7 @@ pub fn prepare(scene: &Scene, budget: &Budget, timings: &mut Timings) -> Result<
         world,
         states.len(),
         shadows.disk_samples(),
-        (&horizon_maps, &shadows.cached_bounds(world)),
+        &horizon_maps,
     );
     let mut plan = Plan::new(scene, world, states.len(), (tracer, why), &horizon_maps);
     plan.set_horizon_maps(map_decisions);

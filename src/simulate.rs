@@ -135,15 +135,9 @@ pub fn simulate(
         obtain_maps(world, &shadows, &horizon_maps, progress)
     })?;
     let mapped: Vec<bool> = maps.iter().map(Option::is_some).collect();
-    let cached = shadows.cached_bounds(world);
-    let (tracer, _) = choice::choose(
-        tracer,
-        world,
-        states.len(),
-        shadows.disk_samples(),
-        (&mapped, &cached),
-    );
+    let (tracer, _) = choice::choose(tracer, world, states.len(), shadows.disk_samples(), &mapped);
     if tracer == TracerKind::Bvh {
+        let cached = shadows.cached_bounds(world);
         announce_bvh_build(world, (&mapped, &cached), progress);
     }
     // A body without outputs needs its own light only when its facets scatter it.

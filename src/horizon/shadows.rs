@@ -404,9 +404,11 @@ impl Shadows {
         loop {
             match cache::resume(file, key, parts) {
                 Ok(Some(resumable)) => {
-                    // The other process may have stored the map and let go just before.
+                    // The other process may have stored the map and let go just before:
+                    // then the journal (held here, so no one else's) has no use.
                     if waiting {
                         if let Lookup::Hit(map) = self.load(body, file, key) {
+                            resumable.journal.finish().ok();
                             return Ok(Start::Cached(map));
                         }
                     }
@@ -813,9 +815,10 @@ mod tests {
             assert!(progress.noted("waiting for it"));
             (got, progress)
         };
-        // The other build stores the map: it is read.
+        // The other build stores the map: it is read, and no journal is left behind.
         let ((map, record), _) = obtain_beside(another_build(&body, &dir, 2), true);
         assert_eq!((&map, record.source.as_str()), (&whole, "cache"));
+        assert!(!crate::journal::path_for(&file).exists());
         // The other build stops after two parts: this one goes on from them.
         std::fs::remove_file(&file).expect("remove the map");
         let ((map, record), progress) = obtain_beside(another_build(&body, &dir, 2), false);
