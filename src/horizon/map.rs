@@ -76,12 +76,12 @@ pub struct HorizonMap {
 }
 
 /// Facets in a part of a map's build ([`MapParts`]): a few seconds of work at most, and
-/// a whole number of [`in_seeded_runs`]' runs.
+/// a whole number of the seeded runs' 64 facets.
 pub const MAP_PART: usize = 4096;
 
 /// A map's build cut into parts of consecutive facets that can be built one by one, in
 /// separate processes too (a build resumed from its journal): every part starts
-/// [`in_seeded_runs`]' runs afresh at the same facets, so the parts give the map of one
+/// the seeded runs afresh at the same facets, so the parts give the map of one
 /// whole build, bit for bit.
 pub struct MapParts<'a> {
     mesh: &'a Mesh,
