@@ -128,12 +128,11 @@ impl Journal {
 
     /// Adds the next finished part.
     pub fn append(&mut self, part: &[u8]) -> Result<()> {
-        let mut bytes = Vec::with_capacity(8 + part.len() + 32);
-        bytes.extend_from_slice(&(part.len() as u64).to_le_bytes());
-        bytes.extend_from_slice(part);
-        bytes.extend_from_slice(&part_sum(&self.key, self.parts, part));
-        self.file
-            .write_all(&bytes)
+        let sum = part_sum(&self.key, self.parts, part);
+        let mut write = |bytes: &[u8]| self.file.write_all(bytes);
+        write(&(part.len() as u64).to_le_bytes())
+            .and_then(|()| write(part))
+            .and_then(|()| write(&sum))
             .map_err(|e| Error::io(&self.path, e))?;
         self.parts += 1;
         Ok(())

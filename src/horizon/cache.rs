@@ -192,7 +192,9 @@ pub struct Resumable {
 /// its facets ask for. `None` when another process is building the same map.
 pub fn resume(path: &Path, key: &[u8; 32], parts: &MapParts) -> Result<Option<Resumable>> {
     let row_bytes = 4 * parts.azimuths() as usize;
-    let mut cells = Vec::new();
+    // Room for the whole map at once: the build fills it up, and a growing vector would
+    // hold its old and new buffers together (800 MB at 786k facets).
+    let mut cells = Vec::with_capacity(parts.cell_count());
     let opened = Journal::open(path, &KIND, key, |n, bytes| {
         let n = n as usize;
         let fits = n < parts.count() && bytes.len() == parts.facets(n).len() * row_bytes;

@@ -122,6 +122,11 @@ impl<'a> MapParts<'a> {
         self.wedges.count as u32
     }
 
+    /// Cells of the whole map: `azimuths` per facet.
+    pub fn cell_count(&self) -> usize {
+        self.receivers * self.wedges.count
+    }
+
     /// How many parts.
     pub fn count(&self) -> usize {
         self.receivers.div_ceil(self.part)
@@ -138,7 +143,9 @@ impl<'a> MapParts<'a> {
         let rows = in_seeded_runs(self.facets(p), |i, seeds: &Vec<u32>| {
             facet_horizon(self.mesh, self.bvh, i, &self.wedges, self.widening, seeds)
         });
-        rows.into_iter().flatten().collect()
+        let mut cells = Vec::with_capacity(self.facets(p).len() * self.wedges.count);
+        rows.into_iter().for_each(|row| cells.extend(row));
+        cells
     }
 
     /// The map from every part's rows, in order; `None` when their number does not fit.
@@ -182,7 +189,7 @@ impl HorizonMap {
         go_on: &dyn Fn(usize) -> bool,
     ) -> Option<HorizonMap> {
         let parts = MapParts::new(mesh, receivers, bvh, azimuths, MAP_PART);
-        let mut cells = Vec::with_capacity(receivers * parts.azimuths() as usize);
+        let mut cells = Vec::with_capacity(parts.cell_count());
         for p in 0..parts.count() {
             if !go_on(parts.facets(p).start) {
                 return None;

@@ -482,7 +482,7 @@ fn build_parts(
     let facets = body.mesh.len();
     let (mut journal, mut cells, first) = match journal {
         Some(r) => (Some(r.journal), r.cells, r.parts),
-        None => (None, Vec::new(), 0),
+        None => (None, Vec::with_capacity(parts.cell_count()), 0),
     };
     let done_before = parts.facets(first).start.min(facets);
     let left_s = build_seconds(body) * (facets - done_before) as f64 / facets.max(1) as f64;
