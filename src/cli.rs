@@ -592,8 +592,6 @@ fn usage_error(e: &clap::Error) -> String {
     }
 }
 
-/// Writes `text` to stdout. A reader that has gone away (a closed pipe) is an
-/// [`Error::Io`] of kind `BrokenPipe`, which [`main`] ends on quietly.
 /// `slim cache`: the folder's files, or (with `prune_unused` days) those it deleted.
 fn cache_folder(dir: Option<PathBuf>, prune_unused: Option<f64>) -> Result<String> {
     use slim::budget::human_bytes;
@@ -643,6 +641,8 @@ fn cache_folder(dir: Option<PathBuf>, prune_unused: Option<f64>) -> Result<Strin
     Ok(text)
 }
 
+/// Writes `text` to stdout. A reader that has gone away (a closed pipe) is an
+/// [`Error::Io`] of kind `BrokenPipe`, which [`main`] ends on quietly.
 fn emit(text: &str) -> Result<()> {
     let mut out = std::io::stdout().lock();
     out.write_all(text.as_bytes())
