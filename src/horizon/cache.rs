@@ -152,20 +152,20 @@ pub fn store(path: &Path, key: &[u8; 32], map: &HorizonMap) -> Result<()> {
     let mut payload = Vec::with_capacity(12 + map.bytes());
     payload.extend_from_slice(&map.azimuths().to_le_bytes());
     payload.extend_from_slice(&(map.facets() as u64).to_le_bytes());
-    payload.extend(cells_bytes(map.cells()));
+    payload.extend(cell_bytes(map.cells()));
     cache::store(path, &KIND, key, &payload)
 }
 
-/// Cells as the payload holds them: upper, then centre, 2 bytes each.
-fn cells_bytes(cells: &[[u16; 2]]) -> Vec<u8> {
+/// Cells as the payload holds them: upper, then centre, 2 bytes each (an iterator, so
+/// that a whole map is never copied into a second buffer on its way to the payload).
+fn cell_bytes(cells: &[[u16; 2]]) -> impl Iterator<Item = u8> + '_ {
     cells
         .iter()
         .flat_map(|[up, mid]| [up.to_le_bytes(), mid.to_le_bytes()])
         .flatten()
-        .collect()
 }
 
-/// The cells of [`cells_bytes`]'s bytes (a whole number of cells).
+/// The cells of [`cell_bytes`]' bytes (a whole number of cells).
 fn cells_from(bytes: &[u8]) -> Vec<[u16; 2]> {
     bytes
         .chunks_exact(4)
@@ -224,7 +224,9 @@ pub fn facets_journaled(path: &Path, parts: &MapParts) -> usize {
 
 /// Adds a finished part's rows to its build's journal.
 pub fn keep(journal: &mut Journal, rows: &[[u16; 2]]) -> Result<()> {
-    journal.append(&cells_bytes(rows))
+    let mut bytes = Vec::with_capacity(4 * rows.len());
+    bytes.extend(cell_bytes(rows));
+    journal.append(&bytes)
 }
 
 #[cfg(test)]
