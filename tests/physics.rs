@@ -750,7 +750,7 @@ fn compare_horizon_map(name: &str, mesh: &Mesh, suns: &[DVec3], mode: HorizonMod
     let eph = fixed(suns, 1000.0, vec![Pose::IDENTITY]);
     let by_grid = history(&world, &eph, TracerKind::Grid);
     let bvh = slim::trace::bvh::Bvh::build(mesh);
-    let map = HorizonMap::build(mesh, mesh.len(), &bvh, 64, &|_| true).expect("map");
+    let map = HorizonMap::build(mesh, mesh.len(), &bvh, 64);
     let shadows = Shadows {
         mode,
         ..Shadows::default()
@@ -1373,7 +1373,7 @@ fn blocks_of_steps_light_every_facet_as_single_steps() {
     let (itokawa, world, states) = itokawa_and_moonlet(13, 0.5);
     let mapped = |mode, sun| {
         let bvh = slim::trace::bvh::Bvh::build(&itokawa);
-        let map = HorizonMap::build(&itokawa, itokawa.len(), &bvh, 64, &|_| true).expect("map");
+        let map = HorizonMap::build(&itokawa, itokawa.len(), &bvh, 64);
         let shadows = Shadows {
             mode,
             sun,
@@ -1432,7 +1432,7 @@ fn facets_asked_for_get_the_step_loops_bits_under_a_disk_sun() {
     };
     let map = || {
         let bvh = slim::trace::bvh::Bvh::build(&itokawa);
-        HorizonMap::build(&itokawa, itokawa.len(), &bvh, 64, &|_| true).expect("map")
+        HorizonMap::build(&itokawa, itokawa.len(), &bvh, 64)
     };
     let setups = [
         ("bvh rays", TracerKind::Bvh, None),
@@ -1669,9 +1669,7 @@ fn surrounding_walls_shadow_a_patch_where_their_height_says() {
         patch.len(),
         &slim::trace::bvh::Bvh::build(casters),
         256,
-        &|_| true,
-    )
-    .expect("map");
+    );
     let by_map = Direct::with_maps(
         &world,
         TracerKind::Sunview,

@@ -240,8 +240,7 @@ mod tests {
     fn a_stored_map_reads_back_and_any_damage_or_other_content_is_refused() {
         let dir = std::env::temp_dir().join(format!("slim-horizon-cache-{}", std::process::id()));
         let mesh = Mesh::from_raw(icosphere(1, 1.0, glam::DVec3::ZERO), LengthUnit::Km);
-        let map =
-            HorizonMap::build(&mesh, mesh.len(), &Bvh::build(&mesh), 16, &|_| true).expect("map");
+        let map = HorizonMap::build(&mesh, mesh.len(), &Bvh::build(&mesh), 16);
         let key = content_key(&mesh, mesh.len(), 16);
         let file = file_for(&dir, &key);
         assert!(matches!(load(&file, &key, mesh.len(), 16), Lookup::Missing));

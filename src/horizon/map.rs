@@ -177,26 +177,18 @@ pub struct LocalHorizon {
 }
 
 impl HorizonMap {
-    /// Builds the map of every facet of `mesh` with `azimuths` wedges (within
-    /// [`AZIMUTHS_MIN`]..=[`AZIMUTHS_MAX`]), searching `bvh` (built over the same mesh).
-    /// Before each part of [`MAP_PART`] facets, `go_on(facets done)` says whether to go
-    /// on (it may report progress); `None` when it says no.
-    pub fn build(
-        mesh: &Mesh,
-        receivers: usize,
-        bvh: &Bvh,
-        azimuths: u32,
-        go_on: &dyn Fn(usize) -> bool,
-    ) -> Option<HorizonMap> {
+    /// Builds the map of the first `receivers` facets of `mesh` with `azimuths` wedges
+    /// (within [`AZIMUTHS_MIN`]..=[`AZIMUTHS_MAX`]), searching `bvh` (built over the same
+    /// mesh), in one go; runs build it part by part ([`MapParts`]) with a journal.
+    pub fn build(mesh: &Mesh, receivers: usize, bvh: &Bvh, azimuths: u32) -> HorizonMap {
         let parts = MapParts::new(mesh, receivers, bvh, azimuths, MAP_PART);
         let mut cells = Vec::with_capacity(parts.cell_count());
         for p in 0..parts.count() {
-            if !go_on(parts.facets(p).start) {
-                return None;
-            }
             cells.extend(parts.rows(p));
         }
-        parts.assemble(cells)
+        parts
+            .assemble(cells)
+            .expect("the parts' rows make the whole map")
     }
 
     /// A map from stored cells (the cache); `None` when their number does not fit.
@@ -1138,8 +1130,7 @@ mod tests {
     use crate::TestRng;
 
     fn build(mesh: &Mesh, azimuths: u32) -> HorizonMap {
-        HorizonMap::build(mesh, mesh.len(), &Bvh::build(mesh), azimuths, &|_| true)
-            .expect("not cancelled")
+        HorizonMap::build(mesh, mesh.len(), &Bvh::build(mesh), azimuths)
     }
 
     /// A floor (two triangles facing +z) and a wall of height `h` along x = `d`: seen

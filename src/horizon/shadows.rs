@@ -663,14 +663,7 @@ mod tests {
 
     fn whole_build(body: &Body, shadows: &Shadows) -> HorizonMap {
         let mesh = body.shadow_mesh();
-        HorizonMap::build(
-            mesh,
-            mesh.len(),
-            &Bvh::build(mesh),
-            shadows.azimuths,
-            &|_| true,
-        )
-        .expect("map")
+        HorizonMap::build(mesh, mesh.len(), &Bvh::build(mesh), shadows.azimuths)
     }
 
     fn scratch(name: &str) -> PathBuf {

@@ -55,9 +55,14 @@ fn saved_s_per_facet_step(disk_samples: Option<u32>) -> f64 {
 /// without a horizon map (`maps[b]`).
 pub fn bounded<'w>(world: &'w World, maps: &[bool]) -> Vec<&'w Body> {
     (world.bodies.iter().zip(maps))
-        .filter(|(body, &map)| !body.convex && !map)
+        .filter(|&(body, &map)| needs_bound(body, map))
         .map(|(body, _)| body)
         .collect()
+}
+
+/// Whether `body` gets a horizon bound: it shadows itself and has no map (`map`).
+fn needs_bound(body: &Body, map: bool) -> bool {
+    !body.convex && !map
 }
 
 /// CPU seconds per facet of the BVH's tree alone, as when the horizon bound is read from
@@ -69,7 +74,7 @@ const TREE_S_PER_FACET: f64 = 1.5e-6;
 /// (the [`bounded`] bodies'), a bound in the cache (`cached[b]`) costing only its tree.
 pub fn bound_seconds(world: &World, maps: &[bool], cached: &[bool]) -> f64 {
     (world.bodies.iter().zip(maps).zip(cached))
-        .filter(|((body, &map), _)| !body.convex && !map)
+        .filter(|((body, &map), _)| needs_bound(body, map))
         .map(|((b, _), &cached)| {
             let per_facet = if cached {
                 TREE_S_PER_FACET
@@ -93,7 +98,7 @@ pub fn about_seconds(s: f64) -> String {
 /// Whether every body that needs a horizon bound has it in the cache (`cached[b]`).
 pub fn bounds_all_cached(world: &World, maps: &[bool], cached: &[bool]) -> bool {
     (world.bodies.iter().zip(maps).zip(cached))
-        .all(|((body, &map), &cached)| body.convex || map || cached)
+        .all(|((body, &map), &cached)| cached || !needs_bound(body, map))
 }
 
 /// The tracer a run of `steps` steps takes: `kind` itself unless it is
