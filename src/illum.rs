@@ -22,6 +22,7 @@ use crate::horizon::bound::{Cone, ConeView, HorizonBound};
 use crate::horizon::disk::SolarDisk;
 use crate::horizon::eclipse::Ellipsoid;
 use crate::horizon::map::{HorizonMap, LocalHorizon, SkyPosition};
+use crate::horizon::shadows::BoundRecord;
 use crate::horizon::{HorizonMode, Shadows, SunShape};
 use crate::trace::bvh::{Bvh, BvhRays};
 use crate::trace::{self, ShadowQuery, Tracer, TracerKind};
@@ -75,6 +76,8 @@ pub struct Direct<'w> {
     /// Per body, whether its own irradiance is needed (false: it only casts shadows and
     /// nothing reads its facets' light; they stay at 0).
     lit: Vec<bool>,
+    /// Where each horizon bound came from, for the bodies that have one.
+    bound_records: Vec<BoundRecord>,
 }
 
 /// What a body knows of its horizon.
@@ -132,6 +135,7 @@ impl<'w> Direct<'w> {
         shadows: &Shadows,
     ) -> Direct<'w> {
         let exact = shadows.mode == HorizonMode::Exact;
+        let mut bound_records = Vec::new();
         let (tracers, horizons) = world
             .bodies
             .iter()
@@ -145,14 +149,18 @@ impl<'w> Direct<'w> {
                 ),
                 (None, TracerKind::Bvh) if !b.convex => {
                     let bvh = Arc::new(Bvh::build(b.shadow_mesh()));
-                    let bound = shadows.bound(b, &bvh);
+                    let (bound, record) = shadows.bound(b, &bvh);
+                    bound_records.push(record);
                     let tracer = Box::new(Arc::clone(&bvh)) as Box<dyn Tracer + 'w>;
                     (tracer, OwnHorizon::Bound { bound, bvh })
                 }
                 (None, _) => (trace::build(kind, b.shadow_mesh()), OwnHorizon::None),
             })
             .unzip();
-        Direct::assemble(world, tracers, horizons, shadows)
+        Direct {
+            bound_records,
+            ..Direct::assemble(world, tracers, horizons, shadows)
+        }
     }
 
     /// For shadow rays through the given tracers, one per body (scene order): built by
@@ -186,7 +194,13 @@ impl<'w> Direct<'w> {
             min_height_m: world.bodies.iter().map(min_blocker_heights).collect(),
             offsets: world.offsets(),
             lit: vec![true; world.bodies.len()],
+            bound_records: Vec::new(),
         }
+    }
+
+    /// Where each body's horizon bound came from (the bodies whose rays use one).
+    pub fn bound_records(&self) -> &[BoundRecord] {
+        &self.bound_records
     }
 
     /// Leaves out the irradiance of the bodies not `needed` (scene order): their facets

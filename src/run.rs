@@ -13,7 +13,7 @@ use crate::bands::Bands;
 use crate::budget::Budget;
 use crate::ephemeris::EpochState;
 use crate::error::{Error, Result};
-use crate::horizon::shadows::MapRecord;
+use crate::horizon::shadows::{BoundRecord, MapRecord};
 use crate::illum::StepCounts;
 use crate::output::record::ShardRecord;
 use crate::output::record::{InputFile, RunRecord};
@@ -193,6 +193,7 @@ pub fn run_with(
         Outcome {
             counts: sim.counts,
             horizon_maps: sim.horizon_maps,
+            horizon_bounds: sim.horizon_bounds,
             scatter: sim.parts.map(|p| p.record),
         },
         bins,
@@ -240,6 +241,7 @@ pub(crate) fn write_results(
 pub(crate) struct Outcome {
     pub counts: StepCounts,
     pub horizon_maps: Vec<MapRecord>,
+    pub horizon_bounds: Vec<BoundRecord>,
     pub scatter: Option<ScatterRecord>,
 }
 
@@ -291,6 +293,7 @@ pub(crate) fn run_record(
         plan,
         counts: outcome.counts,
         horizon_maps: outcome.horizon_maps,
+        horizon_bounds: outcome.horizon_bounds,
         scatter: outcome.scatter,
         bins_w_m2: bins,
         duration_s,

@@ -18,7 +18,7 @@ use crate::bands::Bands;
 use crate::ephemeris::EpochState;
 use crate::error::{Error, Result};
 use crate::horizon::map::HorizonMap;
-use crate::horizon::shadows::MapRecord;
+use crate::horizon::shadows::{BoundRecord, MapRecord};
 use crate::horizon::Shadows;
 use crate::illum::{Direct, StepCounts};
 use crate::progress::{Progress, Silent, Timings};
@@ -87,6 +87,8 @@ pub struct Simulation {
     pub parts: Option<ScatterParts>,
     /// Where each horizon map used came from.
     pub horizon_maps: Vec<MapRecord>,
+    /// Where each horizon bound used came from.
+    pub horizon_bounds: Vec<BoundRecord>,
 }
 
 /// Direct and scattered statistics of a run with scattered light.
@@ -202,6 +204,7 @@ pub fn simulate(
         }
     }
     progress.end_steps();
+    let horizon_bounds = direct.bound_records().to_vec();
     Ok(Simulation {
         stats: acc.total_stats,
         counts,
@@ -214,6 +217,7 @@ pub fn simulate(
                 record: stage.record,
             }),
         horizon_maps: records,
+        horizon_bounds,
     })
 }
 

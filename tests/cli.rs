@@ -930,6 +930,19 @@ fn a_runs_bound_is_cached_listed_and_pruned() {
             "{file}"
         );
     }
+    // run.json says where each run's bound came from.
+    let source = |run: &str| {
+        let record: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(dir.join(run).join("run.json")).unwrap())
+                .unwrap();
+        let bounds = record["horizon_bounds"].as_array().expect("bounds").clone();
+        assert_eq!(bounds.len(), 1, "{bounds:?}");
+        bounds[0]["source"].as_str().unwrap().to_string()
+    };
+    assert_eq!(
+        (source("first"), source("second")),
+        ("built".into(), "cache".into())
+    );
     let kept = slim(&["cache", "--dir", "cache", "--prune-unused", "1"], &dir.0);
     assert!(text(&kept.stdout).contains("deleted 0 files"));
     let pruned = slim(&["cache", "--dir", "cache", "--prune-unused", "0"], &dir.0);

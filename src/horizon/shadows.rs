@@ -264,20 +264,32 @@ impl Shadows {
 
     /// The BVH tracer's horizon bound of `body` (over `bvh`, built on its shadow mesh):
     /// read from the cache when an intact one is there, else built and stored (a bound
-    /// that cannot be stored is only built again next time).
-    pub fn bound(&self, body: &Body, bvh: &Bvh) -> HorizonBound {
+    /// that cannot be stored is only built again next time); with where it came from.
+    pub fn bound(&self, body: &Body, bvh: &Bvh) -> (HorizonBound, BoundRecord) {
         let (mesh, receivers) = (body.shadow_mesh(), body.mesh.len());
         let file = self.bound_file(body);
+        let mut record = BoundRecord {
+            body: body.name.clone(),
+            source: "cache".into(),
+            file: file.as_ref().map(|(f, _)| f.clone()),
+            build_s: 0.0,
+        };
         if let Some((file, key)) = &file {
             if let Lookup::Hit(bound) = cache::load_bound(file, key, mesh, receivers) {
-                return bound;
+                return (bound, record);
             }
         }
+        let started = Instant::now();
         let bound = HorizonBound::new(mesh, receivers, bvh);
+        record.build_s = started.elapsed().as_secs_f64();
+        record.source = "built".into();
         if let Some((file, key)) = &file {
-            cache::store_bound(file, key, &bound).ok();
+            if cache::store_bound(file, key, &bound).is_err() {
+                // Not kept: the next run builds it again.
+                record.file = None;
+            }
         }
-        bound
+        (bound, record)
     }
 
     /// Per body, whether its horizon bound is in the cache (a file is there; it is
@@ -573,6 +585,20 @@ fn minutes_and_seconds(s: f64) -> String {
     }
 }
 
+/// Where a run's horizon bound came from (kept in `run.json`): the BVH tracer's, per
+/// body that has one.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct BoundRecord {
+    pub body: String,
+    /// "cache" or "built".
+    pub source: String,
+    /// The cache file read or written (none without a cache folder, or when it could not
+    /// be written).
+    pub file: Option<PathBuf>,
+    /// Seconds spent building it (0 when read).
+    pub build_s: f64,
+}
+
 /// Where a run's horizon map came from (kept in `run.json`).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct MapRecord {
@@ -729,22 +755,27 @@ mod tests {
                 .collect::<Vec<_>>()
         };
         assert!(sines(&fresh).iter().any(|&s| s > 0.1), "the bumps rise");
-        assert_eq!(sines(&shadows.bound(&body, &bvh)), sines(&fresh));
+        // The sines of the bound `shadows` gives, and where it says they came from.
+        let obtained = || {
+            let (bound, record) = shadows.bound(&body, &bvh);
+            (sines(&bound), record.source)
+        };
+        assert_eq!(obtained(), (sines(&fresh), "built".to_string()));
         assert_eq!(shadows.cached_bounds(&world), vec![true]);
         let (file, _) = shadows.bound_file(&body).expect("a cache folder");
         let stored = std::fs::read(&file).expect("stored");
-        assert_eq!(sines(&shadows.bound(&body, &bvh)), sines(&fresh));
+        assert_eq!(obtained(), (sines(&fresh), "cache".to_string()));
         // Read back, not rebuilt: a file holding other sines (with a valid checksum)
         // would be believed, so fake one and see it come back.
         let key = cache::bound_key(body.shadow_mesh(), body.mesh.len());
         let faked = HorizonBound::from_sines(body.shadow_mesh(), vec![0.5; body.mesh.len()]);
         cache::store_bound(&file, &key, &faked).expect("store");
-        assert!(sines(&shadows.bound(&body, &bvh)).iter().all(|&s| s == 0.5));
+        assert!(obtained().0.iter().all(|&s| s == 0.5));
         // A damaged file is refused and replaced by a fresh build.
         let mut damaged = stored.clone();
         damaged[crate::cache::PAYLOAD_OFFSET + 9] ^= 1;
         std::fs::write(&file, &damaged).expect("write");
-        assert_eq!(sines(&shadows.bound(&body, &bvh)), sines(&fresh));
+        assert_eq!(obtained(), (sines(&fresh), "built".to_string()));
         assert_eq!(std::fs::read(&file).expect("rewritten"), stored);
         std::fs::remove_dir_all(&dir).ok();
     }

@@ -52,6 +52,9 @@ pub struct RunRecord {
     /// Where each horizon map came from (none when no body used one).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub horizon_maps: Vec<crate::horizon::shadows::MapRecord>,
+    /// Where each horizon bound of the BVH tracer came from (none when no body used one).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub horizon_bounds: Vec<crate::horizon::shadows::BoundRecord>,
     /// The scattered-light stage: form factors per body and the solver's report over all
     /// steps (absent without scattering).
     #[serde(skip_serializing_if = "Option::is_none")]

@@ -391,6 +391,7 @@ fn merged_outcome(parts: &[Part]) -> Outcome {
     let mut outcome = Outcome {
         counts: first.counts,
         horizon_maps: first.horizon_maps.clone(),
+        horizon_bounds: first.horizon_bounds.clone(),
         scatter: first.scatter.clone(),
     };
     if parts[0].shard.by == By::Time {
