@@ -268,25 +268,40 @@ fn open(mut bytes: Vec<u8>, kind: &Kind, key: &[u8; 32]) -> std::result::Result<
 }
 
 /// Writes `payload` for `key` to `path` (temporary file, then rename), creating the
-/// folder. The payload is written as it is, not copied into the file's layout first:
-/// a 786k-facet map is 400 MB.
+/// folder.
 pub fn store(path: &Path, kind: &Kind, key: &[u8; 32], payload: &[u8]) -> Result<()> {
+    store_pieces(path, kind, key, [payload])
+}
+
+/// As [`store`], the payload handed over in consecutive pieces, each written and added to
+/// the checksum as it comes: a payload made from a larger structure (a 786k-facet map is
+/// 400 MB) is never held whole in a second buffer.
+pub fn store_pieces<P: AsRef<[u8]>>(
+    path: &Path,
+    kind: &Kind,
+    key: &[u8; 32],
+    payload: impl IntoIterator<Item = P>,
+) -> Result<()> {
     let mut header = Vec::with_capacity(HEADER);
     header.extend_from_slice(kind.magic);
     header.extend_from_slice(&kind.version.to_le_bytes());
     header.extend_from_slice(key);
-    let sum: [u8; 32] = Sha256::new()
-        .chain_update(&header)
-        .chain_update(payload)
-        .finalize()
-        .into();
     if let Some(dir) = path.parent() {
         std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
     }
     let (tmp, mut out) = create_partial(path)?;
-    [&header[..], payload, &sum]
-        .iter()
-        .try_for_each(|part| out.write_all(part))
+    let mut sum = Sha256::new();
+    let mut write = |bytes: &[u8]| {
+        sum.update(bytes);
+        out.write_all(bytes)
+    };
+    write(&header)
+        .and_then(|()| {
+            payload
+                .into_iter()
+                .try_for_each(|piece| write(piece.as_ref()))
+        })
+        .and_then(|()| out.write_all(&sum.finalize()))
         .and_then(|()| out.flush())
         .map_err(|e| Error::io(&tmp, e))?;
     drop(out);

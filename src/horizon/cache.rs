@@ -147,17 +147,19 @@ fn decode(payload: &[u8], facets: usize, azimuths: u32) -> std::result::Result<H
     HorizonMap::from_cells(azimuths, facets, cells).ok_or_else(|| "inconsistent sizes".into())
 }
 
-/// Writes `map` for `key` to `path` (temporary file, then rename).
+/// Cells turned into payload bytes at a time when a map is stored (1 MiB).
+const CELLS_PER_PIECE: usize = 1 << 18;
+
+/// Writes `map` for `key` to `path` (temporary file, then rename), its cells a piece at a
+/// time, so that storing a map holds no second copy of it.
 pub fn store(path: &Path, key: &[u8; 32], map: &HorizonMap) -> Result<()> {
-    let mut payload = Vec::with_capacity(12 + map.bytes());
-    payload.extend_from_slice(&map.azimuths().to_le_bytes());
-    payload.extend_from_slice(&(map.facets() as u64).to_le_bytes());
-    payload.extend(cell_bytes(map.cells()));
-    cache::store(path, &KIND, key, &payload)
+    let mut head = map.azimuths().to_le_bytes().to_vec();
+    head.extend_from_slice(&(map.facets() as u64).to_le_bytes());
+    let cells = (map.cells().chunks(CELLS_PER_PIECE)).map(|piece| cell_bytes(piece).collect());
+    cache::store_pieces(path, &KIND, key, std::iter::once(head).chain(cells))
 }
 
-/// Cells as the payload holds them: upper, then centre, 2 bytes each (an iterator, so
-/// that a whole map is never copied into a second buffer on its way to the payload).
+/// Cells as the payload holds them: upper, then centre, 2 bytes each.
 fn cell_bytes(cells: &[[u16; 2]]) -> impl Iterator<Item = u8> + '_ {
     cells
         .iter()
