@@ -12,12 +12,12 @@
 //! of the segment's direction, so a segment is classified exactly as a shadow ray of the
 //! other tracers would be. The tree is built with the binned surface-area heuristic;
 //! leaves hold at most [`LEAF_SIZE`] facets. The tree borrows the mesh, whose `f64`
-//! facets the exact tests read; it keeps only its `f32` boxes and leaf screens. For
-//! traversal the binary tree is collapsed into one of four children per node, whose
-//! boxes are stored in `f32` by axis (one child per SIMD lane), relative to the mesh's
-//! centre and rounded outward with a margin far above `f32` rounding, so the box tests
-//! can only let through more, never fewer, segments than exact ones would; facets are
-//! then screened in `f32` and tested in `f64`.
+//! facets the exact tests read; it keeps only its `f32` boxes and leaf screens (their
+//! edge planes in `i16`). For traversal the binary tree is collapsed into one of four
+//! children per node, whose boxes are stored in `f32` by axis (one child per SIMD lane),
+//! relative to the mesh's centre and rounded outward with a margin far above `f32`
+//! rounding, so the box tests can only let through more, never fewer, segments than
+//! exact ones would; facets are then screened in `f32` and tested in `f64`.
 
 use super::ray::{inside, DepthPlane, RayFrame};
 use super::{caster_facets, ShadowQuery, Tracer};
@@ -47,43 +47,78 @@ struct Node {
     count: u32,
 }
 
-/// The facets of one leaf as the quick screen sees them (`f32`, relative to the tree's
-/// centre, one facet per lane): their planes `n·x = d` by component and, per edge, the
-/// inward unit vector in the plane perpendicular to it with its offset. An unused lane
-/// has a zero normal and `d = -∞`: every point lies infinitely far in front of it.
+/// The facets of one leaf as the quick screen sees them (relative to the tree's centre,
+/// one facet per lane): their planes `n·x = d` by component in `f32` and, per edge, the
+/// inward unit vector in the plane perpendicular to it with its offset, in [`EdgeRows`].
+/// An unused lane has a zero normal and `d = -∞`: every point lies infinitely far in
+/// front of it.
 #[derive(Debug, Clone, Copy)]
 struct Leaf {
     plane: [Vec4; 4],
-    edges: [[Vec4; 4]; 3],
+    edges: [EdgeRows; 3],
     /// Mesh facet ids, per lane (`u32::MAX` for an unused one).
     ids: [u32; 4],
 }
 
+/// One edge plane per lane, quantised to `i16`: the normal's components in units of
+/// `1/EDGE_UNITS`, the offset in units of `2·reach/EDGE_UNITS` (`reach` the tree's,
+/// which bounds every corner's coordinates about its centre, so `|d| ≤ √3·reach` fits).
+/// The edge planes only ever decide that a crossing lies *well* outside a facet (by the
+/// screen's `reach`, 3e-4 of the segment's `scale`), so they need not be exact:
+/// rounding moves a height at a point `p` by at most `|Δn|·|p| + |Δd|`, under
+/// `2.7e-5·|p| + 3.1e-5·reach`. A steep crossing the screen evaluates lies at most
+/// 1e-3 of the scale past a segment's ends, so within 1.8 scales of the centre (an
+/// error under 8e-5 of the scale, a quarter of the tolerance), and at most half a cone's
+/// length past its far end, within 7 scales (2.2e-4); the `f32` rounding of the
+/// crossing (2e-5 of the scale) still fits beside either. At 96 bytes instead of 192 a leaf is 176
+/// bytes, which brings the tree under Embree's BVH in memory.
+#[derive(Debug, Clone, Copy)]
+struct EdgeRows([[i16; 4]; 4]);
+
+/// Quantisation steps per unit of an [`EdgeRows`] normal component (and per `2·reach`
+/// of its offset).
+const EDGE_UNITS: f64 = i16::MAX as f64;
+
+impl EdgeRows {
+    /// The plane of unit normal `n` through `p` (metres from the tree's centre) in lane
+    /// `lane`.
+    fn put(&mut self, lane: usize, n: DVec3, p: DVec3, reach: f64) {
+        let quantise = |x: f64| (x * EDGE_UNITS).round().clamp(-EDGE_UNITS, EDGE_UNITS) as i16;
+        for (k, v) in n.to_array().into_iter().enumerate() {
+            self.0[k][lane] = quantise(v);
+        }
+        self.0[3][lane] = quantise(n.dot(p) / (2.0 * reach).max(f64::MIN_POSITIVE));
+    }
+
+    /// The planes' heights at `p`, in lanes, in units of `1/EDGE_UNITS` metres, with the
+    /// offset's unit (`2·reach`) given.
+    #[inline(always)]
+    fn scaled_height(&self, p: &[Vec4; 3], offset_unit: Vec4) -> Vec4 {
+        let [x, y, z, d] = self.0.map(|row| Vec4::from_array(row.map(f32::from)));
+        x * p[0] + y * p[1] + z * p[2] - d * offset_unit
+    }
+}
+
 impl Leaf {
-    fn new(mesh: &Mesh, ids: &[u32], centre: DVec3) -> Leaf {
+    /// The leaf over facets `ids` of a tree centred on `centre`, every corner within
+    /// `reach` of it on each axis (metres).
+    fn new(mesh: &Mesh, ids: &[u32], centre: DVec3, reach: f64) -> Leaf {
         let mut leaf = Leaf {
             plane: [Vec4::ZERO, Vec4::ZERO, Vec4::ZERO, Vec4::NEG_INFINITY],
-            edges: [[Vec4::ZERO; 4]; 3],
+            edges: [EdgeRows([[0; 4]; 4]); 3],
             ids: [u32::MAX; 4],
-        };
-        let put = |rows: &mut [Vec4; 4], lane: usize, n: DVec3, p: DVec3| {
-            let n32 = n.as_vec3();
-            for (k, v) in n32.to_array().into_iter().enumerate() {
-                rows[k][lane] = v;
-            }
-            rows[3][lane] = n32.as_dvec3().dot(p - centre) as f32;
         };
         for (lane, &id) in ids.iter().enumerate() {
             let (corners, normal) = (mesh.corners(id as usize), mesh.normals[id as usize]);
-            put(&mut leaf.plane, lane, normal, corners[0]);
+            let n32 = normal.as_vec3();
+            for (k, v) in n32.to_array().into_iter().enumerate() {
+                leaf.plane[k][lane] = v;
+            }
+            leaf.plane[3][lane] = n32.as_dvec3().dot(corners[0] - centre) as f32;
             for (k, rows) in leaf.edges.iter_mut().enumerate() {
                 let edge = corners[(k + 1) % 3] - corners[k];
-                put(
-                    rows,
-                    lane,
-                    normal.cross(edge).normalize_or_zero(),
-                    corners[k],
-                );
+                let inward = normal.cross(edge).normalize_or_zero();
+                rows.put(lane, inward, corners[k] - centre, reach);
             }
             leaf.ids[lane] = id;
         }
@@ -141,8 +176,9 @@ impl Leaf {
                 s.reach + t.max(Vec4::ZERO) * c.grow * (steepness + c.length) / (steepness - c.grow)
             }
         };
+        let scaled_reach = reach * EDGE_UNITS as f32;
         let outside = self.edges.iter().fold(BVec4A::splat(false), |out, e| {
-            out | height(&p, e).cmplt(-reach)
+            out | e.scaled_height(&p, s.offset_unit).cmplt(-scaled_reach)
         });
         (!(one_side | (steep & outside))).bitmask()
     }
@@ -166,11 +202,14 @@ struct Screened {
     slack: Vec4,
     /// Crossings within this outside an edge count as inside (m): about 15× the
     /// rounding of the crossing point, which is at most 100 height roundings (the
-    /// crossing angle is at least 0.01 rad).
+    /// crossing angle is at least 0.01 rad); the quantised edge planes' error
+    /// ([`EdgeRows`]) takes up to half of it.
     reach: Vec4,
     /// Differences of the two ends' heights above this (0.01 × the length) mean a
     /// crossing angle of at least 0.01 rad.
     steep: Vec4,
+    /// The unit of the leaves' edge offsets, twice the tree's reach (m).
+    offset_unit: Vec4,
 }
 
 impl Screened {
@@ -187,6 +226,7 @@ impl Screened {
             slack: Vec4::splat(1e-5 * scale),
             reach: Vec4::splat(3e-4 * scale),
             steep: Vec4::splat(0.01 * (b - a).length() as f32),
+            offset_unit: Vec4::splat(2.0 * tree_reach as f32),
         }
     }
 }
@@ -261,6 +301,7 @@ impl<'m> Bvh<'m> {
                     mesh,
                     &facets[first as usize..(first + count) as usize],
                     centre,
+                    reach,
                 )
             })
             .collect();
@@ -849,7 +890,7 @@ fn quads(nodes: &[Node], centre: DVec3, margin: f32) -> (Vec<Quad>, Vec<(u32, u3
             quad.child[lane] = if child.count > 0 {
                 runs.push((child.first, child.count));
                 // Leaves hold at least one facet each, and facet ids are below 2³¹ in any
-                // mesh that fits in memory (72 bytes of leaf per facet alone).
+                // mesh that fits in memory (44 bytes of leaf per facet alone).
                 assert!(
                     runs.len() <= LEAF_BIT as usize,
                     "too many leaves for LEAF_BIT"
@@ -1291,6 +1332,42 @@ mod tests {
                 );
             }
         }
+    }
+
+    #[test]
+    fn quantised_edge_planes_stay_within_their_stated_error() {
+        // Heights from the i16 rows against f64 ones, for planes through corners within
+        // the tree's reach and points up to 6.9 reaches out: the error must stay under
+        // the bound of `EdgeRows` (2.7e-5·|p| + 3.1e-5·reach), with 1e-6 for the f32
+        // arithmetic, or the screen could clear a facet the segment crosses.
+        let reach = 1234.5;
+        let mut rng = crate::TestRng::new(0x9e37_79b9_7f4a_7c15);
+        let mut cube = || DVec3::new(rng.unit(), rng.unit(), rng.unit()) * 2.0 - 1.0;
+        let mut worst: f64 = 0.0;
+        for _ in 0..2000 {
+            let mut rows = EdgeRows([[0; 4]; 4]);
+            let planes: Vec<(DVec3, DVec3)> = (0..4)
+                .map(|_| (cube().normalize(), cube() * reach))
+                .collect();
+            for (lane, &(n, corner)) in planes.iter().enumerate() {
+                rows.put(lane, n, corner, reach);
+            }
+            let p = cube() * 4.0 * reach;
+            let p32 = p.as_vec3().to_array().map(Vec4::splat);
+            let heights =
+                rows.scaled_height(&p32, Vec4::splat((2.0 * reach) as f32)) / EDGE_UNITS as f32;
+            for (lane, &(n, corner)) in planes.iter().enumerate() {
+                let error = (heights[lane] as f64 - n.dot(p - corner)).abs();
+                let bound = 2.7e-5 * p.length() + 3.1e-5 * reach + 1e-6 * (p.length() + reach);
+                assert!(
+                    error <= bound,
+                    "{error} m above {bound} m at {p}, plane {n} through {corner}"
+                );
+                worst = worst.max(error / bound);
+            }
+        }
+        // The rows are quantised, not exact: the error takes a visible share of the bound.
+        assert!(worst > 0.1, "worst error only {worst} of the bound");
     }
 
     #[test]
