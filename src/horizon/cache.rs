@@ -90,13 +90,14 @@ pub fn load_bound(
     })
 }
 
-/// Writes `bound` for `key` to `path` (temporary file, then rename).
+/// Writes `bound` for `key` to `path` (temporary file, then rename), without a second
+/// copy of its sines.
 pub fn store_bound(path: &Path, key: &[u8; 32], bound: &HorizonBound) -> Result<()> {
     let sines = bound.sines();
-    let mut payload = Vec::with_capacity(8 + 4 * sines.len());
-    payload.extend_from_slice(&(sines.len() as u64).to_le_bytes());
-    payload.extend(sines.iter().flat_map(|s| s.to_le_bytes()));
-    cache::store(path, &BOUND_KIND, key, &payload)
+    let head = (sines.len() as u64).to_le_bytes().to_vec();
+    store_streamed(path, &BOUND_KIND, key, head, sines, |piece| {
+        piece.iter().flat_map(|s| s.to_le_bytes()).collect()
+    })
 }
 
 /// The content key of `mesh`'s map with `azimuths` wedges.
@@ -147,16 +148,32 @@ fn decode(payload: &[u8], facets: usize, azimuths: u32) -> std::result::Result<H
     HorizonMap::from_cells(azimuths, facets, cells).ok_or_else(|| "inconsistent sizes".into())
 }
 
-/// Cells turned into payload bytes at a time when a map is stored (1 MiB).
-const CELLS_PER_PIECE: usize = 1 << 18;
+/// Values (map cells, bound sines) turned into payload bytes at a time when a file is
+/// stored: a piece of 1 MiB of cells.
+const VALUES_PER_PIECE: usize = 1 << 18;
 
 /// Writes `map` for `key` to `path` (temporary file, then rename), its cells a piece at a
 /// time, so that storing a map holds no second copy of it.
 pub fn store(path: &Path, key: &[u8; 32], map: &HorizonMap) -> Result<()> {
     let mut head = map.azimuths().to_le_bytes().to_vec();
     head.extend_from_slice(&(map.facets() as u64).to_le_bytes());
-    let cells = (map.cells().chunks(CELLS_PER_PIECE)).map(|piece| cell_bytes(piece).collect());
-    cache::store_pieces(path, &KIND, key, std::iter::once(head).chain(cells))
+    store_streamed(path, &KIND, key, head, map.cells(), |piece| {
+        cell_bytes(piece).collect()
+    })
+}
+
+/// Stores `head` and then `values` as the payload of a `kind` file, the values turned
+/// into bytes by `bytes` a piece of [`VALUES_PER_PIECE`] at a time.
+fn store_streamed<T>(
+    path: &Path,
+    kind: &Kind,
+    key: &[u8; 32],
+    head: Vec<u8>,
+    values: &[T],
+    bytes: impl Fn(&[T]) -> Vec<u8>,
+) -> Result<()> {
+    let pieces = values.chunks(VALUES_PER_PIECE).map(bytes);
+    cache::store_pieces(path, kind, key, std::iter::once(head).chain(pieces))
 }
 
 /// Cells as the payload holds them: upper, then centre, 2 bytes each.
