@@ -309,6 +309,7 @@ pub fn build_world(
         let convex = report.convex;
         let mut body = Body::new(b.name.clone(), mesh, convex);
         body.outputs = b.outputs;
+        body.open = report.boundary_edges > 0;
         if let Some(radii_m) = ellipsoid_radii_m {
             body = body.with_ellipsoid(radii_m);
         }

@@ -73,6 +73,11 @@ pub struct Body {
     /// The mesh followed by terrain around it that only casts shadows (so facet ids of
     /// the mesh are the same in both); `None`: the mesh alone casts.
     pub casters: Option<Mesh>,
+    /// True for terrain: a mesh with a boundary (a patch of a larger surface), or one with
+    /// surroundings. Its horizons are far and low all around, which makes its horizon
+    /// map dearer to build (`horizon::shadows`). Set from the mesh inspection when a
+    /// scene is prepared; a body made with [`Body::new`] counts as closed until told.
+    pub open: bool,
     /// For a generated ellipsoid, its semi-axes along the frame's x, y, z (metres): a disk
     /// Sun behind it is hidden in closed form ([`crate::horizon::eclipse`]), not by rays
     /// through the mesh.
@@ -94,6 +99,7 @@ impl Body {
             convex,
             bounding_radius_m,
             outputs: true,
+            open: false,
             ellipsoid_radii_m: None,
             casters: None,
         }
@@ -110,6 +116,7 @@ impl Body {
             .fold(0.0, f64::max);
         self.bounding_radius_m = self.bounding_radius_m.max(reach);
         self.convex = false;
+        self.open = true;
         self.casters = Some(casters);
         self
     }

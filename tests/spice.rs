@@ -538,6 +538,9 @@ fn the_moon_example_places_haworth_and_keeps_its_floor_in_shadow() {
         slim::prepare::prepare(&scene, &Default::default(), &mut Default::default()).unwrap();
     let (world, states) = (&prepared.assembly.world, &prepared.states);
     assert_eq!(states.len(), 720);
+    // The patch is terrain (its map's build is announced at terrain's cost); the Earth's
+    // generated ellipsoid is closed.
+    assert!(world.bodies[0].open && !world.bodies[1].open);
     let sim = slim::simulate::statistics(world, states, scene.run.tracer, prepared.bins).unwrap();
 
     let mesh = &world.bodies[0].mesh;

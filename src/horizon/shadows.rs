@@ -112,17 +112,20 @@ pub const SUN_SAMPLES_MAX: u32 = 1024;
 /// mesh, so the triangles that set it grow as √N. Re-fitted on 2026-11-26 (ff278ab) as a
 /// bound above the Itokawa builds, one thread: 12,288 facets 0.18 ms, 49,152 0.39 ms,
 /// 786,432 (subdivided) 2.5 ms per facet, where the fit says 0.36, 0.67 and 2.5; m1phobos's
-/// 32,070: 0.24 ms, the fit 0.55. Terrain, whose horizons are far and low all around,
-/// costs more: Haworth's 5,412 facets 0.84 ms, the fit 0.26. The saving: what a map
-/// spares over Sun-view rays per facet and step in the exact mode (m1phobos, 360 steps:
-/// 0.37 µs).
-fn build_s_per_facet(casters: usize) -> f64 {
-    0.05e-3 + 2.8e-6 * (casters as f64).sqrt()
+/// 32,070: 0.24 ms, the fit 0.55. Terrain ([`Body::open`]), whose horizons are far and
+/// low all around, costs about four times more and has a term of its own, a bound above
+/// Haworth's 5,412 facets (0.84 ms; 1.24 on the Intel machine of 2026-11-26, where its
+/// year's patch with 9,528 facets of surroundings took 1.52, the fit 1.37). The saving:
+/// what a map spares over Sun-view rays per facet and step in the exact mode (m1phobos,
+/// 360 steps: 0.37 µs).
+fn build_s_per_facet(body: &Body) -> f64 {
+    let per_root_caster = if body.open { 10.8e-6 } else { 2.8e-6 };
+    0.05e-3 + per_root_caster * (body.shadow_mesh().len() as f64).sqrt()
 }
 
 /// CPU seconds the map of `body` takes to build (its facets against all it casts from).
 fn build_seconds(body: &Body) -> f64 {
-    body.mesh.len() as f64 * build_s_per_facet(body.shadow_mesh().len())
+    body.mesh.len() as f64 * build_s_per_facet(body)
 }
 
 const SAVED_S_PER_FACET_STEP: f64 = 0.37e-6;
@@ -203,7 +206,7 @@ impl Shadows {
                         format!("cached in {} ({mode}); {size}", file.display()),
                     );
                 }
-                let per_facet = build_s_per_facet(body.shadow_mesh().len());
+                let per_facet = build_s_per_facet(body);
                 let saved = self.saved_s_per_facet_step(tracer);
                 let break_even = (per_facet / saved).ceil() as usize;
                 if steps >= break_even {
@@ -861,6 +864,34 @@ mod tests {
         Body::new("floor and wall", mesh, false)
     }
 
+    /// Terrain's maps take longer to build (far, low horizons all around; about four
+    /// times as long but for the fixed part per facet, which dominates this small mesh),
+    /// so `auto` waits for more steps before it builds one, and the plan announces the
+    /// longer build.
+    #[test]
+    fn auto_builds_a_terrain_map_later() {
+        let closed = floor_and_wall_body();
+        let open = Body {
+            open: true,
+            ..floor_and_wall_body()
+        };
+        let shadows = Shadows {
+            method: ShadowMethod::Auto,
+            sun: SunShape::Point,
+            ..Shadows::default()
+        };
+        let break_even = |body: &Body| (build_s_per_facet(body) / SAVED_S_PER_FACET_STEP).ceil();
+        let (steps, terrain_steps) = (break_even(&closed), break_even(&open));
+        assert!(
+            terrain_steps > 1.2 * steps,
+            "{terrain_steps} against {steps}"
+        );
+        let steps = steps as usize;
+        assert!(shadows.choose_for(&closed, steps, TracerKind::Sunview).0);
+        assert!(!shadows.choose_for(&open, steps, TracerKind::Sunview).0);
+        assert!(build_seconds(&open) > 1.2 * build_seconds(&closed));
+    }
+
     /// `auto` weighs a map's build against the rays it spares, which for a disk Sun are
     /// `sun_samples` per facet where a point Sun needs one.
     #[test]
@@ -874,7 +905,7 @@ mod tests {
             };
             shadows.choose_for(&body, steps, TracerKind::Sunview)
         };
-        let point = build_s_per_facet(body.shadow_mesh().len()) / SAVED_S_PER_FACET_STEP;
+        let point = build_s_per_facet(&body) / SAVED_S_PER_FACET_STEP;
         let disk = (point / DEFAULT_SUN_SAMPLES as f64).ceil() as usize;
         assert!(disk > 1 && disk < point as usize);
         let (uses_map, why) = auto(SunShape::Disk, disk - 1);
@@ -889,7 +920,7 @@ mod tests {
     #[test]
     fn auto_builds_a_map_later_when_the_bvh_would_trace() {
         let body = floor_and_wall_body();
-        let per_facet = build_s_per_facet(body.shadow_mesh().len());
+        let per_facet = build_s_per_facet(&body);
         for (sun, saved) in [
             (SunShape::Point, SAVED_OVER_BVH.0),
             (SunShape::Disk, SAVED_OVER_BVH.1),
