@@ -149,7 +149,7 @@ fn decode(payload: &[u8], facets: usize, azimuths: u32) -> std::result::Result<H
 }
 
 /// Values (map cells, bound sines) turned into payload bytes at a time when a file is
-/// stored: a piece of 1 MiB of cells.
+/// stored: 1 MiB of either, both being 4 bytes a value.
 const VALUES_PER_PIECE: usize = 1 << 18;
 
 /// Writes `map` for `key` to `path` (temporary file, then rename), its cells a piece at a
