@@ -3,7 +3,7 @@
 //! ```text
 //! cargo run --release --example bench_direct -- [MESH] [--subdivide N] [--steps N]
 //!     [--tracer sunview|bvh|grid|both|all] [--threads N] [--sun point|disk]
-//!     [--horizon exact|approximate [--azimuths A] [--cache DIR]] [--block K]
+//!     [--horizon exact|approximate [--azimuths A]] [--cache DIR] [--block K]
 //! ```
 //! Steps are computed in blocks of K (`Direct::compute_steps`), as `slim run` does:
 //! by default the block `slim run` takes for this mesh (16 steps up to a million facets);
@@ -12,6 +12,8 @@
 //! default 128) instead of tracing every ray: `exact` traces only where the Sun is not
 //! above the wedge's upper bound, `approximate` traces nothing. The map is read from
 //! `--cache DIR` when there, else built (and stored there); its time is the `build s`.
+//! Without `--horizon`, `--cache DIR` keeps the `bvh` tracer's horizon bound the same
+//! way, so that only its first run builds it.
 //! `--sun disk` takes the Sun as a disk: its visible share from the map, or without
 //! `--horizon` from rays toward 32 points of the disk wherever the facet's plane or
 //! (`bvh`) its horizon bound leaves the disk in doubt.
@@ -85,6 +87,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         None => {
             let shadows = Shadows {
                 sun: sun_shape(&options)?,
+                cache_dir: options.optional("--cache")?,
                 ..Shadows::default()
             };
             for kind in tracers(&options)? {
