@@ -70,8 +70,8 @@ struct Leaf {
 /// 1e-3 of the scale past a segment's ends, so within 1.8 scales of the centre (an
 /// error under 8e-5 of the scale, a quarter of the tolerance), and at most half a cone's
 /// length past its far end, within 7 scales (2.2e-4); the `f32` rounding of the
-/// crossing (2e-5 of the scale) still fits beside either. At 96 bytes instead of 192 a leaf is 176
-/// bytes, which brings the tree under Embree's BVH in memory.
+/// crossing (2e-5 of the scale) still fits beside either. At 96 bytes instead of 192,
+/// a leaf is 176 bytes, which brings the tree under Embree's BVH in memory.
 #[derive(Debug, Clone, Copy)]
 struct EdgeRows([[i16; 4]; 4]);
 
