@@ -203,7 +203,8 @@ struct Screened {
     /// Crossings within this outside an edge count as inside (m): about 15× the
     /// rounding of the crossing point, which is at most 100 height roundings (the
     /// crossing angle is at least 0.01 rad); the quantised edge planes' error
-    /// ([`EdgeRows`]) takes up to half of it.
+    /// ([`EdgeRows`]) takes up to a quarter of it for a segment, three quarters for a
+    /// cone.
     reach: Vec4,
     /// Differences of the two ends' heights above this (0.01 × the length) mean a
     /// crossing angle of at least 0.01 rad.
