@@ -2,9 +2,11 @@
 
 In: a results folder laid out by `bench/peers/run`: one folder per case holding
 `slim1/slim.json`, `slim2/slim.json` (slim with 1 and 2 threads), `embree.json`, and
-slim's shadowed bitmaps of both runs. Out: the table printed, and `table.md` and
-`results.json` written into the results folder, stamped with the date, the machine
-architecture and the CPU model.
+slim's shadowed bitmaps of both runs; with `--pairs N`, also `round-2/` … `round-N/`,
+each with the same three JSON files of a later round. Out: the table printed, and
+`table.md` and `results.json` written into the results folder, stamped with the date,
+the machine architecture and the CPU model. With rounds, a third table gives each
+ratio's median and range over the rounds, every ratio taken within one round.
 """
 
 import argparse
@@ -79,7 +81,42 @@ def load_case(folder):
                                  embree["os_threads_after_tracing"]),
         "embree_cpu_over_wall": embree["tracing_cpu_over_wall"],
         "embree_version": embree["embree"],
+        "rounds_ms": round_ratios(folder),
     }
+
+
+def round_ratios(folder):
+    """Per round of a case (the first, then `round-K/`), its three mean times per step
+    (ms): slim 1 thread, slim 2 threads, Embree 1 thread."""
+    rounds = [folder] + sorted(folder.glob("round-*"), key=lambda p: int(p.name[6:]))
+    times = []
+    for r in rounds:
+        ms = [json.loads((r / name).read_text())["ms_per_step_mean"]
+              for name in ("slim1/slim.json", "slim2/slim.json", "embree.json")]
+        times.append(ms)
+    return times
+
+
+def spread_of(values):
+    """Median and range of `values`, as 'median (min–max)'."""
+    v = sorted(values)
+    return f"{float(np.median(v)):.2f} ({v[0]:.2f}–{v[-1]:.2f})"
+
+
+def rounds_table(rows):
+    lines = [
+        "| case | rounds | slim 1T ms/step | slim 2T ms/step | Embree 1T ms/step "
+        "| Embree/slim 1T | Embree 1T / slim 2T | slim 2T speed-up |",
+        "|---|---:|---:|---:|---:|---:|---:|---:|",
+    ]
+    for r in rows:
+        t = r["rounds_ms"]
+        lines.append(
+            f"| {r['case']} | {len(t)} | {spread_of([x[0] for x in t])} "
+            f"| {spread_of([x[1] for x in t])} | {spread_of([x[2] for x in t])} "
+            f"| {spread_of([x[2] / x[0] for x in t])} | {spread_of([x[2] / x[1] for x in t])} "
+            f"| {spread_of([x[0] / x[1] for x in t])} |")
+    return "\n".join(lines)
 
 
 def tables(rows):
@@ -166,7 +203,13 @@ def main():
                      + ", ".join(r["case"] for r in rows if not r["slim_1t_2t_identical"]))
     if args.note:
         notes.insert(0, args.note)
-    text = "\n\n".join([header, speed, other, "\n".join("- " + n for n in notes)])
+    parts = [header, speed, other]
+    if any(len(r["rounds_ms"]) > 1 for r in rows):
+        parts.append(rounds_table(rows))
+        notes.append("Rounds (--pairs): each case run again in turn (slim 1T, slim 2T, "
+                     "Embree 1T), timings only; each ratio is taken within a round, then "
+                     "its median and range (min–max) over the rounds are given.")
+    text = "\n\n".join(parts + ["\n".join("- " + n for n in notes)])
     print(text)
     (folder / "table.md").write_text(f"# Peer benchmark\n\n{text}\n")
     (folder / "results.json").write_text(
