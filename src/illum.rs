@@ -25,10 +25,11 @@ use crate::horizon::map::{HorizonMap, LocalHorizon, SkyPosition};
 use crate::horizon::shadows::BoundRecord;
 use crate::horizon::{HorizonMode, Shadows, SunShape};
 use crate::trace::bvh::{Bvh, BvhRays};
-use crate::trace::{self, ShadowQuery, Tracer, TracerKind};
+use crate::trace::{self, Blocker, ShadowQuery, Tracer, TracerKind};
 use crate::world::{Body, FrameTransform, World};
 use glam::DVec3;
 use rayon::prelude::*;
+use std::sync::atomic::{AtomicU32, Ordering};
 use std::sync::Arc;
 
 /// Counts of what one step did.
@@ -48,6 +49,10 @@ pub struct StepCounts {
     /// disk), without a ray.
     #[serde(default)]
     pub horizon_lookups: u64,
+    /// Shadow rays (counted in `rays`) answered by the facet that blocked the same
+    /// facet's ray at the step before, without a walk through the tracer.
+    #[serde(default)]
+    pub remembered: u64,
 }
 
 impl std::ops::AddAssign for StepCounts {
@@ -57,6 +62,7 @@ impl std::ops::AddAssign for StepCounts {
         self.shadowed += o.shadowed;
         self.above_horizon += o.above_horizon;
         self.horizon_lookups += o.horizon_lookups;
+        self.remembered += o.remembered;
     }
 }
 
@@ -78,7 +84,16 @@ pub struct Direct<'w> {
     lit: Vec<bool>,
     /// Where each horizon bound came from, for the bodies that have one.
     bound_records: Vec<BoundRecord>,
+    /// Per body with an exact horizon map and per facet, the facet that last blocked its
+    /// own shadow ray toward a point Sun (`NO_BLOCKER`: none, or lit since), tried first
+    /// at the next step ([`Direct::shade`]); empty for other bodies. Only there are the
+    /// rays traced mostly shadowed (those below their wedge's upper bound): the BVH's
+    /// bound leaves mostly lit rays, which gained nothing (docs/performance.md).
+    last_blockers: Vec<Vec<AtomicU32>>,
 }
+
+/// No blocker remembered.
+const NO_BLOCKER: u32 = u32::MAX;
 
 /// What a body knows of its horizon.
 enum OwnHorizon<'w> {
@@ -181,6 +196,14 @@ impl<'w> Direct<'w> {
         horizons: Vec<OwnHorizon<'w>>,
         shadows: &Shadows,
     ) -> Direct<'w> {
+        let last_blockers = (world.bodies.iter().zip(&horizons))
+            .map(|(b, horizon)| match horizon {
+                OwnHorizon::Map { exact: true, .. } => (0..b.mesh.len())
+                    .map(|_| AtomicU32::new(NO_BLOCKER))
+                    .collect(),
+                _ => Vec::new(),
+            })
+            .collect();
         Direct {
             world,
             tracers,
@@ -195,6 +218,7 @@ impl<'w> Direct<'w> {
             offsets: world.offsets(),
             lit: vec![true; world.bodies.len()],
             bound_records: Vec::new(),
+            last_blockers,
         }
     }
 
@@ -410,12 +434,19 @@ impl<'w> Direct<'w> {
         match (light.own.as_deref(), self.sun) {
             (None, _) => {}
             (Some(own), SunShape::Point) => {
-                let mut by_self = vec![false; rays.len()];
-                rays.par_iter()
-                    .zip(&mut by_self)
-                    .for_each(|(r, dark)| *dark = own.blocked(r.origin, r.t_min, Some(r.facet)));
+                let mut by_self = vec![Shade::Lit; rays.len()];
+                let last = &self.last_blockers[b];
+                rays.par_iter().zip(&mut by_self).for_each(|(r, shade)| {
+                    *shade = match last.is_empty() {
+                        true if own.blocked(r.origin, r.t_min, Some(r.facet)) => Shade::Blocked,
+                        true => Shade::Lit,
+                        false => shade_remembering(own, r, last),
+                    }
+                });
                 counts.rays += rays.len() as u64;
-                for (r, _) in rays.iter().zip(&by_self).filter(|(_, &d)| d) {
+                counts.remembered +=
+                    by_self.iter().filter(|&&s| s == Shade::Remembered).count() as u64;
+                for (r, _) in rays.iter().zip(&by_self).filter(|(_, &s)| s != Shade::Lit) {
                     out[r.facet as usize] = 0.0;
                     counts.shadowed += 1;
                 }
@@ -1060,6 +1091,43 @@ const PLANE: LocalHorizon = LocalHorizon {
 
 /// The sine of the elevation above a facet's plane of the lowest point of a disk of
 /// angular `radius` whose centre stands at `sin_elevation` (`n·s`).
+/// How an own shadow ray came out.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Shade {
+    Lit,
+    /// Blocked, as the tracer found.
+    Blocked,
+    /// Blocked by the facet that blocked it at the step before.
+    Remembered,
+}
+
+/// Whether `ray` is blocked, tried first against the facet that blocked it last (in
+/// `last`, per facet): a Sun that moved a little is often still behind it, and one
+/// exact test costs far less than a walk through the tree. Either way the answer is
+/// the tracer's own predicate's; the facet it names is remembered for the next step,
+/// and forgotten when the ray comes out clear.
+fn shade_remembering(own: &dyn ShadowQuery, ray: &OwnRay, last: &[AtomicU32]) -> Shade {
+    let memo = &last[ray.facet as usize];
+    let before = memo.load(Ordering::Relaxed);
+    if before != NO_BLOCKER && own.blocked_by(ray.origin, ray.t_min, ray.facet, before) {
+        return Shade::Remembered;
+    }
+    match own.blocker(ray.origin, ray.t_min, Some(ray.facet)) {
+        Blocker::Clear => {
+            // Lit now: no exact test wasted on that facet at the next step.
+            if before != NO_BLOCKER {
+                memo.store(NO_BLOCKER, Ordering::Relaxed);
+            }
+            Shade::Lit
+        }
+        Blocker::Facet(id) => {
+            memo.store(id, Ordering::Relaxed);
+            Shade::Blocked
+        }
+        Blocker::Unnamed => Shade::Blocked,
+    }
+}
+
 fn lowest_sin(sin_elevation: f64, radius: f64) -> f64 {
     let e = sin_elevation.clamp(-1.0, 1.0).asin();
     (e - radius).sin()

@@ -20,7 +20,7 @@
 //! exact ones would; facets are then screened in `f32` and tested in `f64`.
 
 use super::ray::{inside, DepthPlane, RayFrame};
-use super::{caster_facets, ShadowQuery, Tracer};
+use super::{caster_facets, Blocker, ShadowQuery, Tracer};
 use crate::mesh::Mesh;
 use glam::{BVec4A, DVec3, Vec3, Vec4};
 
@@ -327,8 +327,21 @@ impl<'m> Bvh<'m> {
     fn first_blocker(&self, segment: &Segment) -> bool {
         self.walk(
             |quad| segment.slab.hits(quad),
-            |leaf| self.leaf_blocks(leaf, segment),
+            |leaf| self.leaf_blocker(leaf, segment).is_some(),
         )
+    }
+
+    /// The first facet found that blocks the segment, if any.
+    fn blocker_of(&self, segment: &Segment) -> Option<u32> {
+        let mut found = None;
+        self.walk(
+            |quad| segment.slab.hits(quad),
+            |leaf| {
+                found = self.leaf_blocker(leaf, segment);
+                found.is_some()
+            },
+        );
+        found
     }
 
     /// Depth-first walk of the tree: into every child whose lane `hits` sets, handing
@@ -429,18 +442,18 @@ impl<'m> Bvh<'m> {
         (a - self.centre).length() + self.radius + 2.0 * t_min
     }
 
-    /// True if a facet of `leaf` blocks the segment.
+    /// A facet of `leaf` that blocks the segment, if any.
     #[inline]
-    fn leaf_blocks(&self, leaf: &Leaf, s: &Segment) -> bool {
+    fn leaf_blocker(&self, leaf: &Leaf, s: &Segment) -> Option<u32> {
         let mut lanes = leaf.may_cross(&s.screened);
         while lanes != 0 {
             let k = lanes.trailing_zeros() as usize;
             lanes &= lanes - 1;
             if self.crosses(&s.exact, leaf.ids[k]) {
-                return true;
+                return Some(leaf.ids[k]);
             }
         }
-        false
+        None
     }
 
     /// The exact predicate for facet `id` (false for a facet left out) and the segment,
@@ -490,6 +503,19 @@ impl ShadowQuery for BvhRays<'_> {
     fn blocked(&self, origin: DVec3, t_min: f64, skip: Option<u32>) -> bool {
         let skip = [skip.unwrap_or(u32::MAX), u32::MAX];
         self.bvh.ray_blocked(origin, &self.toward, t_min, skip)
+    }
+
+    fn blocker(&self, origin: DVec3, t_min: f64, skip: Option<u32>) -> Blocker {
+        let skip = [skip.unwrap_or(u32::MAX), u32::MAX];
+        let ray = self.bvh.ray(origin, &self.toward, t_min, skip);
+        match ray.and_then(|ray| self.bvh.blocker_of(&ray)) {
+            Some(id) => Blocker::Facet(id),
+            None => Blocker::Clear,
+        }
+    }
+
+    fn blocked_by(&self, origin: DVec3, t_min: f64, skip: u32, facet: u32) -> bool {
+        self.blocked_among(origin, t_min, skip, &[facet])
     }
 }
 

@@ -40,6 +40,33 @@ pub trait ShadowQuery: Sync {
     /// True if the ray `origin + t·dir` hits a facet other than `skip` for some `t > t_min`
     /// (`origin` in the mesh frame, metres).
     fn blocked(&self, origin: DVec3, t_min: f64, skip: Option<u32>) -> bool;
+
+    /// [`ShadowQuery::blocked`], naming a facet that blocks the ray where the tracer
+    /// can (the BVH); the others say [`Blocker::Unnamed`] for a blocked ray.
+    fn blocker(&self, origin: DVec3, t_min: f64, skip: Option<u32>) -> Blocker {
+        match self.blocked(origin, t_min, skip) {
+            true => Blocker::Unnamed,
+            false => Blocker::Clear,
+        }
+    }
+
+    /// True when `facet` blocks the ray by the exact predicate [`ShadowQuery::blocked`]
+    /// applies (`skip` left out): then the ray is blocked. False when it does not, or
+    /// when the tracer cannot test one facet alone (all but the BVH).
+    fn blocked_by(&self, _origin: DVec3, _t_min: f64, _skip: u32, _facet: u32) -> bool {
+        false
+    }
+}
+
+/// What [`ShadowQuery::blocker`] found on a ray.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Blocker {
+    /// Nothing: the ray is clear.
+    Clear,
+    /// This facet (mesh id) blocks it.
+    Facet(u32),
+    /// Something blocks it; the tracer does not say what.
+    Unnamed,
 }
 
 /// An acceleration structure over one mesh that answers shadow queries.
