@@ -1091,11 +1091,10 @@ const PLANE: LocalHorizon = LocalHorizon {
     slope: 0.0,
 };
 
-/// The sine of the elevation above a facet's plane of the lowest point of a disk of
-/// angular `radius` whose centre stands at `sin_elevation` (`n·s`).
 /// How an own shadow ray came out.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 enum Shade {
+    /// Clear.
     Lit,
     /// Blocked, as the tracer found.
     Blocked,
@@ -1130,6 +1129,8 @@ fn shade_remembering(own: &dyn ShadowQuery, ray: &OwnRay, last: &[AtomicU32]) ->
     }
 }
 
+/// The sine of the elevation above a facet's plane of the lowest point of a disk of
+/// angular `radius` whose centre stands at `sin_elevation` (`n·s`).
 fn lowest_sin(sin_elevation: f64, radius: f64) -> f64 {
     let e = sin_elevation.clamp(-1.0, 1.0).asin();
     (e - radius).sin()
