@@ -86,8 +86,8 @@ pub struct Direct<'w> {
     lit: Vec<bool>,
     /// Where each horizon bound came from, for the bodies that have one.
     bound_records: Vec<BoundRecord>,
-    /// Per body with an exact horizon map and per facet, the facet that last blocked its
-    /// own shadow ray toward a point Sun (`NO_BLOCKER`: none, or lit since), tried first
+    /// Per body with an exact horizon map under a point Sun and per facet, the facet that
+    /// last blocked its own shadow ray (`NO_BLOCKER`: none, or lit since), tried first
     /// at the next step ([`Direct::shade`]); empty for other bodies. Only there are the
     /// rays traced mostly shadowed (those below their wedge's upper bound): the BVH's
     /// bound leaves mostly lit rays, which gained nothing (docs/performance.md).
@@ -200,9 +200,11 @@ impl<'w> Direct<'w> {
     ) -> Direct<'w> {
         let last_blockers = (world.bodies.iter().zip(&horizons))
             .map(|(b, horizon)| match horizon {
-                OwnHorizon::Map { exact: true, .. } => (0..b.mesh.len())
-                    .map(|_| AtomicU32::new(NO_BLOCKER))
-                    .collect(),
+                OwnHorizon::Map { exact: true, .. } if shadows.sun == SunShape::Point => {
+                    (0..b.mesh.len())
+                        .map(|_| AtomicU32::new(NO_BLOCKER))
+                        .collect()
+                }
                 _ => Vec::new(),
             })
             .collect();

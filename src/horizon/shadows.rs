@@ -310,14 +310,19 @@ impl Shadows {
         Some((crate::cache::file_for(dir, &cache::BOUND_KIND, &key), key))
     }
 
-    /// Memory the maps of the bodies in `uses` hold, bytes.
+    /// Memory the maps of the bodies in `uses` hold, bytes, with what the step loop keeps
+    /// beside an exact map for a point Sun: each facet's last blocker (4 bytes).
     pub fn map_bytes(&self, world: &World, uses: &[bool]) -> f64 {
+        let remembered = match (self.mode, self.sun) {
+            (HorizonMode::Exact, SunShape::Point) => 4.0,
+            _ => 0.0,
+        };
         world
             .bodies
             .iter()
             .zip(uses)
             .filter(|(_, &u)| u)
-            .map(|(b, _)| b.mesh.len() as f64 * self.map_bytes_per_facet())
+            .map(|(b, _)| b.mesh.len() as f64 * (self.map_bytes_per_facet() + remembered))
             .sum()
     }
 
