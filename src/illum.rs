@@ -441,10 +441,10 @@ impl<'w> Direct<'w> {
                 let mut by_self = vec![Shade::Lit; rays.len()];
                 let last = &self.last_blockers[b];
                 rays.par_iter().zip(&mut by_self).for_each(|(r, shade)| {
-                    *shade = match last.is_empty() {
-                        true if own.blocked(r.origin, r.t_min, Some(r.facet)) => Shade::Blocked,
-                        true => Shade::Lit,
-                        false => shade_remembering(own, r, last),
+                    *shade = match last.get(r.facet as usize) {
+                        Some(memo) => shade_remembering(own, r, memo),
+                        None if own.blocked(r.origin, r.t_min, Some(r.facet)) => Shade::Blocked,
+                        None => Shade::Lit,
                     }
                 });
                 counts.rays += rays.len() as u64;
@@ -1104,13 +1104,12 @@ enum Shade {
     Remembered,
 }
 
-/// Whether `ray` is blocked, tried first against the facet that blocked it last (in
-/// `last`, per facet): a Sun that moved a little is often still behind it, and one
-/// exact test costs far less than a walk through the tree. Either way the answer is
-/// the tracer's own predicate's; the facet it names is remembered for the next step,
-/// and forgotten when the ray comes out clear.
-fn shade_remembering(own: &dyn ShadowQuery, ray: &OwnRay, last: &[AtomicU32]) -> Shade {
-    let memo = &last[ray.facet as usize];
+/// Whether `ray` is blocked, tried first against the facet that blocked it last (its
+/// facet's `memo`): a Sun that moved a little is often still behind it, and one exact
+/// test costs far less than a walk through the tree. Either way the answer is the
+/// tracer's own predicate's; the facet it names is remembered for the next step, and
+/// forgotten when the ray comes out clear.
+fn shade_remembering(own: &dyn ShadowQuery, ray: &OwnRay, memo: &AtomicU32) -> Shade {
     let before = memo.load(Ordering::Relaxed);
     if before != NO_BLOCKER && own.blocked_by(ray.origin, ray.t_min, ray.facet, before) {
         return Shade::Remembered;

@@ -742,8 +742,14 @@ fn horizons_from_points_above_haworth_match_ray_casts() {
 /// The engine's direct stage with a horizon map of `mesh` (`azimuths` wedges) in
 /// `mode`, against the Grid reference on every facet for every Sun: the exact mode must
 /// give bit-identical irradiance while sparing rays; the approximate mode's lit/dark
-/// disagreements are counted and returned (share of facet–Suns facing the Sun).
-fn compare_horizon_map(name: &str, mesh: &Mesh, suns: &[DVec3], mode: HorizonMode) -> f64 {
+/// disagreements are counted and returned (share of facet–Suns facing the Sun), with
+/// the step counts summed over the Suns, taken in order by one `Direct`.
+fn compare_horizon_map(
+    name: &str,
+    mesh: &Mesh,
+    suns: &[DVec3],
+    mode: HorizonMode,
+) -> (f64, StepCounts) {
     let world = World {
         bodies: vec![Body::new(name, mesh.clone(), false)],
     };
@@ -756,18 +762,20 @@ fn compare_horizon_map(name: &str, mesh: &Mesh, suns: &[DVec3], mode: HorizonMod
         ..Shadows::default()
     };
     let direct = Direct::with_maps(&world, TracerKind::Sunview, vec![Some(map)], &shadows);
-    let (mut facing, mut differ, mut cleared, mut lookups) = (0u64, 0u64, 0u64, 0u64);
+    let (mut facing, mut differ, mut total) = (0u64, 0u64, StepCounts::default());
     for (state, (eg, _)) in epoch_states(&eph).expect("states").iter().zip(&by_grid) {
         let mut e = vec![f64::NAN; mesh.len()];
-        let counts = direct.compute(state, &mut e).expect("compute");
-        cleared += counts.above_horizon;
-        lookups += counts.horizon_lookups;
+        total += direct.compute(state, &mut e).expect("compute");
         for i in 0..mesh.len() {
             facing += (mesh.normals[i].dot(state.bodies[0].sun_dir) > 0.0) as u64;
             differ += (e[i].to_bits() != eg[i].to_bits()) as u64;
         }
     }
-    println!("{name} {mode:?}: {differ} of {facing} facing facet–Suns differ; {cleared} rays cleared, {lookups} lookups");
+    println!(
+        "{name} {mode:?}: {differ} of {facing} facing facet–Suns differ; {} rays cleared, {} \
+         lookups, {} rays remembered",
+        total.above_horizon, total.horizon_lookups, total.remembered
+    );
     match mode {
         HorizonMode::Exact => {
             assert_eq!(
@@ -775,13 +783,13 @@ fn compare_horizon_map(name: &str, mesh: &Mesh, suns: &[DVec3], mode: HorizonMod
                 "{name}: the exact horizon mode differs from the Grid"
             );
             assert!(
-                cleared > 0,
+                total.above_horizon > 0,
                 "{name}: the map spared no ray, so it went untested"
             );
         }
-        HorizonMode::Approximate => assert!(lookups > 0),
+        HorizonMode::Approximate => assert!(total.horizon_lookups > 0),
     }
-    differ as f64 / facing as f64
+    (differ as f64 / facing as f64, total)
 }
 
 /// Compares `kind`'s queries with the Grid's on every lit facet for every Sun, the
@@ -866,7 +874,7 @@ fn tracers_agree_on_itokawa() {
     // error of a facet's horizon: 0.075 % of the facing facet–Suns on this rough, small
     // shape with 64 wedges (5.6° each) when written; a broken lookup errs on tens of
     // per cent.
-    let wrong = compare_horizon_map("itokawa_16", &mesh, &suns, HorizonMode::Approximate);
+    let (wrong, _) = compare_horizon_map("itokawa_16", &mesh, &suns, HorizonMode::Approximate);
     assert!(wrong < 0.005, "{wrong}");
 }
 
@@ -1377,51 +1385,23 @@ fn thread_count_does_not_change_results() {
 /// A Sun moving a quarter of a degree per step over Itokawa (3,072 facets) with an exact
 /// horizon map: each own shadow ray is tried first against the facet that blocked it at
 /// the step before (`StepCounts::remembered`), which must change no bit of the
-/// irradiance against the Grid's at any step, one Direct kept over all steps. Most
-/// shadowed rays must then be answered so, or the path went untested; the BVH with its
-/// bound remembers nothing.
+/// irradiance against the Grid's (`compare_horizon_map`, one Direct kept over all
+/// steps). Most shadowed rays must then be answered so, or the path went untested; the
+/// BVH with its bound remembers nothing.
 #[test]
 fn remembered_blockers_change_no_shadow() {
     let mesh = load_km("data/shapes/itokawa/itokawa_16.obj");
-    let world = World {
-        bodies: vec![Body::new("itokawa_16", mesh.clone(), false)],
-    };
     let suns: Vec<DVec3> = (0..120)
         .map(|k| {
             let turn = (k as f64 * 0.25).to_radians();
             elevated(turn.cos(), turn.sin(), 10f64.to_radians())
         })
         .collect();
-    let eph = fixed(&suns, 1000.0, vec![Pose::IDENTITY]);
-    let by_grid = history(&world, &eph, TracerKind::Grid);
-    let bvh = slim::trace::bvh::Bvh::build(&mesh);
-    let map = HorizonMap::build(&mesh, mesh.len(), &bvh, 64);
-    let direct = Direct::with_maps(
-        &world,
-        TracerKind::Bvh,
-        vec![Some(map)],
-        &Shadows::default(),
-    );
-    let mut total = StepCounts::default();
-    for (k, (state, (eg, _))) in epoch_states(&eph)
-        .expect("states")
-        .iter()
-        .zip(&by_grid)
-        .enumerate()
-    {
-        let mut e = vec![f64::NAN; mesh.len()];
-        total += direct.compute(state, &mut e).expect("compute");
-        let differ = (0..mesh.len())
-            .filter(|&i| eg[i].to_bits() != e[i].to_bits())
-            .count();
-        assert_eq!(
-            differ, 0,
-            "step {k}: the exact map differs from the Grid on {differ} facets"
-        );
-    }
-    println!(
-        "remembered {} of {} shadowed, {} rays",
-        total.remembered, total.shadowed, total.rays
+    let (_, total) = compare_horizon_map(
+        "itokawa_16 turning slowly",
+        &mesh,
+        &suns,
+        HorizonMode::Exact,
     );
     assert!(
         total.remembered * 2 > total.shadowed,
@@ -1429,6 +1409,10 @@ fn remembered_blockers_change_no_shadow() {
         total.remembered,
         total.shadowed
     );
+    let world = World {
+        bodies: vec![Body::new("itokawa_16", mesh, false)],
+    };
+    let eph = fixed(&suns, 1000.0, vec![Pose::IDENTITY]);
     let by_bvh = history(&world, &eph, TracerKind::Bvh);
     assert_eq!(by_bvh.iter().map(|(_, c)| c.remembered).sum::<u64>(), 0);
 }
