@@ -501,20 +501,44 @@ impl Wedges {
 
     /// The wedges met by an azimuth span, each once, in order.
     fn covering(&self, span: Span) -> impl Iterator<Item = usize> + '_ {
+        self.covering_centres(span).map(|(k, _)| k)
+    }
+
+    /// [`Wedges::covering`], each wedge with whether the span holds its centre azimuth
+    /// (only the first and the last wedge of a span can miss it).
+    fn covering_centres(&self, span: Span) -> impl Iterator<Item = (usize, bool)> + '_ {
         let count = self.count;
-        let (first, len) = match span {
-            Span::All => (0, count),
+        let (first, len, (lo, hi)) = match span {
+            Span::All => (0, count, (f64::NEG_INFINITY, f64::INFINITY)),
             Span::Range(lo, hi) => {
                 let per_radian = count as f64 / TAU;
                 let (first, last) = (floor_i64(lo * per_radian), floor_i64(hi * per_radian));
+                let len = (last - first) as usize + 1;
+                // A span of a whole turn or more holds every centre.
+                let ends = if len > count {
+                    (f64::NEG_INFINITY, f64::INFINITY)
+                } else {
+                    (
+                        lo * per_radian - first as f64,
+                        hi * per_radian - first as f64,
+                    )
+                };
                 (
                     first.rem_euclid(count as i64) as usize,
-                    ((last - first) as usize + 1).min(count),
+                    len.min(count),
+                    ends,
                 )
             }
         };
         // `k` stays below twice the count: one subtraction, not a division, wraps it.
-        (first..first + len).map(move |k| if k >= count { k - count } else { k })
+        (0..len).map(move |j| {
+            let k = first + j;
+            let centre = j as f64 + 0.5;
+            (
+                if k >= count { k - count } else { k },
+                lo <= centre && centre <= hi,
+            )
+        })
     }
 }
 
@@ -848,8 +872,9 @@ impl<'a> FacetSky<'a> {
     }
 
     /// Whether a height `sin` in `span` can change the row: whether it rises above the
-    /// centre horizon (never above the upper bound) of a wedge the span meets. The scan
-    /// stops at the first such wedge. A NaN height is never ruled out.
+    /// centre horizon of a wedge whose centre azimuth the span holds, or above the upper
+    /// bound of a wedge it meets beside its centre (at the span's ends). The scan stops at
+    /// the first such wedge. A NaN height is never ruled out.
     fn rises_above(&self, span: Span, sin: f64) -> bool {
         if sin.is_nan() {
             return true;
@@ -858,8 +883,14 @@ impl<'a> FacetSky<'a> {
             return sin > self.lowest_anywhere;
         }
         self.wedges
-            .covering(span.widened(WEDGE_OVERLAP))
-            .any(|k| sin > self.centre[k])
+            .covering_centres(span.widened(WEDGE_OVERLAP))
+            .any(|(k, at_centre)| {
+                sin > if at_centre {
+                    self.centre[k]
+                } else {
+                    self.upper[k]
+                }
+            })
     }
 
     /// Raises the wedges' upper bounds and centre horizons by triangle `tri`.
