@@ -162,8 +162,8 @@ pub fn load(path: &Path, kind: &Kind, key: &[u8; 32]) -> Lookup<Vec<u8>> {
 pub struct Entry {
     pub path: PathBuf,
     /// What it holds: the kind's prefix ("horizon", "horizon-bound", "form-factors"),
-    /// with " journal" for a build's journal and " unfinished" for a write a run did
-    /// not finish.
+    /// with " journal" for a build's journal, " unfinished" for a write a run did not
+    /// finish, " part" and " claim" for the parts of a map that a run helped build.
     pub what: String,
     pub bytes: u64,
     /// When a run last wrote or read it.
@@ -201,13 +201,27 @@ pub fn entries(dir: &Path) -> Result<Vec<Entry>> {
 }
 
 /// What a file named `name` holds, when slim wrote it ([`file_for`]'s names, and their
-/// `.journal` and `.partial` companions).
+/// `.journal` and `.partial` companions, and the `.part-<n>` files and claims of a
+/// build that others helped).
 fn kind_of_name(name: &str) -> Option<String> {
-    let (stem, suffix) = match name.rsplit_once(".bin") {
-        Some((stem, "")) => (stem, ""),
-        Some((stem, ".journal")) => (stem, " journal"),
-        Some((stem, ".partial")) => (stem, " unfinished"),
-        _ => return None,
+    let (stem, suffix) = name.rsplit_once(".bin")?;
+    let suffix = match suffix {
+        "" => "",
+        ".journal" => " journal",
+        ".partial" => " unfinished",
+        _ => {
+            let helped = suffix.strip_prefix(".part-")?;
+            let (number, what) = match helped.split_once('.') {
+                None => (helped, " part"),
+                Some((number, "claim")) => (number, " claim"),
+                Some((number, "partial")) => (number, " unfinished"),
+                Some(_) => return None,
+            };
+            if number.is_empty() || !number.bytes().all(|b| b.is_ascii_digit()) {
+                return None;
+            }
+            what
+        }
     };
     let (prefix, hex) = stem.rsplit_once('-')?;
     let named = !prefix.is_empty()
@@ -448,6 +462,12 @@ mod tests {
                 format!("form-factors-{hex}.bin.partial"),
                 "form-factors unfinished",
             ),
+            (format!("horizon-{hex}.bin.part-12"), "horizon part"),
+            (format!("horizon-{hex}.bin.part-0.claim"), "horizon claim"),
+            (
+                format!("horizon-{hex}.bin.part-3.partial"),
+                "horizon unfinished",
+            ),
         ] {
             assert_eq!(kind(name).as_deref(), Some(what));
         }
@@ -455,6 +475,9 @@ mod tests {
             format!("horizon-{}.bin", &hex[1..]),
             format!("horizon-{}.bin", hex.to_uppercase()),
             format!("horizon-{hex}.bin.bak"),
+            format!("horizon-{hex}.bin.part-"),
+            format!("horizon-{hex}.bin.part-1x"),
+            format!("horizon-{hex}.bin.part-1.bak"),
             format!("-{hex}.bin"),
             format!("Notes-{hex}.bin"),
             "results.csv".to_string(),

@@ -49,6 +49,15 @@ pub const BOUND_KIND: Kind = Kind {
     prefix: "horizon-bound",
 };
 
+/// Parts of a map built by a helping process ([`part_file`]): payload the part's number
+/// (u64), its first facet (u64) and the wedge count A (u32), then its facets' rows as in
+/// the map's payload; the key is the map's.
+pub const PART_KIND: Kind = Kind {
+    magic: b"SLIMHZP\0",
+    version: 1,
+    prefix: "horizon-part",
+};
+
 /// The content key of the horizon bound of `mesh`'s first `receivers` facets.
 pub fn bound_key(mesh: &Mesh, receivers: usize) -> [u8; 32] {
     let mut h = cache::key_hasher(
@@ -235,10 +244,15 @@ pub fn resume(path: &Path, key: &[u8; 32], parts: &MapParts) -> Result<Option<Re
 /// About how many facets' rows the build journal beside the map file `path` holds,
 /// judged by its size (another process may be writing it).
 pub fn facets_journaled(path: &Path, parts: &MapParts) -> usize {
+    let whole = parts.facets(0).len();
+    (parts_journaled(path, parts) * whole).min(parts.facets(parts.count().saturating_sub(1)).end)
+}
+
+/// About how many whole parts the build journal beside the map file `path` holds.
+pub fn parts_journaled(path: &Path, parts: &MapParts) -> usize {
     let row_bytes = 4 * parts.azimuths() as u64;
     let whole = parts.facets(0).len() as u64;
-    let held = crate::journal::parts_held(path, whole * row_bytes) as usize;
-    (held * whole as usize).min(parts.facets(parts.count().saturating_sub(1)).end)
+    crate::journal::parts_held(path, whole * row_bytes) as usize
 }
 
 /// Adds a finished part's rows to its build's journal.
@@ -246,6 +260,90 @@ pub fn keep(journal: &mut Journal, rows: &[[u16; 2]]) -> Result<()> {
     let mut bytes = Vec::with_capacity(4 * rows.len());
     bytes.extend(cell_bytes(rows));
     journal.append(&bytes)
+}
+
+/// A part of a map built by a process that helps another one's build (the journal's
+/// holder), beside the map file `path`: `<map file>.part-<p>`.
+pub fn part_file(path: &Path, p: usize) -> PathBuf {
+    let mut name = path.as_os_str().to_owned();
+    name.push(format!(".part-{p}"));
+    PathBuf::from(name)
+}
+
+/// The claim on part `p` of the map at `path` by a helping process:
+/// `<map file>.part-<p>.claim`, an empty file.
+fn claim_file(path: &Path, p: usize) -> PathBuf {
+    let mut name = part_file(path, p).into_os_string();
+    name.push(".claim");
+    PathBuf::from(name)
+}
+
+/// Claims part `p` of the map at `path` for this process: true when no one had (the
+/// claim file is created only if it did not exist, so two helpers never both get it).
+pub fn claim_part(path: &Path, p: usize) -> Result<bool> {
+    let claim = claim_file(path, p);
+    match std::fs::OpenOptions::new()
+        .write(true)
+        .create_new(true)
+        .open(&claim)
+    {
+        Ok(_) => Ok(true),
+        Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => Ok(false),
+        Err(e) => Err(crate::error::Error::io(&claim, e)),
+    }
+}
+
+/// Whether part `p` of the map at `path` is claimed or done by a helper.
+pub fn part_taken(path: &Path, p: usize) -> bool {
+    part_file(path, p).exists() || claim_file(path, p).exists()
+}
+
+/// Writes part `p`'s rows (of `parts`, for the map of `key` at `path`) to its part file
+/// (temporary file, then rename).
+pub fn store_part(
+    path: &Path,
+    key: &[u8; 32],
+    parts: &MapParts,
+    p: usize,
+    rows: &[[u16; 2]],
+) -> Result<()> {
+    let mut head = (p as u64).to_le_bytes().to_vec();
+    head.extend_from_slice(&(parts.facets(p).start as u64).to_le_bytes());
+    head.extend_from_slice(&parts.azimuths().to_le_bytes());
+    store_streamed(&part_file(path, p), &PART_KIND, key, head, rows, |piece| {
+        cell_bytes(piece).collect()
+    })
+}
+
+/// Part `p`'s rows from its part file beside the map at `path` for `key`, when one is
+/// there, intact, and holds exactly that part's facets.
+pub fn load_part(path: &Path, key: &[u8; 32], parts: &MapParts, p: usize) -> Lookup<Vec<[u16; 2]>> {
+    cache::load(&part_file(path, p), &PART_KIND, key).decode(|payload| {
+        let mut r = Reader::new(&payload);
+        let (index, first) = (r.u64("the part's number")?, r.u64("its first facet")?);
+        let azimuths = r.u32("the wedge count")?;
+        let facets = parts.facets(p);
+        if (index, first, azimuths) != (p as u64, facets.start as u64, parts.azimuths()) {
+            return Err(format!(
+                "holds part {index} from facet {first} × {azimuths} wedges, expected part \
+                 {p} from facet {} × {}",
+                facets.start,
+                parts.azimuths()
+            ));
+        }
+        let cells = cells_from(r.take(4 * facets.len() * azimuths as usize, "the elevations")?);
+        r.finish()?;
+        Ok(cells)
+    })
+}
+
+/// Deletes the part and claim files of the map at `path` (its `count` parts), once the
+/// map is stored; a file that cannot be deleted is left for `slim cache` to prune.
+pub fn clear_parts(path: &Path, count: usize) {
+    for p in 0..count {
+        std::fs::remove_file(part_file(path, p)).ok();
+        std::fs::remove_file(claim_file(path, p)).ok();
+    }
 }
 
 #[cfg(test)]
@@ -293,6 +391,50 @@ mod tests {
             load(&file, &key, mesh.len(), 16),
             Lookup::Rejected(_)
         ));
+        std::fs::remove_dir_all(&dir).ok();
+    }
+
+    #[test]
+    fn a_helpers_part_reads_back_only_as_the_part_it_is_and_is_claimed_once() {
+        let dir = std::env::temp_dir().join(format!("slim-horizon-part-{}", std::process::id()));
+        std::fs::remove_dir_all(&dir).ok();
+        let mesh = Mesh::from_raw(icosphere(2, 1.0, glam::DVec3::ZERO), LengthUnit::Km);
+        let bvh = Bvh::build(&mesh);
+        let parts = MapParts::new(&mesh, mesh.len(), &bvh, 16, 128);
+        let key = content_key(&mesh, mesh.len(), 16);
+        let file = file_for(&dir, &key);
+        assert!(matches!(load_part(&file, &key, &parts, 1), Lookup::Missing));
+        std::fs::create_dir_all(&dir).expect("dir");
+        assert!(!part_taken(&file, 1));
+        assert!(claim_part(&file, 1).expect("claim"));
+        assert!(!claim_part(&file, 1).expect("claim"), "claimed once");
+        assert!(part_taken(&file, 1));
+        let rows = parts.rows(1);
+        store_part(&file, &key, &parts, 1, &rows).expect("store");
+        match load_part(&file, &key, &parts, 1) {
+            Lookup::Hit(read) => assert_eq!(read, rows),
+            other => panic!("{other:?}"),
+        }
+        // Read as another part, or for another map, it is refused.
+        std::fs::copy(part_file(&file, 1), part_file(&file, 2)).expect("copy");
+        match load_part(&file, &key, &parts, 2) {
+            Lookup::Rejected(why) => assert!(why.contains("expected part 2"), "{why}"),
+            other => panic!("{other:?}"),
+        }
+        let other = content_key(&mesh, mesh.len(), 32);
+        assert!(matches!(
+            load_part(&file, &other, &parts, 1),
+            Lookup::Rejected(_)
+        ));
+        // The last part is shorter: a whole part's rows do not pass for it.
+        let last = parts.count() - 1;
+        store_part(&file, &key, &parts, last, &rows).expect("store");
+        assert!(matches!(
+            load_part(&file, &key, &parts, last),
+            Lookup::Rejected(_)
+        ));
+        clear_parts(&file, parts.count());
+        assert_eq!(std::fs::read_dir(&dir).expect("dir").count(), 0);
         std::fs::remove_dir_all(&dir).ok();
     }
 }

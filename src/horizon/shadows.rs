@@ -355,6 +355,7 @@ impl Shadows {
             source: "cache".into(),
             file: file.clone(),
             build_s: 0.0,
+            helped_parts: 0,
         };
         let cached = |map: HorizonMap, record: MapRecord| {
             progress.note(&format!(
@@ -379,14 +380,24 @@ impl Shadows {
         let bvh = Bvh::build(casters);
         let parts = MapParts::new(casters, body.mesh.len(), &bvh, self.azimuths, part);
         let journal = match &file {
-            Some(file) => match self.journal_or_wait(body, (file, &key), &parts, progress)? {
-                Start::Cached(map) => return cached(map, record),
-                Start::Journal(j) => Some(j),
-                Start::Alone => None,
-            },
+            Some(file) => {
+                let start = self.journal_or_wait(
+                    body,
+                    (file, &key),
+                    &parts,
+                    progress,
+                    &mut record.helped_parts,
+                )?;
+                match start {
+                    Start::Cached(map) => return cached(map, record),
+                    Start::Journal(j) => Some(j),
+                    Start::Alone => None,
+                }
+            }
             None => None,
         };
-        let built = build_parts(body, &parts, journal, self.azimuths, progress)?;
+        let helpers = file.as_deref().map(|f| (f, &key));
+        let built = build_parts(body, &parts, journal, helpers, progress)?;
         record.source = if built.resumed { "resumed" } else { "built" }.into();
         record.build_s = built.seconds;
         record.bytes = built.map.bytes();
@@ -398,6 +409,7 @@ impl Shadows {
                     if let Some(j) = built.journal {
                         j.finish().ok();
                     }
+                    cache::clear_parts(file, parts.count());
                 }
                 Err(e) => {
                     progress.note(&format!("warning: horizon map not cached: {e}"));
@@ -409,14 +421,16 @@ impl Shadows {
     }
 
     /// The build journal beside the cache `file` of content `key`, with the parts it
-    /// holds; while another process holds it (building the same map), waits until that
-    /// process has stored the map (then read) or let go of the journal.
+    /// holds; while another process holds it (building the same map), helps it (builds
+    /// the parts it has not reached, counted in `helped`) and waits until that process
+    /// has stored the map (then read) or let go of the journal.
     fn journal_or_wait(
         &self,
         body: &Body,
         (file, key): (&Path, &[u8; 32]),
         parts: &MapParts,
         progress: &dyn Progress,
+        helped: &mut usize,
     ) -> Result<Start> {
         let mut waiting = false;
         let started = Instant::now();
@@ -443,8 +457,9 @@ impl Shadows {
             if !waiting {
                 waiting = true;
                 progress.note(&format!(
-                    "another process is building the horizon map {} now: waiting for it \
-                     (should it stop, this run goes on from its build journal)",
+                    "another process is building the horizon map {} now: helping it with \
+                     the parts it has not reached, then waiting for it (should it stop, this \
+                     run goes on from its build journal)",
                     file.display()
                 ));
             }
@@ -452,18 +467,24 @@ impl Shadows {
             if waited - last_note >= BUILD_NOTE_EVERY_S {
                 last_note = waited;
                 progress.note(&format!(
-                    "horizon map of '{}': the other process has built about {} of {} facets; \
-                     waited {}",
+                    "horizon map of '{}': the other process has built about {} of {} facets, \
+                     this one {} parts of {} facets for it; waited {}",
                     body.name,
                     cache::facets_journaled(file, parts),
                     body.mesh.len(),
+                    helped,
+                    parts.facets(0).len(),
                     minutes_and_seconds(waited)
                 ));
             }
             if progress.cancelled() {
                 return Err(Error::Cancelled);
             }
-            std::thread::sleep(WAIT_POLL);
+            if help_build(file, key, parts) {
+                *helped += 1;
+            } else {
+                std::thread::sleep(WAIT_POLL);
+            }
             if let Lookup::Hit(map) = self.load(body, file, key) {
                 return Ok(Start::Cached(map));
             }
@@ -474,6 +495,21 @@ impl Shadows {
     fn load(&self, body: &Body, file: &Path, key: &[u8; 32]) -> Lookup<HorizonMap> {
         cache::load(file, key, body.mesh.len(), self.azimuths)
     }
+}
+
+/// Builds one part of the map at `file` (content `key`) for the process that holds its
+/// journal: the highest part above those the journal holds that no one has taken (the
+/// builder goes up from the first, helpers down from the last), stored as a part file
+/// that the builder takes instead of building the part itself. False when none is left
+/// or the part could not be claimed or stored (a folder this run may not write).
+fn help_build(file: &Path, key: &[u8; 32], parts: &MapParts) -> bool {
+    // The part after those the journal holds is the builder's own now.
+    let reached = cache::parts_journaled(file, parts) + 1;
+    let claimed = (reached..parts.count())
+        .rev()
+        .filter(|&p| !cache::part_taken(file, p))
+        .find(|&p| cache::claim_part(file, p).unwrap_or(false));
+    claimed.is_some_and(|p| cache::store_part(file, key, parts, p, &parts.rows(p)).is_ok())
 }
 
 /// How often a run waiting for another process's build of the same map looks again.
@@ -490,12 +526,13 @@ enum Start {
 }
 
 /// Builds `body`'s map part by part, beginning after the parts `journal` holds and
-/// adding each part built to it.
+/// adding each part built to it. A part that another process built meanwhile (a part
+/// file beside the map file, `helpers`: that file and the map's key) is taken from it.
 fn build_parts(
     body: &Body,
     parts: &MapParts,
     journal: Option<cache::Resumable>,
-    azimuths: u32,
+    helpers: Option<(&Path, &[u8; 32])>,
     progress: &dyn Progress,
 ) -> Result<Built> {
     let started = Instant::now();
@@ -514,12 +551,13 @@ fn build_parts(
         )
     } else {
         format!(
-            "building the horizon map of '{}' ({facets} facets × {azimuths} wedges; about \
+            "building the horizon map of '{}' ({facets} facets × {} wedges; about \
              {left_s:.0} s on one core)",
-            body.name
+            body.name,
+            parts.azimuths()
         )
     });
-    let mut last_note = 0.0;
+    let (mut last_note, mut taken) = (0.0, 0);
     for p in first..parts.count() {
         let elapsed = started.elapsed().as_secs_f64();
         let done = parts.facets(p).start;
@@ -534,7 +572,21 @@ fn build_parts(
         if progress.cancelled() {
             return Err(Error::Cancelled);
         }
-        let rows = parts.rows(p);
+        let rows = match helpers.map(|(file, key)| cache::load_part(file, key, parts, p)) {
+            Some(Lookup::Hit(rows)) => {
+                taken += 1;
+                rows
+            }
+            Some(Lookup::Rejected(why)) => {
+                progress.note(&format!(
+                    "warning: part {p} of the horizon map of '{}' that another process \
+                     built is not used ({why}); building it",
+                    body.name
+                ));
+                parts.rows(p)
+            }
+            _ => parts.rows(p),
+        };
         if let Some(j) = &mut journal {
             if let Err(e) = cache::keep(j, &rows) {
                 progress.note(&format!("warning: horizon map build journal dropped: {e}"));
@@ -542,6 +594,14 @@ fn build_parts(
             }
         }
         cells.extend(rows);
+    }
+    if taken > 0 {
+        progress.note(&format!(
+            "horizon map of '{}': {taken} of its {} parts were built by other runs of the \
+             same map, which helped",
+            body.name,
+            parts.count()
+        ));
     }
     Ok(Built {
         map: parts
@@ -621,6 +681,10 @@ pub struct MapRecord {
     pub file: Option<PathBuf>,
     /// Seconds spent building it (0 when read).
     pub build_s: f64,
+    /// Parts of the map this run built for another process that was building it at the
+    /// same time (handed over beside the map file; 0 for the builder).
+    #[serde(default)]
+    pub helped_parts: usize,
 }
 
 #[cfg(test)]
@@ -830,12 +894,21 @@ mod tests {
         let whole = whole_build(&body, &shadows);
         let key = cache::content_key(body.shadow_mesh(), body.mesh.len(), 32);
         let file = cache::file_for(&dir, &key);
+        // The other build holds two parts of eight: this run builds the six others but
+        // the one after them (the other's own), from the last down, for it to take.
+        let helped = 3..8;
         let obtain_beside = |other: Journal, finish: bool| {
             let progress = StopAfter::new(usize::MAX);
             let got = std::thread::scope(|scope| {
                 let waiting = scope.spawn(|| shadows.obtain_in_parts(&body, &progress, 64));
+                let started = std::time::Instant::now();
+                while !helped.clone().all(|p| cache::part_file(&file, p).is_file()) {
+                    assert!(started.elapsed().as_secs() < 120, "no help came");
+                    std::thread::sleep(std::time::Duration::from_millis(20));
+                }
                 std::thread::sleep(std::time::Duration::from_millis(700));
                 assert!(!waiting.is_finished(), "it waits while the other builds");
+                assert!(!cache::part_file(&file, 2).exists(), "the other's own part");
                 if finish {
                     cache::store(&file, &key, &whole).expect("store");
                     other.finish().expect("finish");
@@ -850,12 +923,67 @@ mod tests {
         // The other build stores the map: it is read, and no journal is left behind.
         let ((map, record), _) = obtain_beside(another_build(&body, &dir, 2), true);
         assert_eq!((&map, record.source.as_str()), (&whole, "cache"));
+        assert_eq!(record.helped_parts, 5);
         assert!(!crate::journal::path_for(&file).exists());
-        // The other build stops after two parts: this one goes on from them.
+        // The other build stops after two parts: this one goes on from them, takes the
+        // parts it built as a helper, and clears them away once the map is stored.
+        // (Here no real build stored the map, so its helper's parts and claims are left.)
         std::fs::remove_file(&file).expect("remove the map");
+        cache::clear_parts(&file, 8);
         let ((map, record), progress) = obtain_beside(another_build(&body, &dir, 2), false);
         assert_eq!((&map, record.source.as_str()), (&whole, "resumed"));
         assert!(progress.noted("128 of 512 facets done"));
+        assert!(progress.noted("5 of its 8 parts were built by other runs"));
+        assert_eq!(
+            crate::cache::entries(&dir)
+                .expect("listed")
+                .iter()
+                .map(|e| e.what.as_str())
+                .collect::<Vec<_>>(),
+            ["horizon"],
+            "only the map is left"
+        );
+        std::fs::remove_dir_all(&dir).ok();
+    }
+
+    /// A build takes the parts other runs built for it as they are (a part file with a
+    /// valid checksum is believed, so fake one and see it come back), and builds a
+    /// damaged one itself.
+    #[test]
+    fn a_build_takes_the_parts_that_helpers_stored_and_rebuilds_damaged_ones() {
+        let dir = scratch("helped");
+        let (body, shadows) = bumps_in(&dir);
+        let whole = whole_build(&body, &shadows);
+        let mesh = body.shadow_mesh();
+        let key = cache::content_key(mesh, mesh.len(), 32);
+        let file = cache::file_for(&dir, &key);
+        let bvh = Bvh::build(mesh);
+        let map_parts = MapParts::new(mesh, mesh.len(), &bvh, 32, 64);
+        let faked = vec![[7u16, 7u16]; 64 * 32];
+        cache::store_part(&file, &key, &map_parts, 5, &faked).expect("store");
+        cache::store_part(&file, &key, &map_parts, 6, &map_parts.rows(6)).expect("store");
+        let part_6 = cache::part_file(&file, 6);
+        let mut damaged = std::fs::read(&part_6).expect("read");
+        damaged[crate::cache::PAYLOAD_OFFSET + 30] ^= 1;
+        std::fs::write(&part_6, &damaged).expect("write");
+        let progress = StopAfter::new(usize::MAX);
+        let (map, record) = shadows
+            .obtain_in_parts(&body, &progress, 64)
+            .expect("built");
+        assert_eq!(record.source, "built");
+        assert!(progress.noted("1 of its 8 parts were built by other runs"));
+        assert!(progress.noted("part 6 of the horizon map of 'bumps' that another process"));
+        for i in 0..body.mesh.len() {
+            for k in 0..32 {
+                let expected = if (320..384).contains(&i) {
+                    [7.0 / (65535.0 / std::f64::consts::FRAC_PI_2); 2]
+                } else {
+                    whole.wedge(i, k)
+                };
+                assert_eq!(map.wedge(i, k), expected, "facet {i}, wedge {k}");
+            }
+        }
+        assert!(!part_6.exists() && !cache::part_file(&file, 5).exists());
         std::fs::remove_dir_all(&dir).ok();
     }
     use crate::mesh::generate::{floor_and_wall, height_field};
