@@ -909,6 +909,21 @@ fn tracers_agree_on_phobos() {
     compare_tracers("phobos m1", &mesh, &suns);
 }
 
+/// Directions along the edges of `facets` of `mesh`, each turned to rise (+z), those
+/// that do: on terrain, grazing Suns exactly along the mesh's edges.
+fn rising_edges(mesh: &Mesh, facets: &[usize]) -> Vec<DVec3> {
+    facets
+        .iter()
+        .flat_map(|&f| {
+            let [a, b, c] = mesh.corners(f);
+            [b - a, c - b, a - c]
+        })
+        .map(|e| if e.z < 0.0 { -e } else { e })
+        .filter(|e| e.z > 0.0)
+        .map(DVec3::normalize)
+        .collect()
+}
+
 #[test]
 fn tracers_agree_on_haworth_terrain() {
     let mesh = load_km("data/shapes/moon/haworth5412.obj");
@@ -926,13 +941,7 @@ fn tracers_agree_on_haworth_terrain() {
     }
     suns.extend([DVec3::X, DVec3::Y, -DVec3::X, -DVec3::Y, DVec3::Z]);
     suns.push(DVec3::new(1.0, 1.0, 0.0).normalize());
-    for f in [0, 1000, 2706, 4999] {
-        let [a, b, c] = mesh.corners(f);
-        for e in [b - a, c - b, a - c] {
-            let e = if e.z < 0.0 { -e } else { e };
-            suns.push(e.normalize());
-        }
-    }
+    suns.extend(rising_edges(&mesh, &[0, 1000, 2706, 4999]));
     compare_tracers("haworth", &mesh, &suns);
     compare_horizon_map("haworth", &mesh, &suns, HorizonMode::Exact);
 }
@@ -971,14 +980,8 @@ fn tracers_and_maps_agree_on_small_terrain_far_from_the_origin() {
             DVec3::Z,
             DVec3::new(1.0, 1.0, 0.0).normalize(),
         ]);
+        suns.extend(rising_edges(&mesh, &[3, 200, 411]));
         for f in [3, 200, 411] {
-            let [a, b, c] = mesh.corners(f);
-            for e in [b - a, c - b, a - c] {
-                let e = if e.z < 0.0 { -e } else { e };
-                if e.z > 0.0 {
-                    suns.push(e.normalize());
-                }
-            }
             let (c, n) = (mesh.centroids[f], mesh.normals[f]);
             for v in mesh
                 .vertices
