@@ -4,7 +4,7 @@
 //! ```text
 //! cargo run --release --example bench_peer -- [MESH] [--subdivide N] [--folded]
 //!     [--steps N] [--threads N] [--tracer sunview|bvh|map-exact|map-approximate]
-//!     [--cache DIR] --out DIR
+//!     [--cache DIR] [--block K] --out DIR
 //! ```
 //! In: a mesh file in km (default: the 49,152-facet Itokawa model) or `--folded` (the
 //! bilobed test shape of `examples/common/folded.rs`), optionally subdivided (×4 facets
@@ -15,7 +15,9 @@
 //! horizon map of 128 wedges looked up instead of tracing (`map-exact`: rays only where
 //! the map is not certain, the same classification as the tracers; `map-approximate`:
 //! no rays), its build (or its read from `--cache DIR`) in `direct_new_s`. The
-//! exports happen after the loop.
+//! exports happen after the loop. Steps are computed one at a time, or with `--block K`
+//! in blocks of K (`Direct::compute_steps`, as `slim run` computes them: 16 steps up to
+//! a million facets), each step of a block given the block's time over K.
 //!
 //! Out, in DIR: `.npy` files (NumPy format 1.0, little-endian, C order) and `slim.json`.
 //! - `vertices.npy` f64 (V, 3), metres; `triangles.npy` u32 (F, 3), 0-based;
@@ -49,6 +51,7 @@ const VALUE_FLAGS: &[&str] = &[
     "--out",
     "--tracer",
     "--cache",
+    "--block",
 ];
 const SWITCHES: &[&str] = &["--folded"];
 
@@ -157,6 +160,10 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
         return Err("--steps must be at least 1".into());
     }
     let _: u32 = options.value("--subdivide", 0)?;
+    let block: usize = options.value("--block", 1)?;
+    if block == 0 {
+        return Err("--block must be at least 1".into());
+    }
     let out_dir: PathBuf = options
         .optional::<String>("--out")?
         .ok_or("--out DIR is required")?
@@ -199,26 +206,41 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
     traced.fill(0);
     shadowed.fill(0);
     let mut step_ms = vec![0.0; steps];
-    let mut out = vec![1.0; facets];
+    let mut outs = vec![vec![1.0; facets]; block];
     let before = Memory::now();
 
     let mut counts = StepCounts::default();
-    for (s, state) in states.iter().enumerate() {
+    for (b, chunk) in states.chunks(block).enumerate() {
+        let first = b * block;
         let t0 = Instant::now();
-        let c = direct.compute(state, &mut out)?;
-        step_ms[s] = 1e3 * t0.elapsed().as_secs_f64();
+        let c = if block == 1 {
+            direct.compute(&chunk[0], &mut outs[0])?
+        } else {
+            let mut views: Vec<&mut [f64]> = outs
+                .iter_mut()
+                .take(chunk.len())
+                .map(|o| &mut o[..])
+                .collect();
+            direct.compute_steps(chunk, &mut views)?
+        };
+        // A block's steps share its time evenly.
+        let ms = 1e3 * t0.elapsed().as_secs_f64() / chunk.len() as f64;
+        step_ms[first..first + chunk.len()].fill(ms);
         counts += c;
         // Classification, outside the timed part.
-        let sun = state.bodies[0].sun_dir;
-        let (t_row, s_row) = (
-            &mut traced[s * row..(s + 1) * row],
-            &mut shadowed[s * row..(s + 1) * row],
-        );
-        for i in 0..facets {
-            if mesh.normals[i].dot(sun) > 0.0 {
-                t_row[i / 8] |= 1 << (i % 8);
-                if out[i] == 0.0 {
-                    s_row[i / 8] |= 1 << (i % 8);
+        for (k, (state, out)) in chunk.iter().zip(&outs).enumerate() {
+            let s = first + k;
+            let sun = state.bodies[0].sun_dir;
+            let (t_row, s_row) = (
+                &mut traced[s * row..(s + 1) * row],
+                &mut shadowed[s * row..(s + 1) * row],
+            );
+            for i in 0..facets {
+                if mesh.normals[i].dot(sun) > 0.0 {
+                    t_row[i / 8] |= 1 << (i % 8);
+                    if out[i] == 0.0 {
+                        s_row[i / 8] |= 1 << (i % 8);
+                    }
                 }
             }
         }
@@ -289,6 +311,7 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
         world: &world,
         steps,
         threads,
+        block,
         build_s,
         loop_s,
         step_ms: &step_ms,
@@ -321,6 +344,8 @@ struct Summary<'a> {
     world: &'a World,
     steps: usize,
     threads: usize,
+    /// Steps computed together (`--block`).
+    block: usize,
     build_s: f64,
     loop_s: f64,
     step_ms: &'a [f64],
@@ -349,6 +374,7 @@ fn summary(s: &Summary<'_>) -> serde_json::Value {
         "bounding_radius_m": body.bounding_radius_m,
         "steps": s.steps,
         "threads": s.threads,
+        "block": s.block,
         "direct_new_s": s.build_s,
         "loop_s": s.loop_s,
         "ms_per_step_mean": 1e3 * s.loop_s / s.steps as f64,

@@ -61,6 +61,7 @@ def load_case(folder):
         "embree_upload_s": embree["upload_s"],
         "slim_direct_new_s": slim1["direct_new_s"],
         "slim_tracer": slim1["tracer"],
+        "slim_block": slim1.get("block", 1),
         "slim_build_growth_mb": slim1["memory"]["build_rss_growth_mb"],
         "slim_above_horizon_share": slim1["above_horizon_facet_steps"]
         / max(1, slim1["traced_facet_steps"]),
@@ -180,13 +181,17 @@ def main():
     }
     speed, other = tables(rows)
     stamp["slim_tracer"] = rows[0]["slim_tracer"] if rows else ""
-    header = (f"Peer benchmark, slim tracer {stamp['slim_tracer']}, {stamp['date']}, "
+    block = rows[0]["slim_block"] if rows else 1
+    blocks = f" in blocks of {block} steps" if block > 1 else ""
+    header = (f"Peer benchmark, slim tracer {stamp['slim_tracer']}{blocks}, {stamp['date']}, "
               f"{stamp['machine']}, {stamp['cpu']}, "
               f"{stamp['logical_cpus']} logical CPUs, {stamp['embree']}")
     notes = [
         "1T/2T: slim with 1 or 2 rayon threads; Embree (embreex, rtcOccluded1 per ray) on "
         "one thread, pinned to one CPU.",
-        "ms/step: mean over the steps; slim's includes its per-step tracer build (sunview; "
+        "ms/step: mean over the steps (with --block K, slim computes K steps at a time, "
+        "as slim run does, each step taking the block's time over K; Embree casts each "
+        "step's rays in turn); slim's includes its per-step tracer build (sunview; "
         "the bvh tracer and its horizon bound are built once, 'slim setup s'; so is a "
         "horizon map, map-exact and map-approximate, unless read from the cache), "
         "Embree's is queries only (its BVH is built once, column 'Embree BVH build s').",
