@@ -407,11 +407,26 @@ fn atan2_within(y: f64, x: f64) -> f64 {
     } else {
         (small / large, 0.0)
     };
-    let u2 = u * u;
-    // Σ (−1)ᵏ u²ᵏ/(2k + 1), k = 0 … 9, by Horner's rule.
-    let series = (0..10).rev().fold(0.0, |acc, k| {
-        acc * u2 + if k % 2 == 0 { 1.0 } else { -1.0 } / (2 * k + 1) as f64
-    });
+    // Σ (−1)ᵏ u²ᵏ/(2k + 1), k = 0 … 9, by Estrin's scheme: pairs, then pairs of pairs,
+    // so that the terms do not wait on one another as in Horner's rule.
+    const C: [f64; 10] = [
+        1.0,
+        -1.0 / 3.0,
+        1.0 / 5.0,
+        -1.0 / 7.0,
+        1.0 / 9.0,
+        -1.0 / 11.0,
+        1.0 / 13.0,
+        -1.0 / 15.0,
+        1.0 / 17.0,
+        -1.0 / 19.0,
+    ];
+    let v = u * u;
+    let (v2, v4) = (v * v, v * v * v * v);
+    let pair = |k: usize| C[k] + C[k + 1] * v;
+    let low = pair(0) + v2 * pair(2);
+    let high = pair(4) + v2 * pair(6);
+    let series = low + v4 * high + v4 * v4 * pair(8);
     let mut angle = base + u * series;
     if ay > ax {
         angle = FRAC_PI_2 - angle;
