@@ -7,7 +7,10 @@
 //! holds exactly that content intact, and a file written after a build. While a map is
 //! built, its finished parts ([`MapParts`]) go to a build journal beside the file
 //! (`horizon-<key>.bin.journal`, [`crate::journal`]), each part's cells laid out as in
-//! the payload, so that a build stopped part-way resumes from them.
+//! the payload, so that a build stopped part-way resumes from them. Other processes that
+//! need the same map meanwhile build parts the builder has not reached: each claimed
+//! first ([`claim_part`]) and stored as a part file ([`store_part`], [`PART_KIND`]) that
+//! the builder takes ([`load_part`]) instead of building the part.
 //!
 //! Payload (little-endian), in files named `horizon-<key>.bin`:
 //!
