@@ -213,16 +213,13 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
     for (b, chunk) in states.chunks(block).enumerate() {
         let first = b * block;
         let t0 = Instant::now();
-        let c = if block == 1 {
-            direct.compute(&chunk[0], &mut outs[0])?
-        } else {
-            let mut views: Vec<&mut [f64]> = outs
-                .iter_mut()
-                .take(chunk.len())
-                .map(|o| &mut o[..])
-                .collect();
-            direct.compute_steps(chunk, &mut views)?
-        };
+        // (`Direct::compute` is this with a block of one step.)
+        let mut views: Vec<&mut [f64]> = outs
+            .iter_mut()
+            .take(chunk.len())
+            .map(|o| &mut o[..])
+            .collect();
+        let c = direct.compute_steps(chunk, &mut views)?;
         // A block's steps share its time evenly.
         let ms = 1e3 * t0.elapsed().as_secs_f64() / chunk.len() as f64;
         step_ms[first..first + chunk.len()].fill(ms);
