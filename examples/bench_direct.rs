@@ -73,8 +73,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         rayon::current_num_threads()
     );
     println!(
-        "{:<8} {:>12} {:>14} {:>16} {:>10}",
-        "tracer", "build s", "ms per step", "queries per s", "shadowed"
+        "{:<8} {:>12} {:>14} {:>16} {:>10} {:>11}",
+        "tracer", "build s", "ms per step", "queries per s", "shadowed", "remembered"
     );
     match options.optional::<String>("--horizon")? {
         Some(mode) => {
@@ -147,12 +147,13 @@ fn time_steps(
     }
     let loop_s = t1.elapsed().as_secs_f64();
     println!(
-        "{:<8} {:>12.3} {:>14.3} {:>16.3e} {:>10}",
+        "{:<8} {:>12.3} {:>14.3} {:>16.3e} {:>10} {:>11}",
         name,
         build,
         1e3 * loop_s / states.len() as f64,
         counts.rays as f64 / loop_s,
-        counts.shadowed
+        counts.shadowed,
+        counts.remembered
     );
     Ok(())
 }

@@ -24,6 +24,7 @@ use crate::horizon::eclipse::Ellipsoid;
 use crate::horizon::map::{HorizonMap, LocalHorizon, SkyPosition};
 use crate::horizon::shadows::BoundRecord;
 use crate::horizon::{HorizonMode, Shadows, SunShape};
+use crate::mesh::inspect::edge_neighbours;
 use crate::trace::bvh::{Bvh, BvhRays};
 use crate::trace::{self, Blocker, ShadowQuery, Tracer, TracerKind};
 use crate::world::{Body, FrameTransform, World};
@@ -86,12 +87,34 @@ pub struct Direct<'w> {
     lit: Vec<bool>,
     /// Where each horizon bound came from, for the bodies that have one.
     bound_records: Vec<BoundRecord>,
-    /// Per body with an exact horizon map under a point Sun and per facet, the facet that
-    /// last blocked its own shadow ray (`NO_BLOCKER`: none, or lit since), tried first
-    /// at the next step ([`Direct::shade`]); empty for other bodies. Only there are the
-    /// rays traced mostly shadowed (those below their wedge's upper bound): the BVH's
-    /// bound leaves mostly lit rays, which gained nothing (docs/performance.md).
-    last_blockers: Vec<Vec<AtomicU32>>,
+    /// Per body with an exact horizon map under a point Sun, the blockers its shadow
+    /// rays remember from step to step ([`Direct::shade`]); `None` for other bodies. Only
+    /// there are the rays traced mostly shadowed (those below their wedge's upper bound):
+    /// the BVH's bound leaves mostly lit rays, which gained nothing (docs/performance.md).
+    last_blockers: Vec<Option<LastBlockers>>,
+}
+
+/// What a body's shadow rays remember of the step before.
+struct LastBlockers {
+    /// Per facet, the facet that last blocked its shadow ray (`NO_BLOCKER`: none, or lit
+    /// since); the next step's ray walks the surface from it
+    /// ([`ShadowQuery::blocker_near`]).
+    facets: Vec<AtomicU32>,
+    /// Per facet, its neighbour across each edge, the walk's paths
+    /// ([`edge_neighbours`]).
+    neighbours: Vec<[u32; 3]>,
+}
+
+impl LastBlockers {
+    fn new(body: &Body) -> LastBlockers {
+        LastBlockers {
+            facets: (0..body.mesh.len())
+                .map(|_| AtomicU32::new(NO_BLOCKER))
+                .collect(),
+            // The blockers are facets of everything that casts shadows.
+            neighbours: edge_neighbours(body.shadow_mesh()),
+        }
+    }
 }
 
 /// No blocker remembered.
@@ -201,11 +224,9 @@ impl<'w> Direct<'w> {
         let last_blockers = (world.bodies.iter().zip(&horizons))
             .map(|(b, horizon)| match horizon {
                 OwnHorizon::Map { exact: true, .. } if shadows.sun == SunShape::Point => {
-                    (0..b.mesh.len())
-                        .map(|_| AtomicU32::new(NO_BLOCKER))
-                        .collect()
+                    Some(LastBlockers::new(b))
                 }
-                _ => Vec::new(),
+                _ => None,
             })
             .collect();
         Direct {
@@ -441,8 +462,8 @@ impl<'w> Direct<'w> {
                 let mut by_self = vec![Shade::Lit; rays.len()];
                 let last = &self.last_blockers[b];
                 rays.par_iter().zip(&mut by_self).for_each(|(r, shade)| {
-                    *shade = match last.get(r.facet as usize) {
-                        Some(memo) => shade_remembering(own, r, memo),
+                    *shade = match last {
+                        Some(last) => shade_remembering(own, r, last),
                         None if own.blocked(r.origin, r.t_min, Some(r.facet)) => Shade::Blocked,
                         None => Shade::Lit,
                     }
@@ -1104,15 +1125,22 @@ enum Shade {
     Remembered,
 }
 
-/// Whether `ray` is blocked, tried first against the facet that blocked it last (its
-/// facet's `memo`): a Sun that moved a little is often still behind it, and one exact
-/// test costs far less than a walk through the tree. Either way the answer is the
-/// tracer's own predicate's; the facet it names is remembered for the next step, and
-/// forgotten when the ray comes out clear.
-fn shade_remembering(own: &dyn ShadowQuery, ray: &OwnRay, memo: &AtomicU32) -> Shade {
+/// Whether `ray` is blocked, looked for first on the surface around the facet that
+/// blocked it last: a Sun that moved a little is often still behind it or a neighbour,
+/// and a few exact tests cost far less than a walk through the tree. Either way the
+/// answer is the tracer's own predicate's; the facet found is remembered for the next
+/// step, and forgotten when the ray comes out clear.
+fn shade_remembering(own: &dyn ShadowQuery, ray: &OwnRay, last: &LastBlockers) -> Shade {
+    let memo = &last.facets[ray.facet as usize];
     let before = memo.load(Ordering::Relaxed);
-    if before != NO_BLOCKER && own.blocked_by(ray.origin, ray.t_min, ray.facet, before) {
-        return Shade::Remembered;
+    if before != NO_BLOCKER {
+        let near = own.blocker_near(ray.origin, ray.t_min, ray.facet, before, &last.neighbours);
+        if let Some(id) = near {
+            if id != before {
+                memo.store(id, Ordering::Relaxed);
+            }
+            return Shade::Remembered;
+        }
     }
     match own.blocker(ray.origin, ray.t_min, Some(ray.facet)) {
         Blocker::Clear => {

@@ -1385,18 +1385,19 @@ fn thread_count_does_not_change_results() {
     }
 }
 
-/// A Sun moving a quarter of a degree per step over Itokawa (3,072 facets) with an exact
-/// horizon map: each own shadow ray is tried first against the facet that blocked it at
-/// the step before (`StepCounts::remembered`), which must change no bit of the
-/// irradiance against the Grid's (`compare_horizon_map`, one Direct kept over all
-/// steps). Most shadowed rays must then be answered so, or the path went untested; the
-/// BVH with its bound remembers nothing.
+/// A Sun moving 2° per step over Itokawa (3,072 facets) with an exact horizon map: each
+/// own shadow ray looks for its blocker first on the surface around the facet that
+/// blocked it at the step before (`StepCounts::remembered`), which must change no bit of
+/// the irradiance against the Grid's (`compare_horizon_map`, one Direct kept over all
+/// steps). Three quarters of the shadowed rays must be answered so, or the walk went
+/// untested or lost its way: the last blocker alone answers 31 % of them at this pace
+/// (82 % with the walk). The BVH with its bound remembers nothing.
 #[test]
 fn remembered_blockers_change_no_shadow() {
     let mesh = load_km("data/shapes/itokawa/itokawa_16.obj");
     let suns: Vec<DVec3> = (0..120)
         .map(|k| {
-            let turn = (k as f64 * 0.25).to_radians();
+            let turn = (k as f64 * 2.0).to_radians();
             elevated(turn.cos(), turn.sin(), 10f64.to_radians())
         })
         .collect();
@@ -1407,7 +1408,7 @@ fn remembered_blockers_change_no_shadow() {
         HorizonMode::Exact,
     );
     assert!(
-        total.remembered * 2 > total.shadowed,
+        total.remembered * 4 > total.shadowed * 3,
         "remembered {} of {} shadowed",
         total.remembered,
         total.shadowed

@@ -311,18 +311,21 @@ impl Shadows {
     }
 
     /// Memory the maps of the bodies in `uses` hold, bytes, with what the step loop keeps
-    /// beside an exact map for a point Sun: each facet's last blocker (4 bytes).
+    /// beside an exact map for a point Sun: each facet's last blocker (4 bytes) and, for
+    /// every facet that casts shadows (the surroundings too), its neighbours across its
+    /// edges, where the walk from a blocker goes (12 bytes).
     pub fn map_bytes(&self, world: &World, uses: &[bool]) -> f64 {
-        let remembered = match (self.mode, self.sun) {
-            (HorizonMode::Exact, SunShape::Point) => 4.0,
-            _ => 0.0,
-        };
-        world
-            .bodies
-            .iter()
-            .zip(uses)
+        let remembers = self.mode == HorizonMode::Exact && self.sun == SunShape::Point;
+        (world.bodies.iter().zip(uses))
             .filter(|(_, &u)| u)
-            .map(|(b, _)| b.mesh.len() as f64 * (self.map_bytes_per_facet() + remembered))
+            .map(|(b, _)| {
+                let map = b.mesh.len() as f64 * self.map_bytes_per_facet();
+                let walk = match remembers {
+                    true => b.mesh.len() as f64 * 4.0 + b.shadow_mesh().len() as f64 * 12.0,
+                    false => 0.0,
+                };
+                map + walk
+            })
             .sum()
     }
 

@@ -120,25 +120,49 @@ pub fn is_watertight(mesh: &Mesh) -> bool {
 /// increasing id order. Degenerate facets with a repeated vertex have none; at an edge
 /// shared by more than two facets, the first two are joined.
 pub fn facet_neighbours(mesh: &Mesh) -> Vec<Vec<u32>> {
+    edge_neighbours(mesh)
+        .into_iter()
+        .map(|across| {
+            let mut list: Vec<u32> = across.into_iter().filter(|&f| f != NO_NEIGHBOUR).collect();
+            list.sort_unstable();
+            list.dedup();
+            list
+        })
+        .collect()
+}
+
+/// No facet across this edge.
+pub const NO_NEIGHBOUR: u32 = u32::MAX;
+
+/// Each facet's neighbour across each of its edges, in corner order (edge `k` runs from
+/// corner `k` to corner `k + 1`), or [`NO_NEIGHBOUR`]; joined as in [`facet_neighbours`].
+pub fn edge_neighbours(mesh: &Mesh) -> Vec<[u32; 3]> {
     let welded = welded(mesh);
     let degenerate: Vec<bool> = (0..welded.len())
         .map(|f| is_degenerate(&welded, f))
         .collect();
-    let mut neighbours = vec![Vec::new(); mesh.len()];
-    for edge in edge_map(&welded, &degenerate).values() {
-        if edge.uses >= 2 {
-            let [a, b] = edge.facets;
-            if a != b {
-                neighbours[a as usize].push(b);
-                neighbours[b as usize].push(a);
-            }
+    let edges = edge_map(&welded, &degenerate);
+    let across = |facet: u32, from: u32, to: u32| {
+        let key = (u64::from(from.min(to)) << 32) | u64::from(from.max(to));
+        match edges.get(&key) {
+            Some(e) if e.uses >= 2 && e.facets[0] != e.facets[1] => match facet {
+                f if f == e.facets[0] => e.facets[1],
+                f if f == e.facets[1] => e.facets[0],
+                _ => NO_NEIGHBOUR,
+            },
+            _ => NO_NEIGHBOUR,
         }
-    }
-    for list in &mut neighbours {
-        list.sort_unstable();
-        list.dedup();
-    }
-    neighbours
+    };
+    (welded.triangles.iter().enumerate())
+        .map(|(facet, &[a, b, c])| {
+            let facet = facet as u32;
+            [
+                across(facet, a, b),
+                across(facet, b, c),
+                across(facet, c, a),
+            ]
+        })
+        .collect()
 }
 
 /// `mesh` with every vertex replaced by the first vertex at the same position.
@@ -479,5 +503,50 @@ fn write_volume(f: &mut fmt::Formatter<'_>, report: &MeshReport) -> fmt::Result 
             f,
             "  ok: signed volume {volume:.4e} m³ is positive: the normals point outward"
         )
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::mesh::generate::icosphere;
+    use crate::mesh::{LengthUnit, RawMesh};
+
+    #[test]
+    fn each_edge_names_the_facet_on_its_other_side() {
+        // A closed sphere: three neighbours each, across the edge both share, and each
+        // names the facet back across the same edge.
+        let sphere = Mesh::from_raw(icosphere(2, 1.0, DVec3::ZERO), LengthUnit::M);
+        let across = edge_neighbours(&sphere);
+        for (f, sides) in across.iter().enumerate() {
+            for (k, &n) in sides.iter().enumerate() {
+                assert_ne!(n, NO_NEIGHBOUR, "facet {f} edge {k}");
+                let [a, b] = [sphere.triangles[f][k], sphere.triangles[f][(k + 1) % 3]];
+                let back = across[n as usize].iter().position(|&m| m == f as u32);
+                let k_back = back.expect("named back");
+                let t = sphere.triangles[n as usize];
+                assert_eq!(
+                    [t[(k_back + 1) % 3], t[k_back]],
+                    [a, b],
+                    "facet {f} edge {k}"
+                );
+            }
+        }
+        // Two facets meeting at an edge whose vertices are repeated (a seam) are
+        // neighbours across it; a facet with a repeated vertex has none, nor an open edge.
+        let raw = RawMesh {
+            vertices: vec![
+                DVec3::ZERO,
+                DVec3::X,
+                DVec3::Y,
+                DVec3::X,
+                DVec3::Y,
+                DVec3::ONE,
+            ],
+            triangles: vec![[0, 1, 2], [3, 5, 4], [0, 0, 1]],
+        };
+        let seam = edge_neighbours(&Mesh::from_raw(raw, LengthUnit::M));
+        let none = NO_NEIGHBOUR;
+        assert_eq!(seam, vec![[none, 1, none], [none, none, 0], [none; 3]]);
     }
 }

@@ -20,7 +20,8 @@
 //! exact ones would; facets are then screened in `f32` and tested in `f64`.
 
 use super::ray::{inside, DepthPlane, RayFrame};
-use super::{caster_facets, Blocker, ShadowQuery, Tracer};
+use super::{caster_facets, Blocker, ShadowQuery, Tracer, WALK_FACETS};
+use crate::mesh::inspect::NO_NEIGHBOUR;
 use crate::mesh::Mesh;
 use glam::{BVec4A, DVec3, Vec3, Vec4};
 
@@ -468,6 +469,26 @@ impl<'m> Bvh<'m> {
         let t = DepthPlane::new(normal, corners[0]).distance(s.q);
         t > s.t0 && t < s.t1 && inside(&corners, s.q)
     }
+
+    /// The edge of facet `id` (corner `k` to `k + 1`, seen along the ray) beyond which the
+    /// ray passes farthest, or `None` when it passes within all three or the facet is seen
+    /// edge-on: where a walk toward the facet the ray crosses goes next.
+    fn edge_passed(&self, s: &Exact, id: u32) -> Option<usize> {
+        let p = self
+            .mesh
+            .corners(id as usize)
+            .map(|c| s.frame.project(c).truncate());
+        let q = s.q.truncate();
+        let turn = (p[1] - p[0]).perp_dot(p[2] - p[0]);
+        let beyond = |k: usize| {
+            let edge = p[(k + 1) % 3] - p[k];
+            -turn.signum() * edge.perp_dot(q - p[k]) / edge.length()
+        };
+        let (k, most) = (0..3)
+            .map(|k| (k, beyond(k)))
+            .max_by(|a, b| a.1.total_cmp(&b.1))?;
+        (turn != 0.0 && most > 0.0).then_some(k)
+    }
 }
 
 /// What every ray along one unit direction shares: the exact predicate's frame and the
@@ -514,8 +535,27 @@ impl ShadowQuery for BvhRays<'_> {
         }
     }
 
-    fn blocked_by(&self, origin: DVec3, t_min: f64, skip: u32, facet: u32) -> bool {
-        self.blocked_among(origin, t_min, skip, &[facet])
+    fn blocker_near(
+        &self,
+        origin: DVec3,
+        t_min: f64,
+        skip: u32,
+        start: u32,
+        neighbours: &[[u32; 3]],
+    ) -> Option<u32> {
+        let exact = self.exact(origin, t_min, skip);
+        let (mut facet, mut came_from) = (start, NO_NEIGHBOUR);
+        for _ in 0..WALK_FACETS {
+            if self.bvh.crosses(&exact, facet) {
+                return Some(facet);
+            }
+            let next = neighbours[facet as usize][self.bvh.edge_passed(&exact, facet)?];
+            if next == NO_NEIGHBOUR || next == came_from {
+                return None;
+            }
+            (facet, came_from) = (next, facet);
+        }
+        None
     }
 }
 
@@ -541,10 +581,14 @@ impl<'b> BvhRays<'b> {
     ) -> bool {
         // Only the exact tests: the boxes and screens that `ray` would also prepare
         // decide nothing here, and a ray missing the tree's sphere crosses no facet.
-        let bvh = self.bvh;
-        let t1 = bvh.ray_length(origin, t_min) - t_min;
-        let exact = Exact::new(origin, self.toward.frame, (t_min, t1), [skip, u32::MAX]);
-        among.iter().any(|&id| bvh.crosses(&exact, id))
+        let exact = self.exact(origin, t_min, skip);
+        among.iter().any(|&id| self.bvh.crosses(&exact, id))
+    }
+
+    /// The exact predicate's view of the ray from `origin` (the facet `skip` left out).
+    fn exact(&self, origin: DVec3, t_min: f64, skip: u32) -> Exact {
+        let t1 = self.bvh.ray_length(origin, t_min) - t_min;
+        Exact::new(origin, self.toward.frame, (t_min, t1), [skip, u32::MAX])
     }
 }
 
@@ -1243,6 +1287,85 @@ mod tests {
             }
             // Both answers occur often enough for the comparison to mean something.
             assert!(blocked > 300 && blocked < 2700, "{blocked} of 3000 blocked");
+        }
+    }
+
+    /// Each facet's distance in edges from the nearest of `sources` (`usize::MAX` where
+    /// the surface does not connect).
+    fn edges_from(neighbours: &[[u32; 3]], sources: &[usize]) -> Vec<usize> {
+        let mut distance = vec![usize::MAX; neighbours.len()];
+        let mut queue: std::collections::VecDeque<usize> = sources.iter().copied().collect();
+        sources.iter().for_each(|&f| distance[f] = 0);
+        while let Some(f) = queue.pop_front() {
+            for n in neighbours[f].into_iter().filter(|&n| n != NO_NEIGHBOUR) {
+                if distance[n as usize] == usize::MAX {
+                    distance[n as usize] = distance[f] + 1;
+                    queue.push_back(n as usize);
+                }
+            }
+        }
+        distance
+    }
+
+    #[test]
+    fn a_walk_from_near_a_blocker_finds_one_the_ray_crosses_or_none() {
+        // Grazing rays over rough terrain, near the origin and 4,000 km from it: a walk
+        // started one or two edges from the facets a ray crosses must mostly find one of
+        // them (86 %; it stops where the ray passes within a facet it does not cross,
+        // mostly around its own origin) and may name no other; started farther than it
+        // may walk, it finds none.
+        for centre in [DVec3::ZERO, DVec3::new(4.0e6, -1.0e6, 2.5e6)] {
+            let mesh = terrain(24, 1.0, centre);
+            let bvh = Bvh::build(&mesh);
+            let neighbours = crate::mesh::inspect::edge_neighbours(&mesh);
+            let mut rng = crate::TestRng::new(0x6a09_e667_f3bc_c908);
+            let mut next = || rng.unit();
+            let (mut near, mut found, mut far) = (0, 0, 0);
+            for _ in 0..3000 {
+                let i = (next() * mesh.len() as f64) as usize;
+                let (elevation, azimuth) = (0.3 * next(), std::f64::consts::TAU * next());
+                let dir = DVec3::new(
+                    elevation.cos() * azimuth.cos(),
+                    elevation.cos() * azimuth.sin(),
+                    elevation.sin(),
+                );
+                let origin = mesh.centroids[i];
+                let hit: Vec<usize> = crossed(&mesh, origin, origin + dir * 100.0, 1e-6)
+                    .filter(|&f| f != i)
+                    .collect();
+                if hit.is_empty() {
+                    continue;
+                }
+                let rays = BvhRays::new(&bvh, dir);
+                let (distance, facets) = (&edges_from(&neighbours, &hit), mesh.len());
+                let walk = |start: usize| {
+                    rays.blocker_near(origin, 1e-6, i as u32, start as u32, &neighbours)
+                };
+                let starts = |d: std::ops::RangeInclusive<usize>| {
+                    (0..facets).filter(move |&f| f != i && d.contains(&distance[f]))
+                };
+                for start in starts(1..=2).step_by(3) {
+                    near += 1;
+                    if let Some(f) = walk(start) {
+                        assert!(hit.contains(&(f as usize)), "{f} not crossed");
+                        found += 1;
+                    }
+                }
+                if let Some(start) = starts(WALK_FACETS..=usize::MAX - 1).next() {
+                    assert_eq!(
+                        walk(start),
+                        None,
+                        "from {start}, {} edges away",
+                        distance[start]
+                    );
+                    far += 1;
+                }
+            }
+            assert!(far > 100, "{far} walks from far away");
+            assert!(
+                near > 1000 && found * 5 > near * 4,
+                "found {found} of {near}"
+            );
         }
     }
 

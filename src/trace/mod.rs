@@ -50,13 +50,32 @@ pub trait ShadowQuery: Sync {
         }
     }
 
-    /// True when `facet` blocks the ray by the exact predicate [`ShadowQuery::blocked`]
-    /// applies (`skip` left out): then the ray is blocked. False when it does not, or
-    /// when the tracer cannot test one facet alone (all but the BVH).
-    fn blocked_by(&self, _origin: DVec3, _t_min: f64, _skip: u32, _facet: u32) -> bool {
-        false
+    /// A facet that blocks the ray by the exact predicate [`ShadowQuery::blocked`]
+    /// applies (`skip` left out), looked for on the surface around `start` alone: first
+    /// `start`, then each facet across the edge (`neighbours`, [`edge_neighbours`]) beyond
+    /// which the ray passes, for at most [`WALK_FACETS`] facets. `None` when the walk
+    /// finds none (the ray may still be blocked elsewhere), or when the tracer cannot test
+    /// single facets (all but the BVH).
+    ///
+    /// [`edge_neighbours`]: crate::mesh::inspect::edge_neighbours
+    fn blocker_near(
+        &self,
+        _origin: DVec3,
+        _t_min: f64,
+        _skip: u32,
+        _start: u32,
+        _neighbours: &[[u32; 3]],
+    ) -> Option<u32> {
+        None
     }
 }
+
+/// The most facets [`ShadowQuery::blocker_near`] tests on one ray. On Itokawa (49k
+/// facets, the Sun 1° apart from step to step) walks of 1, 3, 6 and 12 facets found the
+/// blocker of 31, 74, 88 and 89 % of the shadowed rays: past a few facets the walk has
+/// left the blocker's neighbourhood (a new ridge casts the shadow) and the tree is the
+/// faster way on.
+pub const WALK_FACETS: usize = 6;
 
 /// What [`ShadowQuery::blocker`] found on a ray.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
