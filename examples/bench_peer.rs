@@ -357,7 +357,8 @@ struct Summary<'a> {
 /// `loop_s`, `ms_per_step_mean`, `ms_per_step_min`; `rays` (shadow queries the tracer
 /// counted), `rays_per_s`, `traced_facet_steps` (n·s > 0), `shadowed_facet_steps`,
 /// `night_facet_steps`, `above_horizon_facet_steps` (answered by the horizon bound, no
-/// ray); memory `before_loop` and `after_loop` (VmHWM = peak, VmRSS = current, MB),
+/// ray), `remembered_facet_steps` (shadowed rays whose blocker the walk from the step
+/// before's found, no tree); memory `before_loop` and `after_loop` (VmHWM = peak, VmRSS = current, MB),
 /// their growth, and `build_rss_growth_mb` (the tracer's structures built once).
 fn summary(s: &Summary<'_>) -> serde_json::Value {
     let body = &s.world.bodies[0];
@@ -382,6 +383,7 @@ fn summary(s: &Summary<'_>) -> serde_json::Value {
         "shadowed_facet_steps": s.counts.shadowed,
         "night_facet_steps": s.counts.night,
         "above_horizon_facet_steps": s.counts.above_horizon,
+        "remembered_facet_steps": s.counts.remembered,
         "memory": {
             "before_loop": s.before.json(),
             "after_loop": s.after.json(),

@@ -50,8 +50,9 @@ pub struct StepCounts {
     /// disk), without a ray.
     #[serde(default)]
     pub horizon_lookups: u64,
-    /// Shadow rays (counted in `rays`) answered by the facet that blocked the same
-    /// facet's ray at the step before, without a walk through the tracer. A measure of
+    /// Shadow rays (counted in `rays`) answered on the surface around the facet that
+    /// blocked the same facet's ray at the step before ([`ShadowQuery::blocker_near`]),
+    /// without a walk through the tracer. A measure of
     /// work, like a timing: it depends on the steps the same process computed before (a
     /// part of a sharded run starts afresh), never on the result.
     #[serde(default)]
