@@ -321,15 +321,7 @@ impl<'m> Bvh<'m> {
     /// metres) farther than `margin` from both ends.
     pub fn segment_blocked(&self, a: DVec3, b: DVec3, skip: [u32; 2], margin: f64) -> bool {
         self.segment(a, b, skip, margin)
-            .is_some_and(|segment| self.first_blocker(&segment))
-    }
-
-    /// True if a facet blocks the prepared `segment`.
-    fn first_blocker(&self, segment: &Segment) -> bool {
-        self.walk(
-            |quad| segment.slab.hits(quad),
-            |leaf| self.leaf_blocker(leaf, segment).is_some(),
-        )
+            .is_some_and(|segment| self.blocker_of(&segment).is_some())
     }
 
     /// The first facet found that blocks the segment, if any.
@@ -422,7 +414,7 @@ impl<'m> Bvh<'m> {
     /// build it.
     fn ray_blocked(&self, a: DVec3, toward: &Toward, t_min: f64, skip: [u32; 2]) -> bool {
         self.ray(a, toward, t_min, skip)
-            .is_some_and(|ray| self.first_blocker(&ray))
+            .is_some_and(|ray| self.blocker_of(&ray).is_some())
     }
 
     /// The ray from `a` along `toward`, hits counting beyond `t_min`, as the segment
