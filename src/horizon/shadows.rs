@@ -766,6 +766,43 @@ mod tests {
         (body, shadows)
     }
 
+    #[test]
+    fn the_plan_counts_the_map_and_what_an_exact_maps_walks_keep() {
+        // Bumps with a ring of surroundings: the estimate must be what the map holds,
+        // plus, for an exact map under a point Sun, the last blocker of every facet of
+        // the patch and the neighbours of every facet that casts shadows.
+        let (body, shadows) = bumps_in(&scratch("bytes"));
+        let ring = height_field((8, 8), (-24.0, 24.0), (-24.0, 24.0), |x, y| {
+            0.05 * (x * x + y * y)
+        });
+        let body = body.with_surroundings(&Mesh::from_raw(ring, LengthUnit::M));
+        let casters = body.shadow_mesh();
+        let map = HorizonMap::build(casters, body.mesh.len(), &Bvh::build(casters), 32);
+        let walks = body.mesh.len() * std::mem::size_of::<std::sync::atomic::AtomicU32>()
+            + crate::mesh::inspect::edge_neighbours(casters).len()
+                * std::mem::size_of::<[u32; 3]>();
+        let patch = body.mesh.len();
+        assert!(casters.len() > patch);
+        let world = World { bodies: vec![body] };
+        for (mode, sun, kept) in [
+            (HorizonMode::Exact, SunShape::Point, map.bytes() + walks),
+            (HorizonMode::Approximate, SunShape::Point, map.bytes()),
+            (HorizonMode::Exact, SunShape::Disk, map.bytes()),
+        ] {
+            let shadows = Shadows {
+                mode,
+                sun,
+                ..shadows.clone()
+            };
+            assert_eq!(
+                shadows.map_bytes(&world, &[true]),
+                kept as f64,
+                "{mode:?} {sun:?}"
+            );
+            assert_eq!(shadows.map_bytes(&world, &[false]), 0.0);
+        }
+    }
+
     fn whole_build(body: &Body, shadows: &Shadows) -> HorizonMap {
         let mesh = body.shadow_mesh();
         HorizonMap::build(mesh, mesh.len(), &Bvh::build(mesh), shadows.azimuths)
