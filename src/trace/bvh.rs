@@ -20,7 +20,7 @@
 //! exact ones would; facets are then screened in `f32` and tested in `f64`.
 
 use super::ray::{inside, DepthPlane, RayFrame};
-use super::{caster_facets, Blocker, ShadowQuery, Tracer, WALK_FACETS};
+use super::{caster_facets, casts_shadows, Blocker, ShadowQuery, Tracer, WALK_FACETS};
 use crate::mesh::inspect::NO_NEIGHBOUR;
 use crate::mesh::Mesh;
 use glam::{BVec4A, DVec3, Vec3, Vec4};
@@ -538,7 +538,8 @@ impl ShadowQuery for BvhRays<'_> {
         let exact = self.exact(origin, t_min, skip);
         let (mut facet, mut came_from) = (start, NO_NEIGHBOUR);
         for _ in 0..WALK_FACETS {
-            if self.bvh.crosses(&exact, facet) {
+            // Only facets the tree holds may block: the answer must be the tree's.
+            if casts_shadows(self.bvh.mesh, facet) && self.bvh.crosses(&exact, facet) {
                 return Some(facet);
             }
             let next = neighbours[facet as usize][self.bvh.edge_passed(&exact, facet)?];

@@ -147,9 +147,15 @@ pub fn build(kind: TracerKind, mesh: &Mesh) -> Box<dyn Tracer + '_> {
     }
 }
 
-/// Indices of the facets that can cast shadows: every facet with a non-zero area.
+/// Indices of the facets that can cast shadows ([`casts_shadows`]).
 pub(crate) fn caster_facets(mesh: &Mesh) -> Vec<u32> {
     (0..mesh.len() as u32)
-        .filter(|&i| mesh.areas[i as usize] > 0.0)
+        .filter(|&i| casts_shadows(mesh, i))
         .collect()
+}
+
+/// Whether facet `i` can cast shadows: it has a non-zero area.
+#[inline]
+pub(crate) fn casts_shadows(mesh: &Mesh, i: u32) -> bool {
+    mesh.areas[i as usize] > 0.0
 }
