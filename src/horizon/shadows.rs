@@ -564,17 +564,23 @@ fn build_parts(
             parts.azimuths()
         )
     });
-    let (mut last_note, mut taken) = (0.0, 0);
+    let (mut last_note, mut taken, mut taken_facets) = (0.0, 0, 0);
     for p in first..parts.count() {
         let elapsed = started.elapsed().as_secs_f64();
         let done = parts.facets(p).start;
-        if done > done_before && elapsed - last_note >= BUILD_NOTE_EVERY_S {
+        // The pace counts only the facets built here, and the time left only those still
+        // to build here: helpers' parts cost nothing to take.
+        let built_here = done - done_before - taken_facets;
+        if built_here > 0 && elapsed - last_note >= BUILD_NOTE_EVERY_S {
             last_note = elapsed;
-            progress.note(&build_progress(
-                &body.name,
-                (done_before, done, facets),
-                elapsed,
-            ));
+            let helped_ahead = helpers.map_or(0, |(file, _)| stored_by_helpers(file, parts, p));
+            let pace = BuildPace {
+                done,
+                facets,
+                built_here,
+                to_build: facets - done - helped_ahead,
+            };
+            progress.note(&build_progress(&body.name, &pace, elapsed));
         }
         if progress.cancelled() {
             return Err(Error::Cancelled);
@@ -582,6 +588,7 @@ fn build_parts(
         let rows = match helpers.map(|(file, key)| cache::load_part(file, key, parts, p)) {
             Some(Lookup::Hit(rows)) => {
                 taken += 1;
+                taken_facets += parts.facets(p).len();
                 rows
             }
             Some(Lookup::Rejected(why)) => {
@@ -634,14 +641,35 @@ struct Built {
 /// Seconds between two notes of a map build's progress.
 const BUILD_NOTE_EVERY_S: f64 = 30.0;
 
-/// How far the map build of `body` has come: `done` of `facets` (`before` of them taken
-/// from its journal) after `elapsed_s` in this run, and the time left at that pace.
-fn build_progress(
-    body: &str,
-    (before, done, facets): (usize, usize, usize),
-    elapsed_s: f64,
-) -> String {
-    let left_s = elapsed_s * (facets - done) as f64 / (done - before) as f64;
+/// How far a map build has come, in facets.
+struct BuildPace {
+    /// Facets whose rows the build holds (from its journal, built, or taken from helpers).
+    done: usize,
+    facets: usize,
+    /// Of `done`, those built in this run (not zero).
+    built_here: usize,
+    /// Facets left to build in this run: not done, nor in parts helpers have stored.
+    to_build: usize,
+}
+
+/// The facets of the parts from `from` on that helpers have stored beside the map `file`.
+fn stored_by_helpers(file: &Path, parts: &MapParts, from: usize) -> usize {
+    (from..parts.count())
+        .filter(|&q| cache::part_file(file, q).exists())
+        .map(|q| parts.facets(q).len())
+        .sum()
+}
+
+/// How far the map build of `body` has come after `elapsed_s` in this run, and the time
+/// left at this run's own pace.
+fn build_progress(body: &str, pace: &BuildPace, elapsed_s: f64) -> String {
+    let BuildPace {
+        done,
+        facets,
+        built_here,
+        to_build,
+    } = *pace;
+    let left_s = elapsed_s * to_build as f64 / built_here as f64;
     format!(
         "horizon map of '{body}': {done} of {facets} facets ({:.0} %) in {}, about {} left",
         100.0 * done as f64 / facets as f64,
@@ -700,18 +728,30 @@ mod tests {
 
     #[test]
     fn a_builds_progress_says_how_far_it_is_and_how_long_is_left() {
+        let pace = |done, facets, built_here, to_build| BuildPace {
+            done,
+            facets,
+            built_here,
+            to_build,
+        };
         assert_eq!(
-            build_progress("phobos", (0, 196_608, 786_432), 300.0),
+            build_progress("phobos", &pace(196_608, 786_432, 196_608, 589_824), 300.0),
             "horizon map of 'phobos': 196608 of 786432 facets (25 %) in 5 min 00 s, about 15 min 00 s left"
         );
         assert_eq!(
-            build_progress("b", (0, 1, 3), 20.4),
+            build_progress("b", &pace(1, 3, 1, 2), 20.4),
             "horizon map of 'b': 1 of 3 facets (33 %) in 20 s, about 41 s left"
         );
-        // Resumed from a journal: the pace counts only the facets of this run.
+        // Resumed from a journal (4 facets): the pace counts only the facets of this run.
         assert_eq!(
-            build_progress("b", (4, 5, 7), 20.4),
+            build_progress("b", &pace(5, 7, 1, 2), 20.4),
             "horizon map of 'b': 5 of 7 facets (71 %) in 20 s, about 41 s left"
+        );
+        // Helped: 2 facets taken from a helper's part, 3 more stored ahead; 2 built here
+        // in 20 s, 1 left to build.
+        assert_eq!(
+            build_progress("b", &pace(4, 8, 2, 1), 20.0),
+            "horizon map of 'b': 4 of 8 facets (50 %) in 20 s, about 10 s left"
         );
     }
 
