@@ -52,7 +52,7 @@ pub struct MeshReport {
 /// Inspects the topology and orientation of `mesh`.
 pub fn inspect(mesh: &Mesh) -> MeshReport {
     let degenerate: Vec<bool> = (0..mesh.len()).map(|f| is_degenerate(mesh, f)).collect();
-    let edges = edge_map(mesh, &degenerate);
+    let edges = edge_map(&mesh.triangles);
     let mut boundary_edges = 0;
     let mut non_manifold_edges = 0;
     let mut inconsistent_edges = 0;
@@ -103,11 +103,7 @@ pub fn inspect(mesh: &Mesh) -> MeshReport {
 /// outward. A ray that leaves such a surface can only be blocked by crossing, from
 /// outside, a facet that faces against the ray.
 pub fn is_watertight(mesh: &Mesh) -> bool {
-    let welded = welded(mesh);
-    let degenerate: Vec<bool> = (0..welded.len())
-        .map(|f| is_degenerate(&welded, f))
-        .collect();
-    let edges = edge_map(&welded, &degenerate);
+    let edges = edge_map(&welded_triangles(mesh));
     !edges.is_empty()
         && edges
             .values()
@@ -137,11 +133,8 @@ pub const NO_NEIGHBOUR: u32 = u32::MAX;
 /// Each facet's neighbour across each of its edges, in corner order (edge `k` runs from
 /// corner `k` to corner `k + 1`), or [`NO_NEIGHBOUR`]; joined as in [`facet_neighbours`].
 pub fn edge_neighbours(mesh: &Mesh) -> Vec<[u32; 3]> {
-    let welded = welded(mesh);
-    let degenerate: Vec<bool> = (0..welded.len())
-        .map(|f| is_degenerate(&welded, f))
-        .collect();
-    let edges = edge_map(&welded, &degenerate);
+    let welded = welded_triangles(mesh);
+    let edges = edge_map(&welded);
     let across = |facet: u32, from: u32, to: u32| {
         let key = (u64::from(from.min(to)) << 32) | u64::from(from.max(to));
         match edges.get(&key) {
@@ -153,7 +146,7 @@ pub fn edge_neighbours(mesh: &Mesh) -> Vec<[u32; 3]> {
             _ => NO_NEIGHBOUR,
         }
     };
-    (welded.triangles.iter().enumerate())
+    (welded.iter().enumerate())
         .map(|(facet, &[a, b, c])| {
             let facet = facet as u32;
             [
@@ -165,8 +158,8 @@ pub fn edge_neighbours(mesh: &Mesh) -> Vec<[u32; 3]> {
         .collect()
 }
 
-/// `mesh` with every vertex replaced by the first vertex at the same position.
-fn welded(mesh: &Mesh) -> Mesh {
+/// `mesh`'s triangles with every vertex replaced by the first vertex at the same position.
+fn welded_triangles(mesh: &Mesh) -> Vec<[u32; 3]> {
     let mut first: HashMap<[u64; 3], u32> = HashMap::with_capacity(mesh.vertices.len());
     let canonical: Vec<u32> = mesh
         .vertices
@@ -178,15 +171,9 @@ fn welded(mesh: &Mesh) -> Mesh {
             *first.entry(key).or_insert(i as u32)
         })
         .collect();
-    let raw = crate::mesh::RawMesh {
-        vertices: mesh.vertices.clone(),
-        triangles: mesh
-            .triangles
-            .iter()
-            .map(|t| t.map(|v| canonical[v as usize]))
-            .collect(),
-    };
-    Mesh::from_raw(raw, crate::mesh::LengthUnit::M)
+    (mesh.triangles.iter())
+        .map(|t| t.map(|v| canonical[v as usize]))
+        .collect()
 }
 
 fn has_repeated_vertex([a, b, c]: [u32; 3]) -> bool {
@@ -217,13 +204,15 @@ struct EdgeUse {
 
 type EdgeMap = HashMap<u64, EdgeUse, BuildHasherDefault<EdgeKeyHasher>>;
 
-/// Maps each undirected edge (key: smaller index in the high half, larger in the low
-/// half) to the facets using it. Facets with a repeated vertex are collapsed to a line
-/// and left out: their neighbours meet across them as if they were absent.
-fn edge_map(mesh: &Mesh, degenerate: &[bool]) -> EdgeMap {
-    let mut edges = EdgeMap::with_capacity_and_hasher(mesh.len() * 3 / 2 + 1, Default::default());
-    for (facet, &triangle) in mesh.triangles.iter().enumerate() {
-        if degenerate[facet] && has_repeated_vertex(triangle) {
+/// Maps each undirected edge of `triangles` (key: smaller vertex index in the high half,
+/// larger in the low half) to the facets using it. Facets with a repeated vertex are
+/// collapsed to a line and left out: their neighbours meet across them as if they were
+/// absent.
+fn edge_map(triangles: &[[u32; 3]]) -> EdgeMap {
+    let capacity = triangles.len() * 3 / 2 + 1;
+    let mut edges = EdgeMap::with_capacity_and_hasher(capacity, Default::default());
+    for (facet, &triangle) in triangles.iter().enumerate() {
+        if has_repeated_vertex(triangle) {
             continue;
         }
         let [a, b, c] = triangle;
