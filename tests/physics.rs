@@ -1391,7 +1391,7 @@ fn thread_count_does_not_change_results() {
 /// the irradiance against the Grid's (`compare_horizon_map`, one Direct kept over all
 /// steps). Three quarters of the shadowed rays must be answered so, or the walk went
 /// untested or lost its way: the last blocker alone answers 31 % of them at this pace
-/// (82 % with the walk). The BVH with its bound remembers nothing.
+/// (82 % with a walk of six facets). The BVH with its bound remembers nothing.
 #[test]
 fn remembered_blockers_change_no_shadow() {
     let mesh = load_km("data/shapes/itokawa/itokawa_16.obj");

@@ -1304,7 +1304,7 @@ mod tests {
     fn a_walk_from_near_a_blocker_finds_one_the_ray_crosses_or_none() {
         // Grazing rays over rough terrain, near the origin and 4,000 km from it: a walk
         // started one or two edges from the facets a ray crosses must mostly find one of
-        // them (86 %; it stops where the ray passes within a facet it does not cross,
+        // them (over 4 in 5; it stops where the ray passes within a facet it does not cross,
         // mostly around its own origin) and may name no other; started farther than it
         // may walk, it finds none.
         for centre in [DVec3::ZERO, DVec3::new(4.0e6, -1.0e6, 2.5e6)] {
