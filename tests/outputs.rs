@@ -7,9 +7,9 @@
 //! independent reduction of the history; the CDF, geometry, PLY and run.json are
 //! consistent; runs are reproducible; failed runs leave no run.json behind.
 
-use arrow::array::{Array, ArrowPrimitiveType, PrimitiveArray, StringArray};
-use arrow::datatypes::{Float64Type, UInt32Type, UInt64Type};
-use arrow::record_batch::RecordBatch;
+use arrow_array::types::{Float64Type, UInt32Type, UInt64Type};
+use arrow_array::RecordBatch;
+use arrow_array::{Array, ArrowPrimitiveType, PrimitiveArray, StringArray};
 use glam::DVec3;
 use parquet::arrow::arrow_reader::ParquetRecordBatchReaderBuilder;
 use sha2::{Digest, Sha256};

@@ -10,7 +10,7 @@
 //! latitude; requested facets are plotted; bad input fails with one line naming the folder;
 //! `slim run --report` writes a self-contained index.html.
 
-use arrow::array::{Array, Float64Array, StringArray, UInt32Array};
+use arrow_array::{Array, Float64Array, StringArray, UInt32Array};
 use glam::DVec3;
 use parquet::arrow::arrow_reader::ParquetRecordBatchReaderBuilder;
 use slim::analytic::SphereLatitude;

@@ -358,7 +358,7 @@ fn result_files_support_single_byte_ranges() {
 
 /// The history of one facet from a result folder: irradiance per step, W/m².
 fn history_of(dir: &Path, facet: u32) -> Vec<f64> {
-    use arrow::array::{Float64Array, UInt32Array, UInt64Array};
+    use arrow_array::{Float64Array, UInt32Array, UInt64Array};
     let file = std::fs::File::open(dir.join("history.parquet")).unwrap();
     let reader = parquet::arrow::arrow_reader::ParquetRecordBatchReaderBuilder::try_new(file)
         .unwrap()

@@ -26,7 +26,7 @@
 use super::reply::{ApiError, ApiResult};
 use crate::output::read::column;
 use crate::sight::{stretches, Stretch};
-use arrow::array::{Float64Array, StringArray, UInt32Array};
+use arrow_array::{Float64Array, StringArray, UInt32Array};
 use parquet::arrow::arrow_reader::{
     ArrowReaderOptions, ParquetRecordBatchReaderBuilder, RowSelection, RowSelector,
 };
