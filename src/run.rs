@@ -54,7 +54,7 @@ impl HistorySink for HistoryWriter {
     }
 }
 
-/// What a finished step loop hands to [`Outputs::write`] and [`Outputs::record`].
+/// What a finished step loop hands to [`Outputs::write`] and [`Outputs::shard`].
 pub struct Results<'a> {
     pub scene: &'a Scene,
     pub world: &'a World,

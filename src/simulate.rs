@@ -269,8 +269,8 @@ fn announce_bvh_build(
 /// Steps computed before their statistics are added, as one block (and, with scattered
 /// light, solved side by side): with scattered light up to [`LANES`] when the stage
 /// exchanges light through no inter-body block (one body, or bodies beside planets),
-/// otherwise one; without, as many as [`BLOCK_BYTES`] of per-step buffers hold, up to
-/// [`MAX_BLOCK_STEPS`]. Without `scatter` at hand (the memory estimate), the most a
+/// otherwise one; without, as many as `BLOCK_BYTES` of per-step buffers hold, up to
+/// `MAX_BLOCK_STEPS`. Without `scatter` at hand (the memory estimate), the most a
 /// scattering run may take.
 pub fn steps_per_batch(
     scatter: Option<&Scatter>,

@@ -6,10 +6,10 @@
 //! acceleration ω²·r⊥ of the rotating frame.
 //!
 //! Gravity comes from point masses: each facet's tetrahedron with the origin is cut into
-//! [`SHELLS`] shells by scaling, each shell's mass (ρ·V·(s₁³ − s₀³), signed with the
+//! `SHELLS` shells by scaling, each shell's mass (ρ·V·(s₁³ − s₀³), signed with the
 //! tetrahedron's volume, so a body that is not star-shaped about the origin still sums
 //! right) placed at its centroid (3/4·(s₁⁴ − s₀⁴)/(s₁³ − s₀³) of the facet centroid),
-//! then lumped into the cells of a [`CELLS`]³ grid over the body, each at its masses'
+//! then lumped into the cells of a `CELLS`³ grid over the body, each at its masses'
 //! centre. Pulls are softened over half a cell, so a facet next to a cell is not pulled
 //! toward one point. On a uniform sphere this gives the radial vertical; spinning, the
 //! tilt matches the closed form to a fraction of a degree (tested).

@@ -18,7 +18,7 @@
 //!
 //! The panel lies on the deck, parallel to the ground: its power is `η A E_f`, with
 //! `E_f` the facet's irradiance (direct, and scattered light when the scene has it).
-//! The battery follows [`Battery::after`] quantum by quantum with the idle load while
+//! The battery follows [`crate::panel::Battery::after`] quantum by quantum with the idle load while
 //! waiting and the drive load while moving; a route is feasible when the charge never
 //! falls below the rover's `min_charge_wh` at the end of any quantum.
 //!

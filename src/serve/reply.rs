@@ -29,7 +29,7 @@ const MAX_MESSAGE_CHARS: usize = 1000;
 
 impl ApiError {
     /// An error with any status. The message is made printable (control characters
-    /// escaped) and cut at [`MAX_MESSAGE_CHARS`]: messages may quote the request.
+    /// escaped) and cut at `MAX_MESSAGE_CHARS`: messages may quote the request.
     pub fn new(status: StatusCode, code: &'static str, message: impl Into<String>) -> ApiError {
         ApiError {
             status,

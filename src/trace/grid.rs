@@ -9,7 +9,7 @@
 //! box, and tests the facets listed there with the shared exact predicate.
 //!
 //! The cells are coarsened only if the facets would fill more entries than `u32` offsets
-//! address (see [`super::cells`]); no real mesh comes near.
+//! address (see `trace::cells`); no real mesh comes near.
 
 use super::cells::{CellLists, Cover, TooManyEntries};
 use super::ray::{blocks, DepthPlane, RayFrame};

@@ -22,7 +22,7 @@
 //! All decide a hit with the same exact predicate ([`ray::blocks`]), evaluated in a
 //! frame that depends only on the ray direction, so they classify every ray identically;
 //! they differ only in which facets they test. The grids keep their per-cell facet lists
-//! in the same compressed form, built by [`cells`].
+//! in the same compressed form, built by `cells`.
 
 pub mod bvh;
 mod cells;

@@ -15,7 +15,7 @@
 //! them afresh made the kernel zero new pages every step.
 //!
 //! The cells are coarsened only if the casters would fill more entries than `u32` offsets
-//! address (see [`super::cells`]); no real mesh comes near.
+//! address (see `trace::cells`); no real mesh comes near.
 //!
 //! In: a mesh (metres, body frame) and a unit Sun direction. Out: [`ShadowQuery`] answers
 //! computed with the same predicate and projection as the reference grid.

@@ -9,7 +9,7 @@
 //! TDB past J2000, and system angles θ_k = Σ_j J_kj T^j,
 //!   α = α₀ + α₁T + α₂T² + Σ a_k sin θ_k,   δ = δ₀ + δ₁T + δ₂T² + Σ b_k cos θ_k,
 //!   W = W₀ + W₁d + W₂d² + Σ c_k sin θ_k   (degrees),
-//! and J2000 → body = [W]₃ [90° − δ]₁ [90° + α]₃, [θ]ᵢ the frame rotation about axis i.
+//! and J2000 → body = \[W\]₃ \[90° − δ\]₁ \[90° + α\]₃, \[θ\]ᵢ the frame rotation about axis i.
 //! It is evaluated here rather than through anise's PCK conversion, which keeps only two
 //! coefficients per system angle (pck00011 gives Mars's angles three) and so misplaces
 //! Phobos's prime meridian by about 1e-4 rad.
