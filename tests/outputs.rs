@@ -8,8 +8,7 @@
 //! consistent; runs are reproducible; failed runs leave no run.json behind.
 
 use arrow_array::types::{Float64Type, UInt32Type, UInt64Type};
-use arrow_array::RecordBatch;
-use arrow_array::{Array, ArrowPrimitiveType, PrimitiveArray, StringArray};
+use arrow_array::{Array, ArrowPrimitiveType, PrimitiveArray, RecordBatch, StringArray};
 use glam::DVec3;
 use parquet::arrow::arrow_reader::ParquetRecordBatchReaderBuilder;
 use sha2::{Digest, Sha256};
