@@ -51,7 +51,6 @@ pub struct MeshReport {
 
 /// Inspects the topology and orientation of `mesh`.
 pub fn inspect(mesh: &Mesh) -> MeshReport {
-    let degenerate: Vec<bool> = (0..mesh.len()).map(|f| is_degenerate(mesh, f)).collect();
     let edges = edge_map(&mesh.triangles);
     let mut boundary_edges = 0;
     let mut non_manifold_edges = 0;
@@ -66,7 +65,7 @@ pub fn inspect(mesh: &Mesh) -> MeshReport {
     }
     let closed = boundary_edges == 0 && non_manifold_edges == 0;
     let signed_volume_m3 = signed_volume(mesh);
-    let degenerate_facets = degenerate.iter().filter(|&&d| d).count();
+    let degenerate_facets = (0..mesh.len()).filter(|&f| is_degenerate(mesh, f)).count();
     let convex = closed
         && inconsistent_edges == 0
         && degenerate_facets == 0
