@@ -169,9 +169,13 @@ const VALUES_PER_PIECE: usize = 1 << 18;
 pub fn store(path: &Path, key: &[u8; 32], map: &HorizonMap) -> Result<()> {
     let mut head = map.azimuths().to_le_bytes().to_vec();
     head.extend_from_slice(&(map.facets() as u64).to_le_bytes());
-    store_streamed(path, &KIND, key, head, map.cells(), |piece| {
-        cell_bytes(piece).collect()
-    })
+    let facets = map.facets();
+    let per_piece = (VALUES_PER_PIECE / map.azimuths() as usize).max(1);
+    let pieces = (0..facets).step_by(per_piece).map(|first| {
+        let rows: Vec<[u16; 2]> = map.rows(first..(first + per_piece).min(facets)).collect();
+        cell_bytes(&rows).collect()
+    });
+    cache::store_pieces(path, &KIND, key, std::iter::once(head).chain(pieces))
 }
 
 /// Stores `head` and then `values` as the payload of a `kind` file, the values turned

@@ -64,7 +64,9 @@ const WEDGE_OVERLAP: f64 = 1e-9;
 #[derive(Debug, Clone, PartialEq)]
 pub struct HorizonMap {
     azimuths: u32,
-    /// Per facet, per wedge: [upper, centre] elevation in quanta.
+    facets: usize,
+    /// Per wedge, per facet: [upper, centre] elevation in quanta, in blocks of
+    /// [`CELL_BLOCK`] facets (each block's cells wedge by wedge; [`HorizonMap::cell`]).
     cells: Vec<[u16; 2]>,
     /// Per facet, a sine of elevation that no wedge's upper bound or centre reaches
     /// (derived from `cells`): a Sun higher than it clears the facet's whole horizon,
@@ -74,6 +76,12 @@ pub struct HorizonMap {
     /// meet the octant and one more on each side (the interpolation's neighbours).
     octant_ceilings: Vec<[f32; 8]>,
 }
+
+/// Facets whose cells a map keeps together, wedge by wedge: neighbouring facets see the
+/// Sun at nearly the same azimuth, so that the cells a step reads for them share cache
+/// lines (a wedge's cells of 16 facets fill 64 bytes) where a row per facet would give
+/// each facet a line of its own.
+const CELL_BLOCK: usize = 16;
 
 /// Facets in a part of a map's build ([`MapParts`]): a few seconds of work at most, and
 /// a whole number of the seeded runs' 64 facets.
@@ -198,7 +206,8 @@ impl HorizonMap {
             .then(|| HorizonMap::with_ceilings(azimuths, cells))
     }
 
-    fn with_ceilings(azimuths: u32, cells: Vec<[u16; 2]>) -> HorizonMap {
+    /// The map of `cells` given facet by facet.
+    fn with_ceilings(azimuths: u32, mut cells: Vec<[u16; 2]>) -> HorizonMap {
         let a = azimuths as usize;
         let ceilings = cells.chunks(a).map(|row| ceiling(row.iter())).collect();
         let octants: Vec<Vec<usize>> = (0..8).map(|o| octant_wedges(a, o)).collect();
@@ -208,17 +217,23 @@ impl HorizonMap {
                 std::array::from_fn(|o| f32_at_least(ceiling(octants[o].iter().map(|&k| &row[k]))))
             })
             .collect();
+        wedge_by_wedge(&mut cells, a);
         HorizonMap {
             azimuths,
+            facets: cells.len() / a,
             cells,
             ceilings,
             octant_ceilings,
         }
     }
 
-    /// The stored cells, facet by facet (for the cache).
-    pub(super) fn cells(&self) -> &[[u16; 2]] {
-        &self.cells
+    /// The cells of `facets`, facet by facet (as the cache stores them).
+    pub(super) fn rows(
+        &self,
+        facets: std::ops::Range<usize>,
+    ) -> impl Iterator<Item = [u16; 2]> + '_ {
+        let a = self.azimuths as usize;
+        facets.flat_map(move |i| (0..a).map(move |k| self.cell(i, k)))
     }
 
     /// Number of azimuth wedges.
@@ -228,7 +243,7 @@ impl HorizonMap {
 
     /// Number of facets.
     pub fn facets(&self) -> usize {
-        self.cells.len() / self.azimuths as usize
+        self.facets
     }
 
     /// Memory held, bytes.
@@ -290,9 +305,29 @@ impl HorizonMap {
         self.cell(i, k).map(|q| q as f64 / QUANTA_PER_RAD)
     }
 
+    /// Facet `i`'s cell of wedge `k`: in its block (the last may hold fewer facets),
+    /// wedge `k`'s cells after those of the wedges before it.
     #[inline]
     fn cell(&self, i: usize, k: usize) -> [u16; 2] {
-        self.cells[i * self.azimuths as usize + k]
+        let first = i - i % CELL_BLOCK;
+        let width = (self.facets - first).min(CELL_BLOCK);
+        self.cells[first * self.azimuths as usize + k * width + (i - first)]
+    }
+}
+
+/// Reorders `cells`, given facet by facet (`a` wedges each), into the blocks of
+/// [`HorizonMap::cell`], in place: a block's cells occupy the same places either way.
+fn wedge_by_wedge(cells: &mut [[u16; 2]], a: usize) {
+    let mut by_facet = Vec::with_capacity(CELL_BLOCK * a);
+    for block in cells.chunks_mut(CELL_BLOCK * a) {
+        let width = block.len() / a;
+        by_facet.clear();
+        by_facet.extend_from_slice(block);
+        for (f, row) in by_facet.chunks(a).enumerate() {
+            for (k, &cell) in row.iter().enumerate() {
+                block[k * width + f] = cell;
+            }
+        }
     }
 }
 
@@ -389,7 +424,8 @@ const ANGLE_ERROR: f64 = 5e-10;
 const _: () = assert!(ANGLE_ERROR < WEDGE_OVERLAP && ANGLE_ERROR < CLEAR_MARGIN);
 
 /// atan2(y, x) in (−π, π] within [`ANGLE_ERROR`], with one division and no call: the
-/// lookups' hot path (libm's atan2 and asin took a fifth of a step).
+/// lookups' hot path (libm's atan2 and asin took a fifth of a step) and the spans of the
+/// map's build (libm's atan2 took a tenth of it).
 ///
 /// The ratio r = min/max of |x|, |y| is in [0, 1]; above tan(π/8), atan r = π/4 +
 /// atan((r − 1)/(r + 1)). Either way the argument u has |u| ≤ tan(π/8), and the Taylor
@@ -580,13 +616,14 @@ enum Span {
 impl Span {
     /// The span of points `rel` (relative to the viewpoint) projected on the tangent
     /// plane `(t1, t2)`. Their hull must not hold the zenith axis (then every azimuth is
-    /// spanned, which the caller knows from another test).
+    /// spanned, which the caller knows from another test). The ends are widened by the
+    /// error of their angles ([`ANGLE_ERROR`]), so that the span holds every point.
     fn of(rel: &[DVec3], t1: DVec3, t2: DVec3) -> Span {
         let in_plane = |p: &DVec3| (p.dot(t1), p.dot(t2));
         let first = in_plane(&rel[0]);
         // Each point's turn from the first, as (cos, sin) up to a common factor. The
         // extremes are found by a pseudo-angle that orders turns as `atan2` does, so
-        // only they need `atan2` (a box has eight corners).
+        // only they need an angle (a box has eight corners).
         let turn = |(x, y): (f64, f64)| {
             // `+ 0.0` turns a −0 sine into +0, so that a turn of exactly π is π for the
             // pseudo-angle and for the cross product below alike.
@@ -611,11 +648,11 @@ impl Span {
         if cross < 0.0 || (cross == 0.0 && lx * hx + ly * hy < 0.0) {
             return Span::All;
         }
-        let angle = |(x, y): (f64, f64)| y.atan2(x);
+        let angle = |(x, y): (f64, f64)| atan2_within(y, x);
         let (lo, hi) = (angle(lo.2), angle(hi.2));
         // Less than half a turn apart: `hi` below `lo` by more than that has crossed ±π;
-        // by less, only rounding put it there.
-        Span::Range(lo, if hi < lo - PI { hi + TAU } else { hi.max(lo) })
+        // by less, only rounding put it there. The angles' error is taken up by widening.
+        Span::Range(lo, if hi < lo - PI { hi + TAU } else { hi.max(lo) }).widened(ANGLE_ERROR)
     }
 
     /// The span widened by `by` radians on both sides.
@@ -1183,6 +1220,33 @@ mod tests {
     /// from a floor centroid, the wall's top at azimuth φ (from +x, which is the first
     /// tangent axis for the normal +z) stands at atan(h·cos φ / (d − x)).
     #[test]
+    fn cells_come_back_as_given_whatever_the_blocks() {
+        // Facet counts below, at and past a block, and with a short last block.
+        for facets in [1, 15, 16, 17, 37, 64] {
+            let a = 8;
+            let given: Vec<[u16; 2]> = (0..facets * a)
+                .map(|c| [c as u16, (c as u16).wrapping_mul(7)])
+                .collect();
+            let map = HorizonMap::from_cells(a as u32, facets, given.clone()).unwrap();
+            assert_eq!(map.facets(), facets);
+            for i in 0..facets {
+                for k in 0..a {
+                    assert_eq!(
+                        map.cell(i, k),
+                        given[i * a + k],
+                        "{facets} facets: {i}, {k}"
+                    );
+                }
+            }
+            assert_eq!(map.rows(0..facets).collect::<Vec<_>>(), given);
+            assert_eq!(
+                map.rows(3.min(facets)..facets).count(),
+                (facets - 3.min(facets)) * a
+            );
+        }
+    }
+
+    #[test]
     fn a_wall_matches_its_closed_form_in_every_wedge_that_sees_it() {
         let (h, d, half) = (3.0, 4.0, 1e4);
         let m = Mesh::from_raw(floor_and_wall(h, d, half), LengthUnit::M);
@@ -1374,11 +1438,15 @@ mod tests {
                 Span::All => assert!(most - least > PI - 1e-9, "{width} spanned as all"),
                 Span::Range(lo, hi) => {
                     assert!(most - least < PI + 1e-9, "{width} spanned as a range");
-                    assert!(hi - lo >= 0.0 && hi - lo < PI + 1e-12);
-                    // The same span up to whole turns and rounding.
+                    assert!(hi - lo >= 0.0 && hi - lo < PI);
+                    // The same span up to whole turns, widened by the angles' error.
                     let shift = TAU * ((least - lo) / TAU).round();
-                    assert!((lo + shift - least).abs() < 1e-9, "{lo} against {least}");
-                    assert!((hi + shift - most).abs() < 1e-9, "{hi} against {most}");
+                    let widening = 2.0 * ANGLE_ERROR + 1e-12;
+                    assert!(
+                        (lo + shift - least).abs() < widening,
+                        "{lo} against {least}"
+                    );
+                    assert!((hi + shift - most).abs() < widening, "{hi} against {most}");
                     for &a in &azimuths {
                         assert!(Span::Range(lo - 1e-12, hi + 1e-12).holds(a));
                     }

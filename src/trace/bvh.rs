@@ -5,13 +5,13 @@
 //! In: a mesh (metres, body frame). Out: [`Bvh::segment_blocked`] — whether the open
 //! segment from `a` to `b` crosses a facet other than the (up to two) facets it joins;
 //! as a [`Tracer`], whether a ray toward the Sun is blocked (a segment reaching past the
-//! tree); [`Bvh::search`]; the facets a cone of directions may reach
-//! ([`Bvh::near_cone`]), from which a ray within the cone is answered without the tree
-//! ([`BvhRays::blocked_among`]).
+//! tree); the branch and bound (`Bvh::search`); the facets a cone of directions may
+//! reach (`Bvh::near_cone`), from which a ray within the cone is answered without the
+//! tree (`BvhRays::blocked_among`).
 //! The hit decision is the shared exact predicate of [`super::ray`] evaluated in the frame
 //! of the segment's direction, so a segment is classified exactly as a shadow ray of the
 //! other tracers would be. The tree is built with the binned surface-area heuristic;
-//! leaves hold at most [`LEAF_SIZE`] facets. The tree borrows the mesh, whose `f64`
+//! leaves hold at most `LEAF_SIZE` facets. The tree borrows the mesh, whose `f64`
 //! facets the exact tests read; it keeps only its `f32` boxes and leaf screens (their
 //! edge planes in `i16`). For traversal the binary tree is collapsed into one of four
 //! children per node, whose boxes are stored in `f32` by axis (one child per SIMD lane),
