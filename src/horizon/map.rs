@@ -1216,9 +1216,6 @@ mod tests {
         HorizonMap::build(mesh, mesh.len(), &Bvh::build(mesh), azimuths)
     }
 
-    /// A floor (two triangles facing +z) and a wall of height `h` along x = `d`: seen
-    /// from a floor centroid, the wall's top at azimuth φ (from +x, which is the first
-    /// tangent axis for the normal +z) stands at atan(h·cos φ / (d − x)).
     #[test]
     fn cells_come_back_as_given_whatever_the_blocks() {
         // Facet counts below, at and past a block, and with a short last block.
@@ -1246,6 +1243,9 @@ mod tests {
         }
     }
 
+    /// A floor (two triangles facing +z) and a wall of height `h` along x = `d`: seen
+    /// from a floor centroid, the wall's top at azimuth φ (from +x, which is the first
+    /// tangent axis for the normal +z) stands at atan(h·cos φ / (d − x)).
     #[test]
     fn a_wall_matches_its_closed_form_in_every_wedge_that_sees_it() {
         let (h, d, half) = (3.0, 4.0, 1e4);
