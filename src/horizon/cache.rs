@@ -171,10 +171,9 @@ pub fn store(path: &Path, key: &[u8; 32], map: &HorizonMap) -> Result<()> {
     head.extend_from_slice(&(map.facets() as u64).to_le_bytes());
     let facets = map.facets();
     let per_piece = (VALUES_PER_PIECE / map.azimuths() as usize).max(1);
-    let pieces = (0..facets).step_by(per_piece).map(|first| {
-        let rows: Vec<[u16; 2]> = map.rows(first..(first + per_piece).min(facets)).collect();
-        cell_bytes(&rows).collect()
-    });
+    let pieces = (0..facets)
+        .step_by(per_piece)
+        .map(|first| cell_bytes(map.rows(first..(first + per_piece).min(facets))).collect());
     cache::store_pieces(path, &KIND, key, std::iter::once(head).chain(pieces))
 }
 
@@ -193,9 +192,9 @@ fn store_streamed<T>(
 }
 
 /// Cells as the payload holds them: upper, then centre, 2 bytes each.
-fn cell_bytes(cells: &[[u16; 2]]) -> impl Iterator<Item = u8> + '_ {
+fn cell_bytes(cells: impl IntoIterator<Item = [u16; 2]>) -> impl Iterator<Item = u8> {
     cells
-        .iter()
+        .into_iter()
         .flat_map(|[up, mid]| [up.to_le_bytes(), mid.to_le_bytes()])
         .flatten()
 }
@@ -265,7 +264,7 @@ pub fn parts_journaled(path: &Path, parts: &MapParts) -> usize {
 /// Adds a finished part's rows to its build's journal.
 pub fn keep(journal: &mut Journal, rows: &[[u16; 2]]) -> Result<()> {
     let mut bytes = Vec::with_capacity(4 * rows.len());
-    bytes.extend(cell_bytes(rows));
+    bytes.extend(cell_bytes(rows.iter().copied()));
     journal.append(&bytes)
 }
 
@@ -318,7 +317,7 @@ pub fn store_part(
     head.extend_from_slice(&(parts.facets(p).start as u64).to_le_bytes());
     head.extend_from_slice(&parts.azimuths().to_le_bytes());
     store_streamed(&part_file(path, p), &PART_KIND, key, head, rows, |piece| {
-        cell_bytes(piece).collect()
+        cell_bytes(piece.iter().copied()).collect()
     })
 }
 

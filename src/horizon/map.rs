@@ -64,7 +64,6 @@ const WEDGE_OVERLAP: f64 = 1e-9;
 #[derive(Debug, Clone, PartialEq)]
 pub struct HorizonMap {
     azimuths: u32,
-    facets: usize,
     /// Per wedge, per facet: [upper, centre] elevation in quanta, in blocks of
     /// [`CELL_BLOCK`] facets (each block's cells wedge by wedge; [`HorizonMap::cell`]).
     cells: Vec<[u16; 2]>,
@@ -220,7 +219,6 @@ impl HorizonMap {
         wedge_by_wedge(&mut cells, a);
         HorizonMap {
             azimuths,
-            facets: cells.len() / a,
             cells,
             ceilings,
             octant_ceilings,
@@ -243,7 +241,9 @@ impl HorizonMap {
 
     /// Number of facets.
     pub fn facets(&self) -> usize {
-        self.facets
+        // One ceiling a facet: a length, where the cells' over the wedges would be a
+        // division at every lookup of a cell.
+        self.ceilings.len()
     }
 
     /// Memory held, bytes.
@@ -310,7 +310,7 @@ impl HorizonMap {
     #[inline]
     fn cell(&self, i: usize, k: usize) -> [u16; 2] {
         let first = i - i % CELL_BLOCK;
-        let width = (self.facets - first).min(CELL_BLOCK);
+        let width = (self.facets() - first).min(CELL_BLOCK);
         self.cells[first * self.azimuths as usize + k * width + (i - first)]
     }
 }
