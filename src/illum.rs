@@ -688,14 +688,13 @@ impl<'w> Direct<'w> {
         for (e, normal) in values.iter_mut().zip(normals) {
             *e = normal.dot(sky.sun);
         }
-        for (k, e) in values.iter_mut().enumerate() {
+        let day = facets_facing(values, facing);
+        counts.night = (values.len() - day.len()) as u64;
+        for k in day {
+            let k = k as usize;
             let i = first + k;
+            let e = &mut values[k];
             let cos = *e;
-            if cos <= facing {
-                counts.night += 1;
-                *e = 0.0;
-                continue;
-            }
             let cleared = match horizon {
                 OwnHorizon::Map { map, exact } => {
                     // A point Sun above the facet's whole horizon, or above the octant of
@@ -781,7 +780,7 @@ impl<'w> Direct<'w> {
                 counts.shadowed += (*e == 0.0) as u64;
             } else if !exact {
                 counts.horizon_lookups += 1;
-                if at.elevation <= map.horizon(i, &at).elevation {
+                if map.hides(i, &at) {
                     *e = 0.0;
                     counts.shadowed += 1;
                 }
@@ -1164,6 +1163,23 @@ fn shade_remembering(own: &dyn ShadowQuery, ray: &OwnRay, last: &LastBlockers) -
 fn lowest_sin(sin_elevation: f64, radius: f64) -> f64 {
     let e = sin_elevation.clamp(-1.0, 1.0).asin();
     (e - radius).sin()
+}
+
+/// The offsets of the facets in `values` whose cosine of the Sun stands above `facing`,
+/// in order; the others' values become 0 (night). Without a branch per facet: on a rough
+/// shape day and night alternate from facet to facet, and the mispredicted branch took
+/// a tenth of a step of map lookups.
+fn facets_facing(values: &mut [f64], facing: f64) -> Vec<u32> {
+    let mut day = vec![0u32; values.len()];
+    let mut count = 0;
+    for (k, e) in values.iter_mut().enumerate() {
+        let lit = *e > facing;
+        day[count] = k as u32;
+        count += usize::from(lit);
+        *e = if lit { *e } else { 0.0 };
+    }
+    day.truncate(count);
+    day
 }
 
 /// The body's Sun direction at this step, checked to be a finite unit vector.

@@ -207,7 +207,7 @@ impl<'a> Site<'a> {
         let (visible, centroid) = match disk {
             Some((disk, radius)) => {
                 let at = self.horizon.position(sun);
-                let (share, e) = disk.above(at.elevation, self.horizon.horizon(&at), radius);
+                let (share, e) = disk.above(at.elevation(), self.horizon.horizon(&at), radius);
                 (share, level(self.up, sun) * e.cos() + self.up * e.sin())
             }
             None => (if self.sees(sun) { 1.0 } else { 0.0 }, sun),

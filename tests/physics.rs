@@ -729,7 +729,7 @@ fn horizons_from_points_above_haworth_match_ray_casts() {
             };
             let at = h.position(dir(h.wedge(0)[1] + 1e-3));
             assert_eq!(at.wedge, 0);
-            assert!(at.elevation > h.horizon(&at).elevation);
+            assert!(at.elevation() > h.horizon(&at).elevation);
         }
     }
     assert!(

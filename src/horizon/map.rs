@@ -39,6 +39,7 @@ use glam::DVec3;
 use rayon::prelude::*;
 use std::cell::RefCell;
 use std::f64::consts::{FRAC_PI_2, FRAC_PI_4, PI, TAU};
+use std::sync::LazyLock;
 
 /// Quanta per radian of elevation: 0–90° onto 0–65535.
 const QUANTA_PER_RAD: f64 = 65535.0 / FRAC_PI_2;
@@ -162,7 +163,8 @@ impl<'a> MapParts<'a> {
 }
 
 /// Where the Sun stands in a facet's sky: its wedge, its place between wedge centres
-/// and its elevation above the facet's plane.
+/// and its elevation above the facet's plane (as a sine and a cosine: most lookups
+/// decide without the angle).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct SkyPosition {
     /// The wedge the azimuth falls in.
@@ -170,8 +172,18 @@ pub struct SkyPosition {
     /// Azimuth in wedge widths past the centre of wedge `wedge - 1`'s… precisely: the
     /// continuous wedge coordinate `φ/Δ − ½` (Δ the wedge width), in `[−½, A − ½)`.
     pub between: f64,
-    /// Elevation above the facet's plane, radians.
-    pub elevation: f64,
+    /// Sine of the elevation above the facet's plane.
+    pub sin_elevation: f64,
+    /// Cosine of the elevation: the length of the direction's part in the plane.
+    cos_elevation: f64,
+}
+
+impl SkyPosition {
+    /// Elevation above the facet's plane, radians (within [`ANGLE_ERROR`]).
+    #[inline]
+    pub fn elevation(&self) -> f64 {
+        atan2_within(self.sin_elevation, self.cos_elevation)
+    }
 }
 
 /// The approximate horizon toward the Sun: its elevation and slope.
@@ -285,10 +297,37 @@ impl HorizonMap {
     }
 
     /// True when facet `i` sees a Sun at `at` for certain: above the upper bound of its
-    /// wedge (the exact tracers agree).
+    /// wedge (the exact tracers agree). The elevation's angle is taken only when its
+    /// sine lies within [`SINE_SLACK`] of the bound's.
     #[inline]
     pub fn clears(&self, i: usize, at: &SkyPosition) -> bool {
-        clears_bound(at, self.cell(i, at.wedge)[0] as f64 / QUANTA_PER_RAD)
+        let upper = self.cell(i, at.wedge)[0];
+        let sin = sine_of_quanta(upper);
+        // sin(h + m) ≤ sin h + m: a sine above sin h + m is above the margin too.
+        if at.sin_elevation > sin + CLEAR_MARGIN + SINE_SLACK {
+            true
+        } else if at.sin_elevation < sin - SINE_SLACK {
+            false
+        } else {
+            clears_bound(at, upper as f64 / QUANTA_PER_RAD)
+        }
+    }
+
+    /// True when a point Sun at `at` stands at or below the approximate horizon of facet
+    /// `i` ([`HorizonMap::horizon`]). The elevation's angle is taken only when its sine
+    /// lies between the two wedge centres' (widened by [`SINE_SLACK`]): the horizon
+    /// between them lies between them.
+    #[inline]
+    pub fn hides(&self, i: usize, at: &SkyPosition) -> bool {
+        let (k0, k1, _) = centres_around(self.azimuths, at);
+        let (q0, q1) = (self.cell(i, k0)[1], self.cell(i, k1)[1]);
+        if at.sin_elevation < sine_of_quanta(q0.min(q1)) - SINE_SLACK {
+            true
+        } else if at.sin_elevation > sine_of_quanta(q0.max(q1)) + SINE_SLACK {
+            false
+        } else {
+            at.elevation() <= self.horizon(i, at).elevation
+        }
     }
 
     /// The approximate horizon of facet `i` at the Sun's azimuth: linear between the
@@ -362,7 +401,8 @@ fn position_in_plane(azimuths: u32, x: f64, y: f64, sin_elevation: f64) -> SkyPo
     SkyPosition {
         wedge: (w as usize).min(azimuths as usize - 1),
         between: w - 0.5,
-        elevation: atan2_within(sin_elevation, (x * x + y * y).sqrt()),
+        sin_elevation,
+        cos_elevation: (x * x + y * y).sqrt(),
     }
 }
 
@@ -370,7 +410,7 @@ fn position_in_plane(azimuths: u32, x: f64, y: f64, sin_elevation: f64) -> SkyPo
 /// for certain: by more than its elevation's error ([`CLEAR_MARGIN`]).
 #[inline]
 fn clears_bound(at: &SkyPosition, upper: f64) -> bool {
-    at.elevation > upper + CLEAR_MARGIN
+    at.elevation() > upper + CLEAR_MARGIN
 }
 
 /// The octant 0–7 of the azimuth atan2(y, x) in [0, 2π), π/4 wide each, from signs and
@@ -478,6 +518,19 @@ fn atan2_within(y: f64, x: f64) -> f64 {
 #[inline]
 fn between_centres(azimuths: u32, at: &SkyPosition, centre: impl Fn(usize) -> f64) -> LocalHorizon {
     let a = azimuths as usize;
+    let (k0, k1, t) = centres_around(azimuths, at);
+    let (h0, h1) = (centre(k0), centre(k1));
+    LocalHorizon {
+        elevation: h0 + (h1 - h0) * t,
+        slope: (h1 - h0) * (a as f64 / TAU),
+    }
+}
+
+/// The wedges whose centres lie on either side of `at`'s azimuth, and how far (0–1) it
+/// lies from the first toward the second.
+#[inline]
+fn centres_around(azimuths: u32, at: &SkyPosition) -> (usize, usize, f64) {
+    let a = azimuths as usize;
     // `between` lies in [−½, A − ½): the wedge below is −1 (the last) to A − 1. Its floor
     // is a truncation where it is not negative (a libm call, `floor`, cost more).
     let (below, k0) = if at.between < 0.0 {
@@ -486,13 +539,25 @@ fn between_centres(azimuths: u32, at: &SkyPosition, centre: impl Fn(usize) -> f6
         let k = at.between as usize;
         (k as f64, k)
     };
-    let t = at.between - below;
     let k1 = if k0 + 1 == a { 0 } else { k0 + 1 };
-    let (h0, h1) = (centre(k0), centre(k1));
-    LocalHorizon {
-        elevation: h0 + (h1 - h0) * t,
-        slope: (h1 - h0) * (a as f64 / TAU),
-    }
+    (k0, k1, at.between - below)
+}
+
+/// Slack (in sine) that covers the rounding of [`sine_of_quanta`] to `f32` (at most
+/// 3e-8), of the Sun's sine, and [`ANGLE_ERROR`] of the angle the slow path takes, so
+/// that deciding by sines outside it gives what the angles give.
+const SINE_SLACK: f64 = 2e-7;
+
+/// The sine of an elevation of `q` quanta, from a table (f32, 256 KiB, built once): the
+/// lookups' test against a cell without taking the Sun's angle.
+#[inline]
+fn sine_of_quanta(q: u16) -> f64 {
+    static SINES: LazyLock<Vec<f32>> = LazyLock::new(|| {
+        (0..=u16::MAX)
+            .map(|q| (q as f64 / QUANTA_PER_RAD).sin() as f32)
+            .collect()
+    });
+    SINES[q as usize] as f64
 }
 
 /// An orthonormal tangent basis `(t1, t2)` of the plane with unit normal `n`, with
@@ -1359,7 +1424,7 @@ mod tests {
             let at = map.position(n, s, n.dot(s));
             assert_eq!(at.wedge, k);
             assert!((at.between - (k as f64 - 0.25)).abs() < 1e-9);
-            assert!((at.elevation - n.dot(s).asin()).abs() < 1e-15);
+            assert!((at.elevation() - n.dot(s).asin()).abs() < 1e-15);
         }
     }
     #[test]
@@ -1490,6 +1555,63 @@ mod tests {
     }
 
     #[test]
+    fn sines_decide_as_the_angles_do_even_at_a_hair_from_a_cell() {
+        // Suns placed a hair (down to 1e-12 rad) above or below a cell's elevation, or an
+        // interpolated horizon's: `clears` and `hides`, which decide by sines where they
+        // can, give what the elevation angle compared with the cells gives. The table
+        // itself is checked against libm's sine.
+        for q in (0..=u16::MAX).step_by(97).chain([u16::MAX]) {
+            let exact = (q as f64 / QUANTA_PER_RAD).sin();
+            assert!((sine_of_quanta(q) - exact).abs() <= 3e-8, "{q}");
+        }
+        let mut rng = TestRng::new(0x05EE_D0F5_1AE5);
+        let mut random = move || rng.unit();
+        let azimuths = 16;
+        let cells = (0..azimuths)
+            .map(|_| {
+                let upper = (random() * 65535.0) as u16;
+                [upper, (upper as f64 * random()) as u16]
+            })
+            .collect();
+        let map = HorizonMap::from_cells(azimuths, 1, cells).expect("fits");
+        let hairs = [0.0, 1e-12, 1e-10, 1e-9, 3e-9, 1e-8, 1e-7, 3e-7, 1e-6, 1e-3];
+        let (mut cleared, mut hidden, mut cases) = (0, 0, 0);
+        for _ in 0..4000 {
+            let phi = TAU * random();
+            let at = |elevation: f64| {
+                let (x, y) = (phi.cos() * elevation.cos(), phi.sin() * elevation.cos());
+                position_in_plane(azimuths, x, y, elevation.sin())
+            };
+            let probe = at(0.5);
+            let upper = map.wedge(0, probe.wedge)[0];
+            let horizon = map.horizon(0, &probe).elevation;
+            for &hair in &hairs {
+                for sign in [-1.0, 1.0] {
+                    for target in [upper, upper + CLEAR_MARGIN, horizon] {
+                        let sun = at((target + sign * hair).min(FRAC_PI_2));
+                        let by_angle = clears_bound(&sun, upper);
+                        assert_eq!(map.clears(0, &sun), by_angle, "{sun:?} {upper}");
+                        let under = sun.elevation() <= map.horizon(0, &sun).elevation;
+                        assert_eq!(map.hides(0, &sun), under, "{sun:?}");
+                        cleared += usize::from(by_angle);
+                        hidden += usize::from(under);
+                        cases += 1;
+                    }
+                }
+            }
+        }
+        // Both answers occur often: the test compares, not one side only.
+        assert!(
+            cleared > cases / 10 && cleared < 9 * cases / 10,
+            "{cleared} of {cases}"
+        );
+        assert!(
+            hidden > cases / 10 && hidden < 9 * cases / 10,
+            "{hidden} of {cases}"
+        );
+    }
+
+    #[test]
     fn ceilings_only_clear_suns_the_cells_clear() {
         // Random maps (some wedge counts not divisible by 8) and random Suns: wherever a
         // ceiling decides, the Sun's own wedge clears and it stands above the
@@ -1531,7 +1653,7 @@ mod tests {
                 if map.above_all(i, cos) || located.is_none() {
                     decided += 1;
                     assert!(map.clears(i, &at), "{i} {at:?}");
-                    assert!(at.elevation > map.horizon(i, &at).elevation, "{i} {at:?}");
+                    assert!(at.elevation() > map.horizon(i, &at).elevation, "{i} {at:?}");
                 } else {
                     looked_up += 1;
                     assert_eq!(located, Some(at));
