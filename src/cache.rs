@@ -116,7 +116,7 @@ pub fn code(h: &mut Sha256, sources: &[&str]) {
 /// Source `text` without its `#[cfg(test)] mod tests { … }` block: the parts before and
 /// after it. The block ends at the first line after its opening that is a lone `}`, as
 /// rustfmt lays it out; a text without such a block is kept whole.
-fn without_unit_tests(text: &str) -> [&str; 2] {
+pub(crate) fn without_unit_tests(text: &str) -> [&str; 2] {
     const OPEN: &str = "\n#[cfg(test)]\nmod tests {\n";
     let Some(start) = text.find(OPEN) else {
         return [text, ""];

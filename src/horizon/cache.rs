@@ -21,9 +21,9 @@
 //! | 4·A·F | per facet, per wedge: upper and centre elevation, u16 quanta of 90°/65535 |
 //!
 //! The content key is the SHA-256 of the format version, the source of the code that
-//! builds a map (the map, its geometry, this file, the tree and the ray predicate, unit
-//! tests left out: changed code never reads an old map), A, the receiving facets, every
-//! vertex (f64 m) and every triangle.
+//! builds a map (the map, its triangles' outlines, its geometry, this file, the tree and
+//! the ray predicate: `MAP_SOURCES`, unit tests left out, so that changed code never
+//! reads an old map), A, the receiving facets, every vertex (f64 m) and every triangle.
 
 use super::bound::HorizonBound;
 use super::map::{HorizonMap, MapParts};
@@ -43,9 +43,8 @@ pub const KIND: Kind = Kind {
 
 /// Horizon-bound files ([`HorizonBound`]): payload the facet count F (u64), then per
 /// facet its bound's sine (f32), in files named `horizon-bound-<key>.bin`. The key hashes
-/// the format version, the code that builds a bound (the bound, its geometry, the map's
-/// seeded runs, this file, the tree and the ray predicate), the receiving facets and the
-/// mesh's content.
+/// the format version, the code that builds a bound (the bound and the map's code, whose
+/// seeded runs it shares), the receiving facets and the mesh's content.
 pub const BOUND_KIND: Kind = Kind {
     magic: b"SLIMHZB\0",
     version: 1,
@@ -61,20 +60,40 @@ pub const PART_KIND: Kind = Kind {
     prefix: "horizon-part",
 };
 
+/// The code that builds a map, path (from this folder) and text: every file of the
+/// horizon and of the tree that the build imports, and those they import
+/// (`the_keys_hash_every_file_their_builds_import` holds the list to the code). The sky
+/// lookups (`sky.rs`) are not among them: they read a map, they do not make it.
+const MAP_SOURCES: [(&str, &str); 7] = [
+    ("map.rs", include_str!("map.rs")),
+    ("outline.rs", include_str!("outline.rs")),
+    ("geometry.rs", include_str!("geometry.rs")),
+    ("cache.rs", include_str!("cache.rs")),
+    ("../trace/mod.rs", include_str!("../trace/mod.rs")),
+    ("../trace/bvh.rs", include_str!("../trace/bvh.rs")),
+    ("../trace/ray.rs", include_str!("../trace/ray.rs")),
+];
+
+/// The code that builds a horizon bound: its own file, and the map's (whose seeded runs
+/// it shares).
+const BOUND_SOURCES: [(&str, &str); 8] = {
+    let mut all = [("bound.rs", include_str!("bound.rs")); 8];
+    let mut k = 0;
+    while k < MAP_SOURCES.len() {
+        all[k + 1] = MAP_SOURCES[k];
+        k += 1;
+    }
+    all
+};
+
+/// The texts of `sources`.
+fn texts<'a>(sources: &[(&str, &'a str)]) -> Vec<&'a str> {
+    sources.iter().map(|&(_, text)| text).collect()
+}
+
 /// The content key of the horizon bound of `mesh`'s first `receivers` facets.
 pub fn bound_key(mesh: &Mesh, receivers: usize) -> [u8; 32] {
-    let mut h = cache::key_hasher(
-        b"slim horizon bound",
-        &BOUND_KIND,
-        &[
-            include_str!("bound.rs"),
-            include_str!("map.rs"),
-            include_str!("geometry.rs"),
-            include_str!("cache.rs"),
-            include_str!("../trace/bvh.rs"),
-            include_str!("../trace/ray.rs"),
-        ],
-    );
+    let mut h = cache::key_hasher(b"slim horizon bound", &BOUND_KIND, &texts(&BOUND_SOURCES));
     h.update((receivers as u64).to_le_bytes());
     cache::mesh_content(&mut h, mesh);
     h.finalize().into()
@@ -114,17 +133,7 @@ pub fn store_bound(path: &Path, key: &[u8; 32], bound: &HorizonBound) -> Result<
 
 /// The content key of `mesh`'s map with `azimuths` wedges.
 pub fn content_key(mesh: &Mesh, receivers: usize, azimuths: u32) -> [u8; 32] {
-    let mut h = cache::key_hasher(
-        b"slim horizon map",
-        &KIND,
-        &[
-            include_str!("map.rs"),
-            include_str!("geometry.rs"),
-            include_str!("cache.rs"),
-            include_str!("../trace/bvh.rs"),
-            include_str!("../trace/ray.rs"),
-        ],
-    );
+    let mut h = cache::key_hasher(b"slim horizon map", &KIND, &texts(&MAP_SOURCES));
     h.update(azimuths.to_le_bytes());
     if receivers < mesh.len() {
         // Facets after the first `receivers` only cast shadows (surrounding terrain).
@@ -167,9 +176,9 @@ const VALUES_PER_PIECE: usize = 1 << 18;
 /// Writes `map` for `key` to `path` (temporary file, then rename), its cells a piece at a
 /// time, so that storing a map holds no second copy of it.
 pub fn store(path: &Path, key: &[u8; 32], map: &HorizonMap) -> Result<()> {
-    let mut head = map.azimuths().to_le_bytes().to_vec();
-    head.extend_from_slice(&(map.facets() as u64).to_le_bytes());
     let facets = map.facets();
+    let mut head = map.azimuths().to_le_bytes().to_vec();
+    head.extend_from_slice(&(facets as u64).to_le_bytes());
     let per_piece = (VALUES_PER_PIECE / map.azimuths() as usize).max(1);
     let pieces = (0..facets)
         .step_by(per_piece)
@@ -358,6 +367,109 @@ mod tests {
     use crate::mesh::generate::icosphere;
     use crate::mesh::LengthUnit;
     use crate::trace::bvh::Bvh;
+
+    /// The files (paths from this folder) that `text`, the file at `path`, imports by
+    /// `super::`, `crate::horizon::` or `crate::trace::` in its code (comments and unit
+    /// tests aside). Other imports (the mesh, errors) are left out: the key hashes the
+    /// mesh's content itself.
+    fn imported_files(path: &str, text: &str) -> Vec<String> {
+        let modules = |folder: &str| -> Vec<String> {
+            let list = match folder {
+                "" => include_str!("mod.rs"),
+                _ => include_str!("../trace/mod.rs"),
+            };
+            list.lines()
+                .filter_map(|l| l.trim_start_matches("pub ").strip_prefix("mod "))
+                .filter_map(|l| l.strip_suffix(';'))
+                .map(str::to_string)
+                .collect()
+        };
+        let file = |folder: &str, name: &str| {
+            let name = if modules(folder).iter().any(|m| m == name) {
+                name
+            } else {
+                "mod"
+            };
+            format!("{folder}{name}.rs")
+        };
+        let own = if path.starts_with("../trace/") {
+            "../trace/"
+        } else {
+            ""
+        };
+        let is_name = |c: char| c.is_alphanumeric() || c == '_';
+        let mut found = Vec::new();
+        for part in crate::cache::without_unit_tests(text) {
+            for line in part.lines().filter(|l| !l.trim_start().starts_with("//")) {
+                for (prefix, folder) in [
+                    ("super::", own),
+                    ("crate::horizon::", ""),
+                    ("crate::trace::", "../trace/"),
+                ] {
+                    for (at, _) in line.match_indices(prefix) {
+                        let rest = &line[at + prefix.len()..];
+                        let names: Vec<&str> = match rest.strip_prefix('{') {
+                            Some(group) => group[..group.find('}').unwrap_or(group.len())]
+                                .split(',')
+                                .map(|n| n.trim().split("::").next().unwrap_or(""))
+                                .collect(),
+                            None => vec![rest.split(|c| !is_name(c)).next().unwrap_or("")],
+                        };
+                        found.extend(
+                            names
+                                .into_iter()
+                                .filter(|n| !n.is_empty())
+                                .map(|n| file(folder, n)),
+                        );
+                    }
+                }
+            }
+        }
+        found.sort();
+        found.dedup();
+        found
+    }
+
+    /// Imports that feed no build: this file stores bounds beside maps, but a map's
+    /// build never reads a bound.
+    const NOT_BUILD_INPUTS: [(&str, &str); 1] = [("cache.rs", "bound.rs")];
+
+    /// The files imported by `sources` that are not among them.
+    fn unhashed(sources: &[(&str, &str)]) -> Vec<String> {
+        let hashed: Vec<&str> = sources.iter().map(|&(path, _)| path).collect();
+        let mut missing: Vec<String> = sources
+            .iter()
+            .flat_map(|&(path, text)| {
+                imported_files(path, text)
+                    .into_iter()
+                    .filter(move |f| !NOT_BUILD_INPUTS.contains(&(path, f.as_str())))
+            })
+            .filter(|f| !hashed.contains(&f.as_str()))
+            .collect();
+        missing.sort();
+        missing.dedup();
+        missing
+    }
+
+    #[test]
+    fn the_keys_hash_every_file_their_builds_import() {
+        // A file the build imports but the key leaves out would let a changed build read
+        // maps of the old one (the triangles' outlines were once left out so).
+        assert_eq!(unhashed(&MAP_SOURCES), Vec::<String>::new());
+        assert_eq!(unhashed(&BOUND_SOURCES), Vec::<String>::new());
+        let without_outlines: Vec<_> = MAP_SOURCES
+            .into_iter()
+            .filter(|&(path, _)| path != "outline.rs")
+            .collect();
+        assert_eq!(unhashed(&without_outlines), ["outline.rs"]);
+        let without_tree_interface: Vec<_> = MAP_SOURCES
+            .into_iter()
+            .filter(|&(path, _)| path != "../trace/mod.rs")
+            .collect();
+        assert_eq!(unhashed(&without_tree_interface), ["../trace/mod.rs"]);
+        // The lookups stay out: changing them keeps every cached map.
+        assert!(!MAP_SOURCES.iter().any(|&(path, _)| path == "sky.rs"));
+    }
 
     #[test]
     fn a_stored_map_reads_back_and_any_damage_or_other_content_is_refused() {

@@ -22,7 +22,7 @@
 //! `sin ē · f` is the disk integral of `n·s` to second order in ρ (ρ ≈ 0.0047 rad at
 //! 1 AU).
 
-use super::map::LocalHorizon;
+use super::sky::LocalHorizon;
 use std::f64::consts::PI;
 
 /// The Sun's radius, metres (IAU 2015 nominal solar radius).

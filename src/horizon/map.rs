@@ -29,8 +29,8 @@
 //! horizontal kept (a point on a ridge sees down its flanks) and no facet left out.
 
 use super::geometry::{
-    arc_max_sin, directions_max_sin, distance_to_triangle, polygon_max_sin, rounding_widening,
-    signed_box_bound,
+    arc_max_sin, atan2_within, directions_max_sin, distance_to_triangle, polygon_max_sin,
+    rounding_widening, signed_box_bound, tangent_frame, ANGLE_ERROR,
 };
 use super::outline::Outline;
 use crate::mesh::Mesh;
@@ -38,11 +38,10 @@ use crate::trace::bvh::{Bvh, SearchBox};
 use glam::DVec3;
 use rayon::prelude::*;
 use std::cell::RefCell;
-use std::f64::consts::{FRAC_PI_2, FRAC_PI_4, PI, TAU};
-use std::sync::LazyLock;
+use std::f64::consts::{FRAC_PI_2, PI, TAU};
 
 /// Quanta per radian of elevation: 0–90° onto 0–65535.
-const QUANTA_PER_RAD: f64 = 65535.0 / FRAC_PI_2;
+pub(super) const QUANTA_PER_RAD: f64 = 65535.0 / FRAC_PI_2;
 
 /// Least and most wedges a map may have (a wedge must be narrower than half a turn).
 pub const AZIMUTHS_MIN: u32 = 8;
@@ -54,7 +53,7 @@ pub const CEILING_BYTES: usize = 8 + 8 * 4;
 
 /// How far (radians) a Sun must stand above a wedge's upper bound to clear it: more than
 /// the rounding of its elevation.
-const CLEAR_MARGIN: f64 = 1e-9;
+pub(super) const CLEAR_MARGIN: f64 = 1e-9;
 
 /// Extra width (radians) given to each wedge on both sides when the upper bound is
 /// built, so that the rounding of the Sun's azimuth at lookup never picks a wedge that
@@ -64,17 +63,17 @@ const WEDGE_OVERLAP: f64 = 1e-9;
 /// The horizon of every facet of one mesh.
 #[derive(Debug, Clone, PartialEq)]
 pub struct HorizonMap {
-    azimuths: u32,
+    pub(super) azimuths: u32,
     /// Per wedge, per facet: [upper, centre] elevation in quanta, in blocks of
     /// [`CELL_BLOCK`] facets (each block's cells wedge by wedge; [`HorizonMap::cell`]).
     cells: Vec<[u16; 2]>,
     /// Per facet, a sine of elevation that no wedge's upper bound or centre reaches
     /// (derived from `cells`): a Sun higher than it clears the facet's whole horizon,
     /// decided without its azimuth.
-    ceilings: Vec<f64>,
+    pub(super) ceilings: Vec<f64>,
     /// Per facet, the same per octant of azimuth (f32 rounded up), over the wedges that
     /// meet the octant and one more on each side (the interpolation's neighbours).
-    octant_ceilings: Vec<[f32; 8]>,
+    pub(super) octant_ceilings: Vec<[f32; 8]>,
 }
 
 /// Facets whose cells a map keeps together, wedge by wedge: neighbouring facets see the
@@ -162,39 +161,6 @@ impl<'a> MapParts<'a> {
     }
 }
 
-/// Where the Sun stands in a facet's sky: its wedge, its place between wedge centres
-/// and its elevation above the facet's plane (as a sine and a cosine: most lookups
-/// decide without the angle).
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct SkyPosition {
-    /// The wedge the azimuth falls in.
-    pub wedge: usize,
-    /// Azimuth in wedge widths past the centre of wedge `wedge - 1`'s… precisely: the
-    /// continuous wedge coordinate `φ/Δ − ½` (Δ the wedge width), in `[−½, A − ½)`.
-    pub between: f64,
-    /// Sine of the elevation above the facet's plane.
-    pub sin_elevation: f64,
-    /// Cosine of the elevation: the length of the direction's part in the plane.
-    cos_elevation: f64,
-}
-
-impl SkyPosition {
-    /// Elevation above the facet's plane, radians (within [`ANGLE_ERROR`]).
-    #[inline]
-    pub fn elevation(&self) -> f64 {
-        atan2_within(self.sin_elevation, self.cos_elevation)
-    }
-}
-
-/// The approximate horizon toward the Sun: its elevation and slope.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct LocalHorizon {
-    /// Elevation of the horizon at the Sun's azimuth, radians.
-    pub elevation: f64,
-    /// Its rate of change with azimuth, radians per radian.
-    pub slope: f64,
-}
-
 impl HorizonMap {
     /// Builds the map of the first `receivers` facets of `mesh` with `azimuths` wedges
     /// (within [`AZIMUTHS_MIN`]..=[`AZIMUTHS_MAX`]), searching `bvh` (built over the same
@@ -263,82 +229,6 @@ impl HorizonMap {
         self.cells.len() * 4 + self.ceilings.len() * CEILING_BYTES
     }
 
-    /// True when a Sun at `sin_elevation` above facet `i`'s plane stands above every
-    /// wedge of its horizon for certain (as [`HorizonMap::clears`] certifies in one
-    /// wedge), and above [`HorizonMap::horizon`] at any azimuth: its azimuth need not
-    /// be found.
-    #[inline]
-    pub fn above_all(&self, i: usize, sin_elevation: f64) -> bool {
-        sin_elevation > self.ceilings[i]
-    }
-
-    /// Where the unit Sun direction `sun` (body frame) stands in the sky of a facet with
-    /// unit normal `normal`, given `sin_elevation = normal·sun`.
-    #[inline]
-    pub fn position(&self, normal: DVec3, sun: DVec3, sin_elevation: f64) -> SkyPosition {
-        sky_position(self.azimuths, normal, sun, sin_elevation)
-    }
-
-    /// As [`HorizonMap::position`] for facet `i` (normal `normal`), or `None` when the
-    /// Sun stands above every wedge of its octant of azimuth (found by signs and one
-    /// comparison, without an angle): clear for certain, as [`HorizonMap::above_all`].
-    #[inline]
-    pub fn locate(
-        &self,
-        i: usize,
-        normal: DVec3,
-        sun: DVec3,
-        sin_elevation: f64,
-    ) -> Option<SkyPosition> {
-        let (x, y) = in_plane(normal, sun);
-        let ceiling = self.octant_ceilings[i][octant(x, y)];
-        (sin_elevation <= ceiling as f64)
-            .then(|| position_in_plane(self.azimuths, x, y, sin_elevation))
-    }
-
-    /// True when facet `i` sees a Sun at `at` for certain: above the upper bound of its
-    /// wedge (the exact tracers agree). The elevation's angle is taken only when its
-    /// sine lies within [`SINE_SLACK`] of the bound's.
-    #[inline]
-    pub fn clears(&self, i: usize, at: &SkyPosition) -> bool {
-        let upper = self.cell(i, at.wedge)[0];
-        let sin = sine_of_quanta(upper);
-        // sin(h + m) ≤ sin h + m: a sine above sin h + m is above the margin too.
-        if at.sin_elevation > sin + CLEAR_MARGIN + SINE_SLACK {
-            true
-        } else if at.sin_elevation < sin - SINE_SLACK {
-            false
-        } else {
-            clears_bound(at, upper as f64 / QUANTA_PER_RAD)
-        }
-    }
-
-    /// True when a point Sun at `at` stands at or below the approximate horizon of facet
-    /// `i` ([`HorizonMap::horizon`]). The elevation's angle is taken only when its sine
-    /// lies between the two wedge centres' (widened by [`SINE_SLACK`]): the horizon
-    /// between them lies between them.
-    #[inline]
-    pub fn hides(&self, i: usize, at: &SkyPosition) -> bool {
-        let (k0, k1, _) = centres_around(self.azimuths, at);
-        let (q0, q1) = (self.cell(i, k0)[1], self.cell(i, k1)[1]);
-        if at.sin_elevation < sine_of_quanta(q0.min(q1)) - SINE_SLACK {
-            true
-        } else if at.sin_elevation > sine_of_quanta(q0.max(q1)) + SINE_SLACK {
-            false
-        } else {
-            at.elevation() <= self.horizon(i, at).elevation
-        }
-    }
-
-    /// The approximate horizon of facet `i` at the Sun's azimuth: linear between the
-    /// horizons at the two nearest wedge centres.
-    #[inline]
-    pub fn horizon(&self, i: usize, at: &SkyPosition) -> LocalHorizon {
-        between_centres(self.azimuths, at, |k| {
-            self.cell(i, k)[1] as f64 / QUANTA_PER_RAD
-        })
-    }
-
     /// The [upper, centre] elevations (radians) of facet `i` in wedge `k` (tests, reports).
     pub fn wedge(&self, i: usize, k: usize) -> [f64; 2] {
         self.cell(i, k).map(|q| q as f64 / QUANTA_PER_RAD)
@@ -347,7 +237,7 @@ impl HorizonMap {
     /// Facet `i`'s cell of wedge `k`: in its block (the last may hold fewer facets),
     /// wedge `k`'s cells after those of the wedges before it.
     #[inline]
-    fn cell(&self, i: usize, k: usize) -> [u16; 2] {
+    pub(super) fn cell(&self, i: usize, k: usize) -> [u16; 2] {
         let first = i - i % CELL_BLOCK;
         let width = (self.facets() - first).min(CELL_BLOCK);
         self.cells[first * self.azimuths as usize + k * width + (i - first)]
@@ -370,64 +260,8 @@ fn wedge_by_wedge(cells: &mut [[u16; 2]], a: usize) {
     }
 }
 
-/// Where the unit direction `dir` stands in the sky of a plane with unit normal `up`
-/// cut into `azimuths` wedges, given `sin_elevation = up·dir`.
-///
-/// Both angles come from [`atan2_within`], within [`ANGLE_ERROR`] of the exact ones:
-/// less than the margin by which each wedge's upper bound was widened
-/// ([`WEDGE_OVERLAP`]) and by which a Sun must clear it ([`CLEAR_MARGIN`]), so that a
-/// Sun near a wedge's edge is checked against a bound that holds where it really is.
-#[inline]
-fn sky_position(azimuths: u32, up: DVec3, dir: DVec3, sin_elevation: f64) -> SkyPosition {
-    let (x, y) = in_plane(up, dir);
-    position_in_plane(azimuths, x, y, sin_elevation)
-}
-
-/// The components of `dir` along the tangent frame of the plane with unit normal `up`.
-#[inline]
-fn in_plane(up: DVec3, dir: DVec3) -> (f64, f64) {
-    let (t1, t2) = tangent_frame(up);
-    (dir.dot(t1), dir.dot(t2))
-}
-
-/// [`sky_position`] from the in-plane components `x`, `y` of the direction.
-#[inline]
-fn position_in_plane(azimuths: u32, x: f64, y: f64, sin_elevation: f64) -> SkyPosition {
-    let mut phi = atan2_within(y, x);
-    if phi < 0.0 {
-        phi += TAU;
-    }
-    let w = phi * (azimuths as f64 / TAU);
-    SkyPosition {
-        wedge: (w as usize).min(azimuths as usize - 1),
-        between: w - 0.5,
-        sin_elevation,
-        cos_elevation: (x * x + y * y).sqrt(),
-    }
-}
-
-/// True when a Sun at `at` stands above the upper bound `upper` (radians) of its wedge
-/// for certain: by more than its elevation's error ([`CLEAR_MARGIN`]).
-#[inline]
-fn clears_bound(at: &SkyPosition, upper: f64) -> bool {
-    at.elevation() > upper + CLEAR_MARGIN
-}
-
-/// The octant 0–7 of the azimuth atan2(y, x) in [0, 2π), π/4 wide each, from signs and
-/// one comparison (a direction on an octant's edge may fall on either side: the octants'
-/// wedges overlap by one, see [`octant_wedges`]).
-#[inline]
-fn octant(x: f64, y: f64) -> usize {
-    match (y >= 0.0, x >= 0.0) {
-        (true, true) => usize::from(y >= x),
-        (true, false) => 2 + usize::from(y <= -x),
-        (false, false) => 4 + usize::from(-y >= -x),
-        (false, true) => 6 + usize::from(-y <= x),
-    }
-}
-
 /// The wedges (of `a`) that meet octant `o`, with one more on each side.
-fn octant_wedges(a: usize, o: usize) -> Vec<usize> {
+pub(super) fn octant_wedges(a: usize, o: usize) -> Vec<usize> {
     let first = (o * a) / 8;
     let last = ((o + 1) * a).div_ceil(8);
     (first as isize - 1..=last as isize)
@@ -459,121 +293,8 @@ pub(super) fn f32_at_least(v: f64) -> f32 {
     }
 }
 
-/// Largest error of [`atan2_within`], radians.
-const ANGLE_ERROR: f64 = 5e-10;
+// The lookups' angles (`super::sky`) must err by less than the margins the build leaves.
 const _: () = assert!(ANGLE_ERROR < WEDGE_OVERLAP && ANGLE_ERROR < CLEAR_MARGIN);
-
-/// atan2(y, x) in (−π, π] within [`ANGLE_ERROR`], with one division and no call: the
-/// lookups' hot path (libm's atan2 and asin took a fifth of a step) and the spans of the
-/// map's build (libm's atan2 took a tenth of it).
-///
-/// The ratio r = min/max of |x|, |y| is in [0, 1]; above tan(π/8), atan r = π/4 +
-/// atan((r − 1)/(r + 1)). Either way the argument u has |u| ≤ tan(π/8), and the Taylor
-/// series of atan u to u¹⁹ leaves at most |u|²¹/21 < 4.4e-10.
-#[inline]
-fn atan2_within(y: f64, x: f64) -> f64 {
-    const TAN_PI_8: f64 = 0.414_213_562_373_095_1;
-    let (ax, ay) = (x.abs(), y.abs());
-    let (small, large) = if ay > ax { (ax, ay) } else { (ay, ax) };
-    if large == 0.0 {
-        return 0.0;
-    }
-    let (u, base) = if small > TAN_PI_8 * large {
-        ((small - large) / (small + large), FRAC_PI_4)
-    } else {
-        (small / large, 0.0)
-    };
-    // Σ (−1)ᵏ u²ᵏ/(2k + 1), k = 0 … 9, by Estrin's scheme: pairs, then pairs of pairs,
-    // so that the terms do not wait on one another as in Horner's rule.
-    const C: [f64; 10] = [
-        1.0,
-        -1.0 / 3.0,
-        1.0 / 5.0,
-        -1.0 / 7.0,
-        1.0 / 9.0,
-        -1.0 / 11.0,
-        1.0 / 13.0,
-        -1.0 / 15.0,
-        1.0 / 17.0,
-        -1.0 / 19.0,
-    ];
-    let v = u * u;
-    let (v2, v4) = (v * v, v * v * v * v);
-    let pair = |k: usize| C[k] + C[k + 1] * v;
-    let low = pair(0) + v2 * pair(2);
-    let high = pair(4) + v2 * pair(6);
-    let series = low + v4 * high + v4 * v4 * pair(8);
-    let mut angle = base + u * series;
-    if ay > ax {
-        angle = FRAC_PI_2 - angle;
-    }
-    if x < 0.0 {
-        angle = PI - angle;
-    }
-    angle.copysign(y)
-}
-
-/// The horizon at `at`'s azimuth, linear between the wedge-centre elevations `centre(k)`
-/// (radians) of the two nearest wedges.
-#[inline]
-fn between_centres(azimuths: u32, at: &SkyPosition, centre: impl Fn(usize) -> f64) -> LocalHorizon {
-    let a = azimuths as usize;
-    let (k0, k1, t) = centres_around(azimuths, at);
-    let (h0, h1) = (centre(k0), centre(k1));
-    LocalHorizon {
-        elevation: h0 + (h1 - h0) * t,
-        slope: (h1 - h0) * (a as f64 / TAU),
-    }
-}
-
-/// The wedges whose centres lie on either side of `at`'s azimuth, and how far (0–1) it
-/// lies from the first toward the second.
-#[inline]
-fn centres_around(azimuths: u32, at: &SkyPosition) -> (usize, usize, f64) {
-    let a = azimuths as usize;
-    // `between` lies in [−½, A − ½): the wedge below is −1 (the last) to A − 1. Its floor
-    // is a truncation where it is not negative (a libm call, `floor`, cost more).
-    let (below, k0) = if at.between < 0.0 {
-        (-1.0, a - 1)
-    } else {
-        let k = at.between as usize;
-        (k as f64, k)
-    };
-    let k1 = if k0 + 1 == a { 0 } else { k0 + 1 };
-    (k0, k1, at.between - below)
-}
-
-/// Slack (in sine) that covers the rounding of [`sine_of_quanta`] to `f32` (at most
-/// 3e-8), of the Sun's sine, and [`ANGLE_ERROR`] of the angle the slow path takes, so
-/// that deciding by sines outside it gives what the angles give.
-const SINE_SLACK: f64 = 2e-7;
-
-/// The sine of an elevation of `q` quanta, from a table (f32, 256 KiB, built once): the
-/// lookups' test against a cell without taking the Sun's angle.
-#[inline]
-fn sine_of_quanta(q: u16) -> f64 {
-    static SINES: LazyLock<Vec<f32>> = LazyLock::new(|| {
-        (0..=u16::MAX)
-            .map(|q| (q as f64 / QUANTA_PER_RAD).sin() as f32)
-            .collect()
-    });
-    SINES[q as usize] as f64
-}
-
-/// An orthonormal tangent basis `(t1, t2)` of the plane with unit normal `n`, with
-/// `t1 × t2 = n`; a fixed function of `n` alone (Duff et al. 2017, "Building an
-/// orthonormal basis, revisited"), so maps and lookups agree without storing it.
-#[inline]
-pub fn tangent_frame(n: DVec3) -> (DVec3, DVec3) {
-    let sign = 1.0f64.copysign(n.z);
-    let a = -1.0 / (sign + n.z);
-    let b = n.x * n.y * a;
-    (
-        DVec3::new(1.0 + sign * n.x * n.x * a, sign * b, -sign * n.x),
-        DVec3::new(b, sign + n.y * n.y * a, -n.y),
-    )
-}
-
 /// The wedges' boundary and centre azimuths, as in-plane unit vectors per facet frame
 /// (cosine and sine pairs; the same for every facet).
 struct Wedges {
@@ -863,9 +584,9 @@ fn search_sky<'a>(
 /// `f64`, not quantised; no facet is left out.
 #[derive(Debug, Clone, PartialEq)]
 pub struct PointHorizon {
-    up: DVec3,
+    pub(super) up: DVec3,
     /// Per wedge: [upper, centre] elevation, radians.
-    cells: Vec<[f64; 2]>,
+    pub(super) cells: Vec<[f64; 2]>,
 }
 
 impl PointHorizon {
@@ -897,21 +618,6 @@ impl PointHorizon {
     /// The [upper, centre] elevations (radians) of wedge `k`.
     pub fn wedge(&self, k: usize) -> [f64; 2] {
         self.cells[k]
-    }
-
-    /// Where the unit direction `dir` stands in this sky.
-    pub fn position(&self, dir: DVec3) -> SkyPosition {
-        sky_position(self.azimuths(), self.up, dir, self.up.dot(dir))
-    }
-
-    /// True when a direction at `at` is above every point of the mesh in its wedge.
-    pub fn clears(&self, at: &SkyPosition) -> bool {
-        clears_bound(at, self.cells[at.wedge][0])
-    }
-
-    /// The approximate horizon at `at`'s azimuth: linear between wedge centres.
-    pub fn horizon(&self, at: &SkyPosition) -> LocalHorizon {
-        between_centres(self.azimuths(), at, |k| self.cells[k][1])
     }
 }
 
@@ -1411,60 +1117,6 @@ mod tests {
             "{blocked_rays} {centres_checked}"
         );
     }
-
-    #[test]
-    fn sky_positions_fall_in_the_wedge_of_their_azimuth() {
-        let map = HorizonMap::from_cells(16, 1, vec![[0, 0]; 16]).expect("cells");
-        let n = DVec3::new(0.2, -0.3, 0.9).normalize();
-        let (t1, t2) = tangent_frame(n);
-        assert!((t1.cross(t2) - n).length() < 1e-12);
-        for k in 0..16 {
-            let phi = (k as f64 + 0.25) * TAU / 16.0;
-            let s = ((t1 * phi.cos() + t2 * phi.sin()) * 0.8 + n * 0.6).normalize();
-            let at = map.position(n, s, n.dot(s));
-            assert_eq!(at.wedge, k);
-            assert!((at.between - (k as f64 - 0.25)).abs() < 1e-9);
-            assert!((at.elevation() - n.dot(s).asin()).abs() < 1e-15);
-        }
-    }
-    #[test]
-    fn fast_angles_are_within_their_stated_error() {
-        let mut worst: f64 = 0.0;
-        let mut check = |y: f64, x: f64| {
-            let (fast, exact) = (atan2_within(y, x), y.atan2(x));
-            assert!(
-                fast.is_finite() && (-PI..=PI).contains(&fast),
-                "{y} {x}: {fast}"
-            );
-            worst = worst.max((fast - exact).abs());
-        };
-        // Every octant edge and axis, signed zeros, and extreme magnitudes.
-        let t8 = (PI / 8.0).tan();
-        for (y, x) in [
-            (0.0, 1.0),
-            (1.0, 0.0),
-            (0.0, -1.0),
-            (-0.0, -1.0),
-            (1.0, 1.0),
-            (t8, 1.0),
-        ] {
-            for (sy, sx) in [(1.0, 1.0), (-1.0, 1.0), (1.0, -1.0), (-1.0, -1.0)] {
-                check(sy * y, sx * x);
-                check(sy * x, sx * y);
-            }
-        }
-        check(1e-300, 1.0);
-        check(1.0, 1e-300);
-        check(1e300, -1e300);
-        // Dense angles around the circle, on and beside the octant edges.
-        for k in 0..2_000_000 {
-            let a = -PI + TAU * (k as f64 + 0.5) / 2e6;
-            check(a.sin(), a.cos());
-            check(3e5 * a.sin(), 3e5 * a.cos());
-        }
-        assert!(worst <= ANGLE_ERROR, "worst error {worst:e} rad");
-        assert_eq!(atan2_within(0.0, 0.0), 0.0);
-    }
     #[test]
     fn a_span_holds_every_points_azimuth_and_no_more_and_half_a_turn_is_every_azimuth() {
         let mut rng = TestRng::new(12);
@@ -1552,114 +1204,5 @@ mod tests {
                 }
             }
         }
-    }
-
-    #[test]
-    fn sines_decide_as_the_angles_do_even_at_a_hair_from_a_cell() {
-        // Suns placed a hair (down to 1e-12 rad) above or below a cell's elevation, or an
-        // interpolated horizon's: `clears` and `hides`, which decide by sines where they
-        // can, give what the elevation angle compared with the cells gives. The table
-        // itself is checked against libm's sine.
-        for q in (0..=u16::MAX).step_by(97).chain([u16::MAX]) {
-            let exact = (q as f64 / QUANTA_PER_RAD).sin();
-            assert!((sine_of_quanta(q) - exact).abs() <= 3e-8, "{q}");
-        }
-        let mut rng = TestRng::new(0x05EE_D0F5_1AE5);
-        let mut random = move || rng.unit();
-        let azimuths = 16;
-        let cells = (0..azimuths)
-            .map(|_| {
-                let upper = (random() * 65535.0) as u16;
-                [upper, (upper as f64 * random()) as u16]
-            })
-            .collect();
-        let map = HorizonMap::from_cells(azimuths, 1, cells).expect("fits");
-        let hairs = [0.0, 1e-12, 1e-10, 1e-9, 3e-9, 1e-8, 1e-7, 3e-7, 1e-6, 1e-3];
-        let (mut cleared, mut hidden, mut cases) = (0, 0, 0);
-        for _ in 0..4000 {
-            let phi = TAU * random();
-            let at = |elevation: f64| {
-                let (x, y) = (phi.cos() * elevation.cos(), phi.sin() * elevation.cos());
-                position_in_plane(azimuths, x, y, elevation.sin())
-            };
-            let probe = at(0.5);
-            let upper = map.wedge(0, probe.wedge)[0];
-            let horizon = map.horizon(0, &probe).elevation;
-            for &hair in &hairs {
-                for sign in [-1.0, 1.0] {
-                    for target in [upper, upper + CLEAR_MARGIN, horizon] {
-                        let sun = at((target + sign * hair).min(FRAC_PI_2));
-                        let by_angle = clears_bound(&sun, upper);
-                        assert_eq!(map.clears(0, &sun), by_angle, "{sun:?} {upper}");
-                        let under = sun.elevation() <= map.horizon(0, &sun).elevation;
-                        assert_eq!(map.hides(0, &sun), under, "{sun:?}");
-                        cleared += usize::from(by_angle);
-                        hidden += usize::from(under);
-                        cases += 1;
-                    }
-                }
-            }
-        }
-        // Both answers occur often: the test compares, not one side only.
-        assert!(
-            cleared > cases / 10 && cleared < 9 * cases / 10,
-            "{cleared} of {cases}"
-        );
-        assert!(
-            hidden > cases / 10 && hidden < 9 * cases / 10,
-            "{hidden} of {cases}"
-        );
-    }
-
-    #[test]
-    fn ceilings_only_clear_suns_the_cells_clear() {
-        // Random maps (some wedge counts not divisible by 8) and random Suns: wherever a
-        // ceiling decides, the Sun's own wedge clears and it stands above the
-        // interpolated horizon; and the octants' wedges hold each azimuth's neighbours.
-        let mut rng = TestRng::new(0x2545_F491_4F6C_DD1D);
-        let mut random = move || rng.unit();
-        let (mut decided, mut looked_up) = (0, 0);
-        for azimuths in [8u32, 12, 128, 131] {
-            let facets = 50;
-            let cells = (0..facets * azimuths as usize)
-                .map(|_| {
-                    let upper = (random() * random() * 40000.0) as u16;
-                    [upper, (upper as f64 * random()) as u16]
-                })
-                .collect();
-            let map = HorizonMap::from_cells(azimuths, facets, cells).expect("fits");
-            for _ in 0..20_000 {
-                let i = (random() * facets as f64) as usize;
-                let unit = |r: &mut dyn FnMut() -> f64| {
-                    let z: f64 = 2.0 * r() - 1.0;
-                    let a = TAU * r();
-                    let s = (1.0 - z * z).sqrt();
-                    DVec3::new(s * a.cos(), s * a.sin(), z)
-                };
-                let normal = unit(&mut random);
-                let sun = unit(&mut random);
-                let cos = normal.dot(sun);
-                if cos <= 0.0 {
-                    continue;
-                }
-                let at = map.position(normal, sun, cos);
-                let (x, y) = in_plane(normal, sun);
-                let wedges = octant_wedges(azimuths as usize, octant(x, y));
-                let below = (at.between.floor() as isize).rem_euclid(azimuths as isize) as usize;
-                for k in [at.wedge, below, (below + 1) % azimuths as usize] {
-                    assert!(wedges.contains(&k), "wedge {k} not in octant {wedges:?}");
-                }
-                let located = map.locate(i, normal, sun, cos);
-                if map.above_all(i, cos) || located.is_none() {
-                    decided += 1;
-                    assert!(map.clears(i, &at), "{i} {at:?}");
-                    assert!(at.elevation() > map.horizon(i, &at).elevation, "{i} {at:?}");
-                } else {
-                    looked_up += 1;
-                    assert_eq!(located, Some(at));
-                }
-            }
-        }
-        assert!(decided > 1000 && looked_up > 1000, "{decided} {looked_up}");
     }
 }

@@ -6,6 +6,8 @@
 //! - [`map::HorizonMap`]: the horizon as a function of azimuth (an exact upper bound and
 //!   the horizon at the centre of each wedge), kept on disk by [`cache`] and used by the
 //!   step loop instead of rays when it pays;
+//!   [`sky`] holds the step loop's side of it: where the Sun stands in a facet's sky
+//!   and what the map says there;
 //! - [`disk::SolarDisk`]: the share of a limb-darkened solar disk above a horizon.
 //!
 //! `geometry` holds the elevation bounds of boxes and triangles they are built from;
@@ -19,5 +21,7 @@ mod geometry;
 pub mod map;
 mod outline;
 pub mod shadows;
+pub mod sky;
 
+pub use geometry::tangent_frame;
 pub use shadows::{HorizonMode, ShadowMethod, Shadows, SunShape};

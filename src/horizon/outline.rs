@@ -158,7 +158,7 @@ impl Outline {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::horizon::map::tangent_frame;
+    use crate::horizon::geometry::tangent_frame;
     use crate::TestRng;
     use std::f64::consts::{PI, TAU};
 

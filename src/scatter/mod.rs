@@ -78,8 +78,9 @@ pub struct Settings {
     /// Inter-body blocks whose bound on scattered light is below this share of the solar
     /// flux are left out.
     pub inter_body_tolerance: f64,
-    /// An inter-body block is kept while [`reuse_bound`] since it was computed stays at or
-    /// below this share of the solar flux; 0 recomputes it whenever the bodies move.
+    /// An inter-body block is kept while its bound of change since it was computed
+    /// (`PairSizes::reuse_bound`) stays at or below this share of the solar flux; 0
+    /// recomputes it whenever the bodies move.
     pub inter_body_reuse: f64,
     pub near_field: NearField,
     /// The first bounce: Lambertian, or each body's reflectance model.

@@ -10,9 +10,10 @@
 //! Payload (little-endian), in files named `form-factors-<key>.bin`: the largest row sum
 //! (f64), the capped rows (u64), then the matrix as [`Csr::encode`] writes it. The
 //! content key is the SHA-256 of the format version, the source of the code that builds
-//! a block (this stage, the form factors, visibility, storage, the tree and the ray
-//! predicate, unit tests left out: changed code never reads an old block), the
-//! near-field settings, and the mesh's facet count, vertices (f64 m) and triangles.
+//! a block (this stage, the form factors, visibility, storage, the tracers' interface
+//! that picks the tree's facets, the tree and the ray predicate, unit tests left out:
+//! changed code never reads an old block), the near-field settings, and the mesh's facet
+//! count, vertices (f64 m) and triangles.
 
 use super::csr::Csr;
 use super::form_factor::NearField;
@@ -50,6 +51,7 @@ pub fn content_key(mesh: &Mesh, near: &NearField) -> [u8; 32] {
             include_str!("visibility.rs"),
             include_str!("csr.rs"),
             include_str!("stored.rs"),
+            include_str!("../trace/mod.rs"),
             include_str!("../trace/bvh.rs"),
             include_str!("../trace/ray.rs"),
         ],

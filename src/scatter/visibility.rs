@@ -169,7 +169,7 @@ fn face_each_other(a: &Facet, front: f64, p: &Plane) -> bool {
 const SAMPLE_ROWS: usize = 128;
 
 /// The pairs of `rows` × `cols` (facets in one frame) that face each other, estimated from
-/// at most [`SAMPLE_ROWS`] evenly spaced rows. Occlusion only removes pairs, so this
+/// at most `SAMPLE_ROWS` (128) evenly spaced rows. Occlusion only removes pairs, so this
 /// bounds the entries of the block from above (up to the sampling). With `own`, rows and
 /// columns are one body's facets and each unordered pair counts once.
 pub fn facing_pairs(rows: &[Facet], cols: &[Facet], own: bool) -> f64 {
