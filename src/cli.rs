@@ -679,7 +679,7 @@ fn route(
             msg: e.message,
         })?;
     let scene = slim::scene::Scene::load(scene_path)?;
-    let limits = serve::traverse::RouteLimits {
+    let limits = serve::limits::RouteLimits {
         budget,
         max_labels: serve::limits::Limits::default().max_route_labels,
         max_waypoints: usize::MAX,

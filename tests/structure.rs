@@ -1,6 +1,8 @@
 //! The module structure: the library's top-level modules (the pipeline stages and their
-//! helpers) form no import circle. Read from the source text: every `crate::NAME` a file
-//! under `src/NAME2` mentions outside comments is an edge NAME2 → NAME. A circle would mean two stages that
+//! helpers) form no import circle, nor do the files of any one folder. Read from the
+//! source text: every `crate::NAME` a file under `src/NAME2` mentions outside comments is
+//! an edge NAME2 → NAME; within a folder, every `super::NAME` or `crate::FOLDER::NAME`
+//! naming a sibling file. A circle would mean two stages (or two files of one) that
 //! cannot be understood, tested or built (Cargo features) one without the other.
 
 use std::collections::{BTreeMap, BTreeSet};
@@ -68,6 +70,73 @@ fn module_graph() -> BTreeMap<String, BTreeSet<String>> {
     graph
 }
 
+/// Per folder below `src` (as a module path, `ephemeris::spice`): each file (its stem;
+/// the folder's `mod.rs`, its face, left out) → the sibling files its code names, unit
+/// tests and comments left out.
+fn file_graphs() -> BTreeMap<String, BTreeMap<String, BTreeSet<String>>> {
+    let mut files = Vec::new();
+    rust_files(&src(), &mut files);
+    let stem = |f: &Path| f.file_stem().unwrap().to_str().unwrap().to_string();
+    let mut graphs: BTreeMap<String, BTreeMap<String, BTreeSet<String>>> = BTreeMap::new();
+    for file in &files {
+        let folder = file.parent().unwrap();
+        let Ok(relative) = folder.strip_prefix(src()) else {
+            continue;
+        };
+        if relative.as_os_str().is_empty() || stem(file) == "mod" {
+            continue;
+        }
+        let path: Vec<&str> = relative.iter().map(|c| c.to_str().unwrap()).collect();
+        let siblings: BTreeSet<String> = files
+            .iter()
+            .filter(|f| f.parent() == Some(folder) && stem(f) != "mod")
+            .map(|f| stem(f))
+            .collect();
+        let text = std::fs::read_to_string(file).unwrap();
+        let code = text.split("#[cfg(test)]\nmod tests").next().unwrap();
+        let from = stem(file);
+        let named = names_after(code, "super::")
+            .into_iter()
+            .chain(names_after(code, &format!("crate::{}::", path.join("::"))));
+        let edges: BTreeSet<String> = named
+            .filter(|to| *to != from && siblings.contains(to))
+            .collect();
+        graphs
+            .entry(path.join("::"))
+            .or_default()
+            .insert(from, edges);
+    }
+    graphs
+}
+
+/// The names that follow `prefix` in `text`'s code (comments left out), each name of a
+/// group `prefix{a, b::c}` too.
+fn names_after(text: &str, prefix: &str) -> BTreeSet<String> {
+    let name = |s: &str| -> String {
+        s.trim()
+            .chars()
+            .take_while(|c| c.is_ascii_alphanumeric() || *c == '_')
+            .collect()
+    };
+    let mut names = BTreeSet::new();
+    for code in text
+        .lines()
+        .map(|line| line.split("//").next().unwrap_or(""))
+    {
+        for (at, _) in code.match_indices(prefix) {
+            let rest = &code[at + prefix.len()..];
+            match rest.strip_prefix('{') {
+                Some(group) => names.extend(group.split(['}', ',']).map(name)),
+                None => {
+                    names.insert(name(rest));
+                }
+            }
+        }
+    }
+    names.remove("");
+    names
+}
+
 /// A circle through `node`, if the depth-first walk from it finds one.
 fn circle_from(
     node: &str,
@@ -106,6 +175,26 @@ fn the_top_level_modules_import_no_circle() {
             "import circle: {}",
             circle.unwrap().join(" → ")
         );
+    }
+}
+
+#[test]
+fn the_files_of_each_folder_import_no_circle() {
+    let graphs = file_graphs();
+    assert!(graphs.len() > 10, "read {} folders", graphs.len());
+    // The reading sees the edges it must: the horizon map's build uses the outlines.
+    assert!(graphs["horizon"]["map"].contains("outline"));
+    for (folder, graph) in &graphs {
+        let mut done = BTreeSet::new();
+        for node in graph.keys() {
+            let circle = circle_from(node, graph, &mut Vec::new(), &mut done);
+            assert!(
+                circle.is_none(),
+                "import circle in src/{}: {}",
+                folder.replace("::", "/"),
+                circle.unwrap().join(" → ")
+            );
+        }
     }
 }
 

@@ -1,7 +1,12 @@
 //! Tables as named columns: the one description every table file is written from.
 //!
 //! In: the values of each column, as built by [`super`] (names carry units:
-//! `mean_w_m2`). Out: a [`Table`] batch that the CSV and Parquet writers read alike.
+//! `mean_w_m2`). Out: a [`Table`] batch that the CSV and Parquet writers read alike, and
+//! [`TableFile`], what each of those file formats implements.
+
+use crate::error::Result;
+use std::path::PathBuf;
+use std::sync::Arc;
 
 /// One column of a batch.
 #[derive(Debug, Clone, PartialEq)]
@@ -50,4 +55,12 @@ impl Table {
     pub fn rows(&self) -> usize {
         self.columns.first().map_or(0, |(_, v)| v.len())
     }
+}
+
+/// One file of a table, written batch by batch on its own thread (`super::table`).
+pub(super) trait TableFile: Send + 'static {
+    /// Appends a batch (shared with the table's other files; the first fixes the columns).
+    fn write(&mut self, batch: Arc<Table>) -> Result<()>;
+    /// Closes the file and moves it into place; its path, if anything was written.
+    fn finish(self: Box<Self>) -> Result<Option<PathBuf>>;
 }

@@ -8,8 +8,7 @@
 //! Tables repeat numbers (CDF thresholds and steps, zeros), and formatting a float costs
 //! more than copying its text, so each float column keeps the text of its recent values.
 
-use super::columns::{Table, Values};
-use super::table::TableFile;
+use super::columns::{Table, TableFile, Values};
 use crate::atomic::{commit, create_partial, partial};
 use crate::error::{Error, Result};
 use std::fs::File;

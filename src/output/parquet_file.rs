@@ -4,8 +4,7 @@
 //! Parquet file, one row group per batch up to [`ROW_GROUP_ROWS`] rows, written under its
 //! `.partial` name and renamed when finished.
 
-use super::columns::{Table, Values};
-use super::table::TableFile;
+use super::columns::{Table, TableFile, Values};
 use crate::atomic::{commit, partial};
 use crate::error::{Error, Result};
 use arrow_array::{ArrayRef, Float64Array, RecordBatch, StringArray, UInt32Array, UInt64Array};

@@ -8,7 +8,7 @@
 //! written as `NAME.ext.partial` and renamed only by [`TableWriter::finish`], so an
 //! interrupted run never leaves a file that looks complete.
 
-use super::columns::Table;
+use super::columns::{Table, TableFile};
 use super::csv_file::CsvFile;
 #[cfg(feature = "parquet")]
 use super::parquet_file::ParquetFile;
@@ -17,14 +17,6 @@ use std::path::{Path, PathBuf};
 use std::sync::mpsc::{sync_channel, SyncSender};
 use std::sync::Arc;
 use std::thread::JoinHandle;
-
-/// One file of a table, written batch by batch on its own thread.
-pub(super) trait TableFile: Send + 'static {
-    /// Appends a batch (shared with the table's other files; the first fixes the columns).
-    fn write(&mut self, batch: Arc<Table>) -> Result<()>;
-    /// Closes the file and moves it into place; its path, if anything was written.
-    fn finish(self: Box<Self>) -> Result<Option<PathBuf>>;
-}
 
 /// Writes one table as Parquet (and CSV if asked), batch by batch. Each file is encoded
 /// on a thread of its own, so the caller builds the next batch while this one is

@@ -51,18 +51,28 @@ impl Default for Limits {
     }
 }
 
+/// Limits the service puts on a route query ([`super::traverse`]).
+#[derive(Debug, Clone, Copy)]
+pub struct RouteLimits {
+    pub budget: Budget,
+    /// Most labels the planner may take.
+    pub max_labels: usize,
+    /// Most waypoints.
+    pub max_waypoints: usize,
+}
+
 impl Limits {
-    /// The memory budget of one job.
     /// The bounds of a route query: the job's memory, the planner's labels and, as for
     /// other queries, the places one query may name (its waypoints).
-    pub fn route_limits(&self) -> super::traverse::RouteLimits {
-        super::traverse::RouteLimits {
+    pub fn route_limits(&self) -> RouteLimits {
+        RouteLimits {
             budget: self.job_budget(),
             max_labels: self.max_route_labels,
             max_waypoints: self.max_query_targets,
         }
     }
 
+    /// The memory budget of one job.
     pub fn job_budget(&self) -> Budget {
         Budget {
             max_bytes: self.max_job_memory_bytes,

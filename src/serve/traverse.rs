@@ -10,6 +10,7 @@
 //! `properties` ([`crate::route`] has the model). The light comes from the scene's own
 //! step loop from the departure on, so it is what `slim run` computes for those facets.
 
+use super::limits::RouteLimits;
 use super::points::body_index;
 use super::query::locate;
 use super::reply::{ApiError, ApiResult};
@@ -212,16 +213,6 @@ pub struct RouteProperties {
     /// the route, s.
     pub light_s: f64,
     pub search_s: f64,
-}
-
-/// Limits the service puts on a route query.
-#[derive(Debug, Clone, Copy)]
-pub struct RouteLimits {
-    pub budget: Budget,
-    /// Most labels the planner may take.
-    pub max_labels: usize,
-    /// Most waypoints.
-    pub max_waypoints: usize,
 }
 
 /// Answers `request` on `scene`, within `limits`; `progress` sees the scene's step loop.
