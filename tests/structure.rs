@@ -119,10 +119,13 @@ fn names_after(text: &str, prefix: &str) -> BTreeSet<String> {
             .collect()
     };
     let mut names = BTreeSet::new();
-    for code in text
-        .lines()
-        .map(|line| line.split("//").next().unwrap_or(""))
-    {
+    for line in text.lines() {
+        // `super::super::NAME` names a file of the folder above, not a sibling.
+        let code = line
+            .split("//")
+            .next()
+            .unwrap_or("")
+            .replace("super::super::", "");
         for (at, _) in code.match_indices(prefix) {
             let rest = &code[at + prefix.len()..];
             match rest.strip_prefix('{') {

@@ -21,9 +21,10 @@
 //! | 4·A·F | per facet, per wedge: upper and centre elevation, u16 quanta of 90°/65535 |
 //!
 //! The content key is the SHA-256 of the format version, the source of the code that
-//! builds a map (the map, its triangles' outlines, its geometry, this file, the tree and
-//! the ray predicate: `MAP_SOURCES`, unit tests left out, so that changed code never
-//! reads an old map), A, the receiving facets, every vertex (f64 m) and every triangle.
+//! builds a map (the map, its triangles' outlines, its geometry, this file, the tree, the
+//! ray predicate and the mesh's centroids and normals: `MAP_SOURCES`, unit tests left
+//! out, so that changed code never reads an old map), A, the receiving facets, every
+//! vertex (f64 m) and every triangle.
 
 use super::bound::HorizonBound;
 use super::map::{HorizonMap, MapParts};
@@ -62,9 +63,11 @@ pub const PART_KIND: Kind = Kind {
 
 /// The code that builds a map, path (from this folder) and text: every file of the
 /// horizon and of the tree that the build imports, and those they import
-/// (`the_keys_hash_every_file_their_builds_import` holds the list to the code). The sky
-/// lookups (`sky.rs`) are not among them: they read a map, they do not make it.
-const MAP_SOURCES: [(&str, &str); 7] = [
+/// (`the_keys_hash_every_file_their_builds_import` holds the list to the code), and the
+/// mesh's own file, which derives the facets' centroids and normals from the vertices
+/// the key hashes. The sky lookups (`sky.rs`) are not among them: they read a map, they
+/// do not make it.
+const MAP_SOURCES: [(&str, &str); 8] = [
     ("map.rs", include_str!("map.rs")),
     ("outline.rs", include_str!("outline.rs")),
     ("geometry.rs", include_str!("geometry.rs")),
@@ -72,12 +75,13 @@ const MAP_SOURCES: [(&str, &str); 7] = [
     ("../trace/mod.rs", include_str!("../trace/mod.rs")),
     ("../trace/bvh.rs", include_str!("../trace/bvh.rs")),
     ("../trace/ray.rs", include_str!("../trace/ray.rs")),
+    ("../mesh/mod.rs", include_str!("../mesh/mod.rs")),
 ];
 
 /// The code that builds a horizon bound: its own file, and the map's (whose seeded runs
 /// it shares).
-const BOUND_SOURCES: [(&str, &str); 8] = {
-    let mut all = [("bound.rs", include_str!("bound.rs")); 8];
+const BOUND_SOURCES: [(&str, &str); 9] = {
+    let mut all = [("bound.rs", include_str!("bound.rs")); 9];
     let mut k = 0;
     while k < MAP_SOURCES.len() {
         all[k + 1] = MAP_SOURCES[k];
@@ -370,8 +374,8 @@ mod tests {
 
     /// The files (paths from this folder) that `text`, the file at `path`, imports by
     /// `super::`, `crate::horizon::` or `crate::trace::` in its code (comments and unit
-    /// tests aside). Other imports (the mesh, errors) are left out: the key hashes the
-    /// mesh's content itself.
+    /// tests aside). Other imports (errors, the mesh type) are left out; the mesh's file
+    /// is hashed as a whole.
     fn imported_files(path: &str, text: &str) -> Vec<String> {
         let modules = |folder: &str| -> Vec<String> {
             let list = match folder {

@@ -11,9 +11,9 @@
 //! (f64), the capped rows (u64), then the matrix as [`Csr::encode`] writes it. The
 //! content key is the SHA-256 of the format version, the source of the code that builds
 //! a block (this stage, the form factors, visibility, storage, the tracers' interface
-//! that picks the tree's facets, the tree and the ray predicate, unit tests left out:
-//! changed code never reads an old block), the near-field settings, and the mesh's facet
-//! count, vertices (f64 m) and triangles.
+//! that picks the tree's facets, the tree, the ray predicate and the mesh's centroids,
+//! normals and areas, unit tests left out: changed code never reads an old block), the
+//! near-field settings, and the mesh's facet count, vertices (f64 m) and triangles.
 
 use super::csr::Csr;
 use super::form_factor::NearField;
@@ -54,6 +54,7 @@ pub fn content_key(mesh: &Mesh, near: &NearField) -> [u8; 32] {
             include_str!("../trace/mod.rs"),
             include_str!("../trace/bvh.rs"),
             include_str!("../trace/ray.rs"),
+            include_str!("../mesh/mod.rs"),
         ],
     );
     h.update(near.far_ratio.to_le_bytes());
