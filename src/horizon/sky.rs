@@ -27,8 +27,8 @@ use std::sync::LazyLock;
 pub struct SkyPosition {
     /// The wedge the azimuth falls in.
     pub wedge: usize,
-    /// Azimuth in wedge widths past the centre of wedge `wedge - 1`'s… precisely: the
-    /// continuous wedge coordinate `φ/Δ − ½` (Δ the wedge width), in `[−½, A − ½)`.
+    /// The azimuth φ in wedge widths Δ from the first wedge's centre, `φ/Δ − ½`, in
+    /// `[−½, A − ½)`: the wedge centres on either side lie at its floor and one above.
     pub between: f64,
     /// Sine of the elevation above the facet's plane.
     pub sin_elevation: f64,

@@ -2,7 +2,7 @@
 //!
 //! In: the values of each column, as built by [`super`] (names carry units:
 //! `mean_w_m2`). Out: a [`Table`] batch that the CSV and Parquet writers read alike, and
-//! [`TableFile`], what each of those file formats implements.
+//! `TableFile`, what each of those file formats implements.
 
 use crate::error::Result;
 use std::path::PathBuf;

@@ -54,6 +54,7 @@ impl Default for Limits {
 /// Limits the service puts on a route query ([`super::traverse`]).
 #[derive(Debug, Clone, Copy)]
 pub struct RouteLimits {
+    /// The memory the query may hold (a job's budget).
     pub budget: Budget,
     /// Most labels the planner may take.
     pub max_labels: usize,
