@@ -111,14 +111,15 @@ impl HorizonMap {
     /// between them lies between them.
     #[inline]
     pub fn hides(&self, i: usize, at: &SkyPosition) -> bool {
-        let (k0, k1, _) = centres_around(self.azimuths, at);
+        let (k0, k1, t) = centres_around(self.azimuths, at);
         let (q0, q1) = (self.cell(i, k0)[1], self.cell(i, k1)[1]);
         if at.sin_elevation < sine_of_quanta(q0.min(q1)) - SINE_SLACK {
             true
         } else if at.sin_elevation > sine_of_quanta(q0.max(q1)) + SINE_SLACK {
             false
         } else {
-            at.elevation() <= self.horizon(i, at).elevation
+            let centres = [q0, q1].map(|q| q as f64 / QUANTA_PER_RAD);
+            at.elevation() <= between_centres(self.azimuths, centres, t).elevation
         }
     }
 
@@ -126,9 +127,9 @@ impl HorizonMap {
     /// horizons at the two nearest wedge centres.
     #[inline]
     pub fn horizon(&self, i: usize, at: &SkyPosition) -> LocalHorizon {
-        between_centres(self.azimuths, at, |k| {
-            self.cell(i, k)[1] as f64 / QUANTA_PER_RAD
-        })
+        let (k0, k1, t) = centres_around(self.azimuths, at);
+        let centres = [k0, k1].map(|k| self.cell(i, k)[1] as f64 / QUANTA_PER_RAD);
+        between_centres(self.azimuths, centres, t)
     }
 }
 
@@ -145,7 +146,8 @@ impl PointHorizon {
 
     /// The approximate horizon at `at`'s azimuth: linear between wedge centres.
     pub fn horizon(&self, at: &SkyPosition) -> LocalHorizon {
-        between_centres(self.azimuths(), at, |k| self.cells[k][1])
+        let (k0, k1, t) = centres_around(self.azimuths(), at);
+        between_centres(self.azimuths(), [k0, k1].map(|k| self.cells[k][1]), t)
     }
 }
 
@@ -206,16 +208,13 @@ fn octant(x: f64, y: f64) -> usize {
     }
 }
 
-/// The horizon at `at`'s azimuth, linear between the wedge-centre elevations `centre(k)`
-/// (radians) of the two nearest wedges.
+/// The horizon a fraction `t` of the way from one wedge centre to the next (as
+/// [`centres_around`] gives it), linear between their elevations `[h0, h1]` (radians).
 #[inline]
-fn between_centres(azimuths: u32, at: &SkyPosition, centre: impl Fn(usize) -> f64) -> LocalHorizon {
-    let a = azimuths as usize;
-    let (k0, k1, t) = centres_around(azimuths, at);
-    let (h0, h1) = (centre(k0), centre(k1));
+fn between_centres(azimuths: u32, [h0, h1]: [f64; 2], t: f64) -> LocalHorizon {
     LocalHorizon {
         elevation: h0 + (h1 - h0) * t,
-        slope: (h1 - h0) * (a as f64 / TAU),
+        slope: (h1 - h0) * (azimuths as f64 / TAU),
     }
 }
 
