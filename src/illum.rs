@@ -291,17 +291,20 @@ impl<'w> Direct<'w> {
                 .map(|state| self.sky(b, state))
                 .collect::<Result<Vec<_>>>()?;
             // A body that traces most of its lit facets would hold a block's rays at once
-            // (hundreds of MB at a million facets); it takes its steps one by one.
+            // (hundreds of MB at a million facets), and its tracer may build a grid per
+            // direction: it takes its steps one by one. The others trace through a map's
+            // BVH, whose queries cost nothing to hold.
             let block = if self.traces_most(b) { 1 } else { states.len() };
             for ((states, skies), views) in states
                 .chunks(block)
                 .zip(skies.chunks(block))
                 .zip(views.chunks_mut(block))
             {
-                let facing = self.light_facing(b, skies, views);
+                let own: Vec<_> = skies.iter().map(|sky| self.point_query(b, sky)).collect();
+                let facing = self.light_facing(b, skies, &own, views);
                 for ((state, (lit, rays)), out) in states.iter().zip(facing).zip(views) {
                     counts += lit;
-                    counts += self.shade(b, &self.sunlight(b, state)?, &rays, out);
+                    counts += self.shade(b, &self.others_light(b, state)?, &rays, out);
                 }
             }
         }
@@ -373,15 +376,32 @@ impl<'w> Direct<'w> {
     /// Body `b`'s Sun, flux and shadow queries at this step (also used by the renderer
     /// for points that are not centroids).
     pub(crate) fn sunlight(&self, b: usize, state: &EpochState) -> Result<Sunlight<'_>> {
+        let mut light = self.others_light(b, state)?;
+        light.own = self
+            .traces_own(b)
+            .then(|| self.tracers[b].toward(light.sun));
+        Ok(light)
+    }
+
+    /// [`Direct::sunlight`] with the shadow queries of the other bodies alone: the step
+    /// loop traces a point Sun's rays through the body itself with the facets
+    /// ([`Direct::light_facing`]), and a disk Sun's by samples ([`Direct::shade_disk`]).
+    fn others_light(&self, b: usize, state: &EpochState) -> Result<Sunlight<'_>> {
         let Sky { sun, flux, radius } = self.sky(b, state)?;
         Ok(Sunlight {
             sun,
             flux,
             radius,
             disk: self.disk,
-            own: self.traces_own(b).then(|| self.tracers[b].toward(sun)),
+            own: None,
             foreign: self.foreign_casters(b, state, sun, radius),
         })
+    }
+
+    /// The shadow queries through body `b` itself toward a point Sun in `sky`, when its
+    /// own shadows need rays; `None` for a disk Sun, whose samples are traced apart.
+    fn point_query(&self, b: usize, sky: &Sky) -> Option<Box<dyn ShadowQuery + '_>> {
+        (self.sun == SunShape::Point && self.traces_own(b)).then(|| self.tracers[b].toward(sky.sun))
     }
 
     /// Whether body `b`'s own shadows need rays: it can shadow itself, and no horizon
@@ -448,8 +468,9 @@ impl<'w> Direct<'w> {
         }
     }
 
-    /// Darkens the facets of body `b` lit in `out` whose shadow `rays` through their own
-    /// body are blocked (traced as one batch), then those other bodies shadow.
+    /// Scales the facets of body `b` in `out` by the share of a disk Sun their own body
+    /// leaves in view (their sample `rays`; a point Sun's rays were traced with the
+    /// facets), then darkens those other bodies shadow.
     fn shade(
         &self,
         b: usize,
@@ -458,30 +479,40 @@ impl<'w> Direct<'w> {
         out: &mut [f64],
     ) -> StepCounts {
         let mut counts = StepCounts::default();
-        match (light.own.as_deref(), self.sun) {
-            (None, _) => {}
-            (Some(own), SunShape::Point) => {
-                let mut by_self = vec![Shade::Lit; rays.len()];
-                let last = &self.last_blockers[b];
-                rays.par_iter().zip(&mut by_self).for_each(|(r, shade)| {
-                    *shade = match last {
-                        Some(last) => shade_remembering(own, r, last),
-                        None if own.blocked(r.origin, r.t_min, Some(r.facet)) => Shade::Blocked,
-                        None => Shade::Lit,
-                    }
-                });
-                counts.rays += rays.len() as u64;
-                counts.remembered +=
-                    by_self.iter().filter(|&&s| s == Shade::Remembered).count() as u64;
-                for (r, _) in rays.iter().zip(&by_self).filter(|(_, &s)| s != Shade::Lit) {
-                    out[r.facet as usize] = 0.0;
-                    counts.shadowed += 1;
-                }
-            }
-            (Some(_), SunShape::Disk) => counts += self.shade_disk(b, light, rays, out),
+        if self.sun == SunShape::Disk && self.traces_own(b) {
+            counts += self.shade_disk(b, light, rays, out);
         }
         if !light.foreign.is_empty() {
             counts += self.shade_by_others(b, light, out);
+        }
+        counts
+    }
+
+    /// Darkens the facets of a chunk (numbered from `first`, values in `values`) whose
+    /// shadow `rays` through their own body `own` (toward a point Sun) are blocked. Traced
+    /// in the chunk's own task: one parallel pass per step, not one for the facets and
+    /// one for the rays.
+    fn trace_own(
+        &self,
+        facets: Facets,
+        own: &dyn ShadowQuery,
+        rays: &[OwnRay],
+        values: &mut [f64],
+    ) -> StepCounts {
+        let mut counts = StepCounts::default();
+        let last = &self.last_blockers[facets.body];
+        for r in rays {
+            let shade = match last {
+                Some(last) => shade_remembering(own, r, last),
+                None if own.blocked(r.origin, r.t_min, Some(r.facet)) => Shade::Blocked,
+                None => Shade::Lit,
+            };
+            counts.rays += 1;
+            counts.remembered += u64::from(shade == Shade::Remembered);
+            if shade != Shade::Lit {
+                values[r.facet as usize - facets.first] = 0.0;
+                counts.shadowed += 1;
+            }
         }
         counts
     }
@@ -614,20 +645,27 @@ impl<'w> Direct<'w> {
 
     /// Lights every facet of body `b` facing the Sun at each step (`skies[k]` into
     /// `outs[k]`) as if nothing of its own body blocked it, except where a horizon map
-    /// decides, and lists per step the own body's shadow rays to trace: none when the body
-    /// cannot shadow itself, none where the Sun stands above the facet's horizon bound or
-    /// the map is certain or decides alone. A chunk of facets takes every step in turn
-    /// while its normals and map data are in cache.
+    /// decides; traces the own body's shadow rays toward a point Sun through `own[k]`
+    /// ([`Direct::point_query`]) and lists per step those left to trace by disk samples:
+    /// none when the body cannot shadow itself, none where the Sun stands above the
+    /// facet's horizon bound or the map is certain or decides alone. A chunk of facets
+    /// takes every step in turn while its normals and map data are in cache.
     fn light_facing(
         &self,
         b: usize,
         skies: &[Sky],
+        own: &[Option<Box<dyn ShadowQuery + '_>>],
         outs: &mut [&mut [f64]],
     ) -> Vec<(StepCounts, Vec<OwnRay>)> {
-        const CHUNK: usize = 2048;
+        // Chunks of up to 2048 facets, and at least 8 per thread: they also share out the
+        // rays, which gather where the shadows are.
+        let count = outs.first().map_or(0, |o| o.len());
+        let chunk = count
+            .div_ceil(8 * rayon::current_num_threads())
+            .clamp(256, 2048);
         let mut chunks: Vec<Vec<&mut [f64]>> = Vec::new();
         for out in outs.iter_mut() {
-            for (c, part) in out.chunks_mut(CHUNK).enumerate() {
+            for (c, part) in out.chunks_mut(chunk).enumerate() {
                 if chunks.len() == c {
                     chunks.push(Vec::with_capacity(skies.len()));
                 }
@@ -646,12 +684,19 @@ impl<'w> Direct<'w> {
             .map(|(c, steps)| {
                 let facets = Facets {
                     body: b,
-                    first: c * CHUNK,
+                    first: c * chunk,
                 };
-                steps
-                    .into_iter()
-                    .zip(skies)
-                    .map(|(values, sky)| self.light_chunk(facets, sky, values))
+                (steps.into_iter().zip(skies).zip(own))
+                    .map(|((values, sky), own)| {
+                        let (mut counts, rays) = self.light_chunk(facets, sky, values);
+                        match own {
+                            Some(own) => {
+                                counts += self.trace_own(facets, own.as_ref(), &rays, values);
+                                (counts, Vec::new())
+                            }
+                            None => (counts, rays),
+                        }
+                    })
                     .collect::<Vec<_>>()
             })
             .reduce(nothing, |mut a, b| {
