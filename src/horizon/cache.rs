@@ -80,15 +80,10 @@ const MAP_SOURCES: [(&str, &str); 8] = [
 
 /// The code that builds a horizon bound: its own file, and the map's (whose seeded runs
 /// it shares).
-const BOUND_SOURCES: [(&str, &str); 9] = {
-    let mut all = [("bound.rs", include_str!("bound.rs")); 9];
-    let mut k = 0;
-    while k < MAP_SOURCES.len() {
-        all[k + 1] = MAP_SOURCES[k];
-        k += 1;
-    }
-    all
-};
+fn bound_sources() -> Vec<(&'static str, &'static str)> {
+    let own = ("bound.rs", include_str!("bound.rs"));
+    std::iter::once(own).chain(MAP_SOURCES).collect()
+}
 
 /// The texts of `sources`.
 fn texts<'a>(sources: &[(&str, &'a str)]) -> Vec<&'a str> {
@@ -97,7 +92,7 @@ fn texts<'a>(sources: &[(&str, &'a str)]) -> Vec<&'a str> {
 
 /// The content key of the horizon bound of `mesh`'s first `receivers` facets.
 pub fn bound_key(mesh: &Mesh, receivers: usize) -> [u8; 32] {
-    let mut h = cache::key_hasher(b"slim horizon bound", &BOUND_KIND, &texts(&BOUND_SOURCES));
+    let mut h = cache::key_hasher(b"slim horizon bound", &BOUND_KIND, &texts(&bound_sources()));
     h.update((receivers as u64).to_le_bytes());
     cache::mesh_content(&mut h, mesh);
     h.finalize().into()
@@ -460,7 +455,7 @@ mod tests {
         // A file the build imports but the key leaves out would let a changed build read
         // maps of the old one (the triangles' outlines were once left out so).
         assert_eq!(unhashed(&MAP_SOURCES), Vec::<String>::new());
-        assert_eq!(unhashed(&BOUND_SOURCES), Vec::<String>::new());
+        assert_eq!(unhashed(&bound_sources()), Vec::<String>::new());
         let without_outlines: Vec<_> = MAP_SOURCES
             .into_iter()
             .filter(|&(path, _)| path != "outline.rs")
