@@ -657,8 +657,8 @@ impl<'w> Direct<'w> {
         own: &[Option<Box<dyn ShadowQuery + '_>>],
         outs: &mut [&mut [f64]],
     ) -> Vec<(StepCounts, Vec<OwnRay>)> {
-        // Chunks of up to 2048 facets, and at least 8 per thread: they also share out the
-        // rays, which gather where the shadows are.
+        // Chunks of 256 to 2048 facets, at least 8 per thread where the mesh allows: they
+        // also share out the rays, which gather where the shadows are.
         let count = outs.first().map_or(0, |o| o.len());
         let chunk = count
             .div_ceil(8 * rayon::current_num_threads())
