@@ -302,9 +302,11 @@ impl<'w> Direct<'w> {
             {
                 let own: Vec<_> = skies.iter().map(|sky| self.point_query(b, sky)).collect();
                 let facing = self.light_facing(b, skies, &own, views);
-                for ((state, (lit, rays)), out) in states.iter().zip(facing).zip(views) {
+                for (((state, sky), (lit, rays)), out) in
+                    states.iter().zip(skies).zip(facing).zip(views)
+                {
                     counts += lit;
-                    counts += self.shade(b, &self.others_light(b, state)?, &rays, out);
+                    counts += self.shade(b, &self.others_light(b, state, sky), &rays, out);
                 }
             }
         }
@@ -376,26 +378,27 @@ impl<'w> Direct<'w> {
     /// Body `b`'s Sun, flux and shadow queries at this step (also used by the renderer
     /// for points that are not centroids).
     pub(crate) fn sunlight(&self, b: usize, state: &EpochState) -> Result<Sunlight<'_>> {
-        let mut light = self.others_light(b, state)?;
+        let mut light = self.others_light(b, state, &self.sky(b, state)?);
         light.own = self
             .traces_own(b)
             .then(|| self.tracers[b].toward(light.sun));
         Ok(light)
     }
 
-    /// [`Direct::sunlight`] with the shadow queries of the other bodies alone: the step
-    /// loop traces a point Sun's rays through the body itself with the facets
-    /// ([`Direct::light_facing`]), and a disk Sun's by samples ([`Direct::shade_disk`]).
-    fn others_light(&self, b: usize, state: &EpochState) -> Result<Sunlight<'_>> {
-        let Sky { sun, flux, radius } = self.sky(b, state)?;
-        Ok(Sunlight {
+    /// [`Direct::sunlight`] in `sky` (the step's, [`Direct::sky`]) with the shadow queries
+    /// of the other bodies alone: the step loop traces a point Sun's rays through the body
+    /// itself with the facets ([`Direct::light_facing`]), and a disk Sun's by samples
+    /// ([`Direct::shade_disk`]).
+    fn others_light(&self, b: usize, state: &EpochState, sky: &Sky) -> Sunlight<'_> {
+        let Sky { sun, flux, radius } = *sky;
+        Sunlight {
             sun,
             flux,
             radius,
             disk: self.disk,
             own: None,
             foreign: self.foreign_casters(b, state, sun, radius),
-        })
+        }
     }
 
     /// The shadow queries through body `b` itself toward a point Sun in `sky`, when its
