@@ -36,6 +36,7 @@
 mod common;
 
 use glam::DVec3;
+use slim::horizon::bound::BoundDetail;
 use slim::horizon::shadows::{HorizonMode, ShadowMethod, Shadows};
 use slim::illum::{Direct, StepCounts};
 use slim::trace::TracerKind;
@@ -186,12 +187,23 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
     let direct = match tracer.as_str() {
         "sunview" => Direct::new(&world, TracerKind::Sunview),
         "bvh" => Direct::new(&world, TracerKind::Bvh),
+        "bvh-sectors" => {
+            // The bound a run takes when its steps pay for the sectors (`choice`).
+            let shadows = Shadows {
+                bound_detail: BoundDetail::Sectors,
+                ..Shadows::default()
+            };
+            let none = world.bodies.iter().map(|_| None).collect();
+            Direct::with_maps(&world, TracerKind::Bvh, none, &shadows)
+        }
         "map-exact" => with_map(&world, HorizonMode::Exact, &options)?,
         "map-approximate" => with_map(&world, HorizonMode::Approximate, &options)?,
         t => {
-            return Err(
-                format!("unknown --tracer {t} (sunview, bvh, map-exact, map-approximate)").into(),
+            return Err(format!(
+                "unknown --tracer {t} (sunview, bvh, bvh-sectors, map-exact, \
+                     map-approximate)"
             )
+            .into())
         }
     };
     let build_s = build_t0.elapsed().as_secs_f64();

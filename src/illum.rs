@@ -18,7 +18,7 @@
 
 use crate::ephemeris::EpochState;
 use crate::error::{Error, Result};
-use crate::horizon::bound::{Cone, ConeView, HorizonBound};
+use crate::horizon::bound::{BoundDetail, Cone, ConeView, HorizonBound};
 use crate::horizon::disk::SolarDisk;
 use crate::horizon::eclipse::Ellipsoid;
 use crate::horizon::map::HorizonMap;
@@ -89,10 +89,12 @@ pub struct Direct<'w> {
     lit: Vec<bool>,
     /// Where each horizon bound came from, for the bodies that have one.
     bound_records: Vec<BoundRecord>,
-    /// Per body with an exact horizon map under a point Sun, the blockers its shadow
-    /// rays remember from step to step ([`Direct::shade`]); `None` for other bodies. Only
-    /// there are the rays traced mostly shadowed (those below their wedge's upper bound):
-    /// the BVH's bound leaves mostly lit rays, which gained nothing (docs/performance.md).
+    /// Per body with an exact horizon map or the BVH's horizon bound by sectors under a
+    /// point Sun, the blockers its shadow rays remember from step to step
+    /// ([`Direct::trace_own`]); `None` for other bodies. Only there are the rays traced
+    /// mostly shadowed (those below their wedge's upper bound, or their sector's bound):
+    /// a whole-horizon bound leaves mostly lit rays, on which a remembered blocker
+    /// spares nothing (docs/performance.md).
     last_blockers: Vec<Option<LastBlockers>>,
 }
 
@@ -226,6 +228,11 @@ impl<'w> Direct<'w> {
         let last_blockers = (world.bodies.iter().zip(&horizons))
             .map(|(b, horizon)| match horizon {
                 OwnHorizon::Map { exact: true, .. } if shadows.sun == SunShape::Point => {
+                    Some(LastBlockers::new(b))
+                }
+                OwnHorizon::Bound { bound, .. }
+                    if shadows.sun == SunShape::Point && bound.detail() == BoundDetail::Sectors =>
+                {
                     Some(LastBlockers::new(b))
                 }
                 _ => None,
@@ -779,7 +786,7 @@ impl<'w> Direct<'w> {
                     }
                     continue;
                 }
-                OwnHorizon::Bound { bound, .. } => bound.clears(i, cos),
+                OwnHorizon::Bound { bound, .. } => bound.clears(i, normals[k], sky.sun, cos),
                 OwnHorizon::None if traces_own => false,
                 OwnHorizon::None => {
                     *e = sky.flux * cos;
@@ -954,7 +961,9 @@ impl<'w> Direct<'w> {
     /// body cannot shadow itself, or the BVH tracer's bound lies below the disk.
     fn disk_clears_own(&self, b: usize, i: usize, sin_elevation: f64, radius: f64) -> bool {
         match &self.horizons[b] {
-            OwnHorizon::Bound { bound, .. } => bound.clears(i, lowest_sin(sin_elevation, radius)),
+            OwnHorizon::Bound { bound, .. } => {
+                bound.clears_all_around(i, lowest_sin(sin_elevation, radius))
+            }
             _ => !self.traces_own(b),
         }
     }

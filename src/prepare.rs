@@ -16,6 +16,7 @@ use crate::ephemeris::spin::{Spin, SpinModel};
 use crate::ephemeris::synthetic::{CircularOrbit, SyntheticMotion};
 use crate::ephemeris::{flux_at, Ephemeris, EpochState};
 use crate::error::{Error, Result};
+use crate::horizon::shadows::bound_detail_for_run;
 use crate::horizon::Shadows;
 use crate::mesh::generate::ellipsoid;
 use crate::mesh::inspect::inspect;
@@ -127,7 +128,7 @@ pub fn prepare(scene: &Scene, budget: &Budget, timings: &mut Timings) -> Result<
     demand.form_factor_entries = scatter
         .as_ref()
         .map_or(0.0, |s| s.estimated_entries(world, &states));
-    let shadows = scene.shadows();
+    let mut shadows = scene.shadows();
     let (horizon_maps, reasons): (Vec<bool>, Vec<String>) = shadows
         .choose(world, states.len(), scene.run.tracer)
         .into_iter()
@@ -146,13 +147,19 @@ pub fn prepare(scene: &Scene, budget: &Budget, timings: &mut Timings) -> Result<
         .collect();
     let memory = demand.estimate();
     budget.check(&memory)?;
-    let (tracer, why) = choice::choose(
+    let (tracer, mut why) = choice::choose(
         scene.run.tracer,
         world,
         states.len(),
         shadows.disk_samples(),
         &horizon_maps,
     );
+    if tracer == TracerKind::Bvh {
+        let (detail, reason) =
+            bound_detail_for_run(world, &horizon_maps, states.len(), shadows.disk_samples());
+        shadows.bound_detail = detail;
+        why = format!("{why}; {reason}");
+    }
     let mut plan = Plan::new(scene, world, states.len(), (tracer, why), &horizon_maps);
     plan.set_horizon_maps(map_decisions);
     if let Some(settings) = &scatter {

@@ -17,8 +17,9 @@
 use crate::bands::Bands;
 use crate::ephemeris::EpochState;
 use crate::error::{Error, Result};
+use crate::horizon::bound::BoundDetail;
 use crate::horizon::map::HorizonMap;
-use crate::horizon::shadows::{BoundRecord, MapRecord};
+use crate::horizon::shadows::{sectors_extra_seconds, BoundRecord, MapRecord};
 use crate::horizon::Shadows;
 use crate::illum::{Direct, StepCounts};
 use crate::progress::{Progress, Silent, Timings};
@@ -140,7 +141,7 @@ pub fn simulate(
     let (tracer, _) = choice::choose(tracer, world, states.len(), shadows.disk_samples(), &mapped);
     if tracer == TracerKind::Bvh {
         let cached = shadows.cached_bounds(world);
-        announce_bvh_build(world, (&mapped, &cached), progress);
+        announce_bvh_build(world, (&mapped, &cached), shadows.bound_detail, progress);
     }
     // A body without outputs needs its own light only when its facets scatter it.
     let needed = world
@@ -249,6 +250,7 @@ fn obtain_maps(
 fn announce_bvh_build(
     world: &World,
     (mapped, cached): (&[bool], &[bool]),
+    detail: BoundDetail,
     progress: &dyn Progress,
 ) {
     let bounded = choice::bounded(world, mapped);
@@ -261,7 +263,13 @@ fn announce_bvh_build(
         };
         progress.note(&format!(
             "tracer bvh: building {what} of {facets} facets once ({} on one core)",
-            choice::about_seconds(choice::bound_seconds(world, mapped, cached))
+            choice::about_seconds(match detail {
+                BoundDetail::Whole => choice::bound_seconds(world, mapped, cached),
+                BoundDetail::Sectors => {
+                    choice::bound_seconds(world, mapped, cached)
+                        + sectors_extra_seconds(world, mapped, cached)
+                }
+            })
         ));
     }
 }

@@ -15,6 +15,7 @@ use slim::analytic::SphereLatitude;
 use slim::ephemeris::fixed::{FixedGeometry, FixedSun};
 use slim::ephemeris::spin::{Spin, SpinModel};
 use slim::ephemeris::Ephemeris;
+use slim::horizon::bound::BoundDetail;
 use slim::horizon::map::{HorizonMap, PointHorizon};
 use slim::horizon::tangent_frame;
 use slim::horizon::{HorizonMode, Shadows, SunShape};
@@ -1475,7 +1476,9 @@ fn itokawa_and_moonlet(suns: usize, turn: f64) -> (Mesh, World, Vec<slim::epheme
 /// block must get the bits it gets step by step, with the same counters, for rays, the
 /// BVH's bound, exact and approximate maps and a disk Sun, with a second body casting
 /// shadows on the first at some of the steps. Each way starts from a fresh `Direct`,
-/// since an exact map's rays remember their last blockers (`StepCounts::remembered`).
+/// since an exact map's rays (and those of the BVH's bound by sectors) remember their
+/// last blockers (`StepCounts::remembered`). The bound by sectors, which clears other
+/// rays than the whole one, must light every facet as the rays alone do.
 #[test]
 fn blocks_of_steps_light_every_facet_as_single_steps() {
     let (itokawa, world, states) = itokawa_and_moonlet(13, 0.5);
@@ -1492,14 +1495,23 @@ fn blocks_of_steps_light_every_facet_as_single_steps() {
     let setup = |name: &str| match name {
         "sunview rays" => Direct::new(&world, TracerKind::Sunview),
         "bvh bound" => Direct::new(&world, TracerKind::Bvh),
+        "bvh bound by sectors" => {
+            let shadows = Shadows {
+                bound_detail: BoundDetail::Sectors,
+                ..Shadows::default()
+            };
+            Direct::with_maps(&world, TracerKind::Bvh, vec![None, None], &shadows)
+        }
         "exact map" => mapped(HorizonMode::Exact, SunShape::Point),
         "approximate map" => mapped(HorizonMode::Approximate, SunShape::Point),
         _ => mapped(HorizonMode::Exact, SunShape::Disk),
     };
     let n = world.facet_count();
+    let mut by_rays = Vec::new();
     for name in [
         "sunview rays",
         "bvh bound",
+        "bvh bound by sectors",
         "exact map",
         "approximate map",
         "disk Sun",
@@ -1529,6 +1541,18 @@ fn blocks_of_steps_light_every_facet_as_single_steps() {
         }
         // The comparison is not vacuous: shadows and the moonlet's shadow occur.
         assert!(single_counts.shadowed > 0, "{name}: nothing shadowed");
+        match name {
+            "sunview rays" => by_rays = single,
+            "bvh bound by sectors" => {
+                assert!(single_counts.remembered > 0, "{name}: nothing remembered");
+                for (k, (a, b)) in single.iter().zip(&by_rays).enumerate() {
+                    for i in 0..n {
+                        assert_eq!(a[i].to_bits(), b[i].to_bits(), "{name}: step {k} facet {i}");
+                    }
+                }
+            }
+            _ => {}
+        }
     }
 }
 

@@ -1,54 +1,124 @@
-//! Horizon bound: per facet, the highest elevation at which its centroid sees any other
-//! facet of its body, so that a Sun above it needs no shadow ray.
+//! Horizon bound: per facet (and, in detail, per sector of azimuth), the highest
+//! elevation at which its centroid sees any other facet of its body, so that a Sun above
+//! it needs no shadow ray.
 //!
-//! In: a mesh (metres, body frame) and its [`Bvh`]. Out: [`HorizonBound`], per facet the
-//! sine of the largest elevation above the facet's plane of any point of any other facet
-//! with an area, seen from the facet's centroid (0 when nothing rises above the plane).
-//! A shadow ray leaves the centroid at the Sun's elevation (`sin e = n·s`); when that is
-//! above the bound, every point the ray passes lies higher than anything of the body in
-//! that direction, so no facet can block it, and [`HorizonBound::clears`] answers
-//! without tracing. The answer is then the exact tracers' answer, not an approximation:
-//! on a convex patch of a surface nothing rises above the facet's plane, and on a real
-//! shape model most Sun-facing facets see the Sun above their highest horizon at most
-//! steps.
+//! In: a mesh (metres, body frame), its [`Bvh`] and a [`BoundDetail`]. Out:
+//! [`HorizonBound`]: per facet, the sine of the largest elevation above the facet's plane
+//! of any point of any other facet with an area, seen from the facet's centroid (0 when
+//! nothing rises above the plane); by sectors, one such sine per each of [`SECTORS`]
+//! sectors of azimuth (in the facet's tangent frame, [`tangent_frame`]) over the points
+//! whose azimuth lies in it. A shadow ray leaves the centroid at the Sun's azimuth and
+//! elevation (`sin e = n·s`); when that is above the bound of its sector, every point
+//! the ray passes lies higher than anything of the body in that direction, so no facet
+//! can block it, and [`HorizonBound::clears`] answers without tracing. The answer is then
+//! the exact tracers' answer, not an approximation: on a convex patch of a surface
+//! nothing rises above the facet's plane, and by sectors a crater wall to the east says
+//! nothing of a Sun in the west.
 //!
 //! The bound is computed exactly (`super::geometry`) for every triangle the tree cannot
-//! rule out, each triangle widened by the rounding of the exact predicate (a few units in
-//! the last place of the mesh's coordinates, `ROUNDING_ULPS · ε · |v|max`), so that a ray
-//! the tracers call blocked through rounding is never cleared. The branch and bound stops
-//! refining within `SEARCH_SLACK` (0.02 in sine, about 1°) of the highest horizon, which
-//! it adds to the bound: a Sun less than that above the horizon is simply traced.
+//! rule out, each triangle widened by the rounding of the exact predicate (a few units
+//! in the last place of the mesh's coordinates, `ROUNDING_ULPS · ε · |v|max`), so that
+//! a ray the tracers call blocked through rounding is never cleared. By sectors, a
+//! triangle counts in every sector its widened box reaches (widened again past the
+//! rounding of the turns), with its highest point anywhere: an upper bound in each. The
+//! branch and bound stops refining within a slack (0.02 in sine, about 1°, for a whole
+//! bound; 0.01 by sectors, whose rays are worth more to spare) of each sector's highest
+//! horizon, which it adds to the bound: a Sun less than that above the horizon is
+//! simply traced.
 //!
 //! Cost: a tree search per facet, parallel over facets, each seeded with the triangle
-//! that set its neighbour's bound; about 0.6 s per 49k facets on one core, growing a
-//! little faster than the facet count; kept on disk beside the horizon maps and read
-//! back by later runs (`super::cache`). Memory: 4 bytes per facet (the sine rounded up
-//! to `f32`).
+//! that set its neighbour's highest sector; by sectors 4–6× a whole bound's (every
+//! sector's horizon proved, not only the highest; docs/performance.md); kept on disk
+//! beside the horizon maps and read back by later runs (`super::cache`). Memory: a byte
+//! per facet, [`SECTORS`] bytes by sectors (each sine rounded up to a 255th).
 
-use super::geometry::{distance_to_triangle, rounding_widening, triangle_bound};
-use super::map::{f32_at_least, in_seeded_runs};
+use super::geometry::{distance_to_triangle, rounding_widening, tangent_frame, triangle_bound};
+use super::map::{in_seeded_runs, line_meets_box, pseudo_angle};
 use crate::mesh::Mesh;
 use crate::trace::bvh::Bvh;
 use glam::DVec3;
 use std::cell::{Cell, RefCell};
 
-/// How far above the highest horizon found the bound may lie (sine): the search skips
-/// whatever cannot rise more than this above it, which keeps it to the few hundred
+/// How far above the highest horizon found a whole bound may lie (sine): the search
+/// skips whatever cannot rise more than this above it, which keeps it to the few hundred
 /// triangles near each facet and the far ones that form its horizon.
-const SEARCH_SLACK: f64 = 0.02;
+const WHOLE_SLACK: f64 = 0.02;
+
+/// The same for each sector of a bound by sectors: half the whole one's, for a build
+/// about a third dearer (its rays, mostly below a real horizon, are worth sparing).
+const SECTOR_SLACK: f64 = 0.01;
 
 /// Least gap between the Sun's `sin e` and the bound for a ray to be cleared, over and
 /// above the widened triangles: the rounding of `n·s` itself.
 const SIN_MARGIN: f64 = 1e-9;
 
-/// Per facet, the sine of the highest elevation of any other facet seen from its centroid.
+/// How finely a bound follows the horizon around a facet.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum BoundDetail {
+    /// One bound for the whole horizon (every sector holds the highest): cheap to build,
+    /// about a tenth of [`BoundDetail::Sectors`].
+    #[default]
+    Whole,
+    /// A bound per sector of azimuth: spares the rays of a Sun low in a sector whose
+    /// horizon is lower than the facet's highest, for a search that proves each
+    /// sector's horizon.
+    Sectors,
+}
+
+impl BoundDetail {
+    /// How far above each horizon found the bound may lie (sine).
+    fn slack(self) -> f64 {
+        match self {
+            BoundDetail::Whole => WHOLE_SLACK,
+            BoundDetail::Sectors => SECTOR_SLACK,
+        }
+    }
+
+    /// Sines kept per facet.
+    pub fn stride(self) -> usize {
+        match self {
+            BoundDetail::Whole => 1,
+            BoundDetail::Sectors => SECTORS,
+        }
+    }
+}
+
+/// Sectors of azimuth a bound keeps apart. A direction's azimuth in the facet's tangent
+/// frame is taken as its turn: a pseudo-angle (`map::pseudo_angle`, without `atan2`) from 0
+/// to 4, a quarter turn per unit, monotone in azimuth and exact at every eighth of a turn.
+/// Sector `k` holds the turns `[k, k+1) · 4/SECTORS`: with 16, sectors 18.4° to 26.6°
+/// wide, so that a Sun low in one sector is not held to the horizon of another.
+pub const SECTORS: usize = 16;
+
+/// Sectors per unit of turn.
+const SECTORS_PER_TURN: f64 = SECTORS as f64 / 4.0;
+
+/// Every sector, as bits.
+const ALL_SECTORS: u32 = u32::MAX >> (32 - SECTORS);
+
+/// How far (units of turn) the sectors a box reaches are widened on both sides: far more
+/// than the rounding of a turn of a direction at least `ZENITH_CLEARANCE` off the zenith.
+const TURN_OVERLAP: f64 = 1e-9;
+
+/// Least sine of the angle from the zenith line at which a direction's azimuth is taken:
+/// nearer, a box reaches every sector and a Sun is held to the highest (the azimuth of a
+/// direction `ε` off the zenith errs by about `1e-16/ε`).
+const ZENITH_CLEARANCE: f64 = 1e-6;
+
+/// Steps of a stored sine: each sector's sine is rounded up to a multiple of 1/255.
+const SINE_STEPS: f64 = 255.0;
+
+/// Per facet (and sector, in [`BoundDetail::Sectors`]), the sine of the highest elevation
+/// of any other facet seen from its centroid.
 #[derive(Debug, Clone)]
 pub struct HorizonBound {
-    /// Rounded up to `f32`: half the memory, and the bound stays a bound (the search
-    /// leaves it up to `SEARCH_SLACK` high anyway).
-    sin_max: Vec<f32>,
+    /// Per facet, one sine ([`BoundDetail::Whole`]) or one per sector, each rounded up to
+    /// a multiple of 1/255: a byte, and the bound stays a bound (the search leaves it up
+    /// to its slack high anyway).
+    sines: Vec<u8>,
     /// How far triangles are widened against the exact predicate's rounding (m).
     widening: f64,
+    detail: BoundDetail,
 }
 
 /// A cone of directions (a disk Sun's): its unit axis and its half-angle's cosine, sine
@@ -89,31 +159,51 @@ pub enum ConeView {
 
 impl HorizonBound {
     /// The bound of facets `0..receivers` of `mesh`, using `bvh` (built over all of
-    /// `mesh`, whose other facets only cast shadows).
-    pub fn new(mesh: &Mesh, receivers: usize, bvh: &Bvh) -> HorizonBound {
-        // Each facet is seeded with the triangle that set its neighbour's bound: it is
-        // likely high here too, and the higher the first value, the more of the tree the
-        // search prunes.
+    /// `mesh`, whose other facets only cast shadows), in the given `detail`.
+    pub fn new(mesh: &Mesh, receivers: usize, bvh: &Bvh, detail: BoundDetail) -> HorizonBound {
+        // Each facet is seeded with the triangle that set its neighbour's highest sector:
+        // it is likely high here too, and the higher the first value, the more of the
+        // tree the search prunes.
         let widening = rounding_widening(mesh);
-        let sin_max = in_seeded_runs(0..receivers, |i, &seed| {
-            let (sin, setter) = facet_bound(mesh, bvh, i, widening, seed);
-            (f32_at_least(sin), setter)
-        });
-        HorizonBound { sin_max, widening }
-    }
-
-    /// The bound of `mesh`'s first facets from their stored sines (the cache), as
-    /// [`HorizonBound::new`] built them over the same mesh.
-    pub(super) fn from_sines(mesh: &Mesh, sin_max: Vec<f32>) -> HorizonBound {
+        let search = |i, seed| facet_bound(mesh, bvh, (i, detail), widening, seed);
+        let sines = match detail {
+            // Every sector holds the same: one byte per facet.
+            BoundDetail::Whole => in_seeded_runs(0..receivers, |i, &seed| {
+                let (sines, setter) = search(i, seed);
+                (sine_step_up(sines[0]), setter)
+            }),
+            BoundDetail::Sectors => in_seeded_runs(0..receivers, |i, &seed| {
+                let (sines, setter) = search(i, seed);
+                (sines.map(sine_step_up), setter)
+            })
+            .into_flattened(),
+        };
         HorizonBound {
-            sin_max,
-            widening: rounding_widening(mesh),
+            sines,
+            widening,
+            detail,
         }
     }
 
-    /// Per facet, the sine kept (for the cache).
-    pub(super) fn sines(&self) -> &[f32] {
-        &self.sin_max
+    /// The bound of `mesh`'s first facets from their stored sines (the cache: a byte per
+    /// facet and sector of `detail`), as [`HorizonBound::new`] built them over the same
+    /// mesh.
+    pub(super) fn from_sines(mesh: &Mesh, sines: Vec<u8>, detail: BoundDetail) -> HorizonBound {
+        HorizonBound {
+            sines,
+            widening: rounding_widening(mesh),
+            detail,
+        }
+    }
+
+    /// The sines kept, in 255ths (for the cache): per facet, [`BoundDetail::stride`] bytes.
+    pub(super) fn sines(&self) -> &[u8] {
+        &self.sines
+    }
+
+    /// How finely the bound follows the horizon.
+    pub fn detail(&self) -> BoundDetail {
+        self.detail
     }
 
     /// What facet `i`'s centroid sees of the `cone` of directions, through the other
@@ -194,40 +284,179 @@ impl HorizonBound {
         }
     }
 
-    /// True when a Sun at `sin_elevation` (n·s) above facet `i`'s plane is higher than
-    /// everything else of the body seen from its centroid: its shadow ray is unblocked.
+    /// True when a Sun along the unit vector `sun`, at `sin_elevation` (n·s) above the
+    /// plane of facet `i` (unit normal `normal`, the mesh's), is higher than everything
+    /// else of the body seen from its centroid at the Sun's azimuth: its shadow ray is
+    /// unblocked.
     #[inline]
-    pub fn clears(&self, i: usize, sin_elevation: f64) -> bool {
-        sin_elevation > self.sin_max[i] as f64 + SIN_MARGIN
+    pub fn clears(&self, i: usize, normal: DVec3, sun: DVec3, sin_elevation: f64) -> bool {
+        let sector = match self.detail {
+            BoundDetail::Whole => Some(0),
+            BoundDetail::Sectors => sector_of(normal, sun),
+        };
+        match sector {
+            Some(k) => sin_elevation > self.sector_sin(i, k) + SIN_MARGIN,
+            None => self.clears_all_around(i, sin_elevation),
+        }
     }
 
-    /// Facet `i`'s bound: the sine of the highest elevation (for tests and reports).
+    /// True when a Sun at `sin_elevation` above facet `i`'s plane is higher than
+    /// everything else of the body seen from its centroid, whatever its azimuth (for a
+    /// disk, whose points lie in several sectors).
+    #[inline]
+    pub fn clears_all_around(&self, i: usize, sin_elevation: f64) -> bool {
+        sin_elevation > self.sin_max(i) + SIN_MARGIN
+    }
+
+    /// Facet `i`'s bound around the whole horizon: the sine of the highest elevation
+    /// (for tests and reports).
     pub fn sin_max(&self, i: usize) -> f64 {
-        self.sin_max[i] as f64
+        let stride = self.detail.stride();
+        let row = &self.sines[i * stride..(i + 1) * stride];
+        f64::from(row.iter().copied().max().unwrap_or(u8::MAX)) / SINE_STEPS
+    }
+
+    /// Facet `i`'s bound in `sector` (0..[`SECTORS`]), a sine.
+    #[inline]
+    pub fn sector_sin(&self, i: usize, sector: usize) -> f64 {
+        let at = match self.detail {
+            BoundDetail::Whole => i,
+            BoundDetail::Sectors => i * SECTORS + sector,
+        };
+        f64::from(self.sines[at]) / SINE_STEPS
     }
 }
 
-/// Facet `i`'s bound, and the triangle that set it (`None`: nothing rose above the
-/// plane). The `seed` triangle is taken first.
+/// The sector of azimuth that the unit vector `toward` lies in, in the tangent frame of
+/// the unit `normal`; `None` within `ZENITH_CLEARANCE` (1e-6) of the zenith or the nadir,
+/// where its azimuth is not known well enough.
+#[inline]
+pub fn sector_of(normal: DVec3, toward: DVec3) -> Option<usize> {
+    let (t1, t2) = tangent_frame(normal);
+    let (x, y) = (toward.dot(t1), toward.dot(t2));
+    if x * x + y * y < ZENITH_CLEARANCE * ZENITH_CLEARANCE {
+        return None;
+    }
+    Some(((turn((x, y)) * SECTORS_PER_TURN) as usize).min(SECTORS - 1))
+}
+
+/// The turn of the in-plane direction `(x, y)`: its pseudo-angle from 0 to 4.
+#[inline]
+fn turn(xy: (f64, f64)) -> f64 {
+    let p = pseudo_angle(xy);
+    if p < 0.0 {
+        p + 4.0
+    } else {
+        p
+    }
+}
+
+/// The sectors (as bits) reached by the points of the box `lo..hi` widened by `widening`,
+/// seen from `c` in the frame `(n, t1, t2)` (zenith, tangent axes): every sector when
+/// the zenith line meets the box or passes near a corner; otherwise those between the
+/// corners' least and greatest turns (a box off the zenith line spans less than half a
+/// turn, and every point of it lies between its corners).
+fn sectors_reached(
+    c: DVec3,
+    (n, t1, t2): (DVec3, DVec3, DVec3),
+    (lo, hi): (DVec3, DVec3),
+    widening: f64,
+) -> u32 {
+    let (lo, hi) = (lo - widening, hi + widening);
+    if line_meets_box(c, n, lo, hi) {
+        return ALL_SECTORS;
+    }
+    // A corner's coordinates in the frame are the lowest corner's plus, per axis, the
+    // box's extent along the axis seen in the frame: additions, not products.
+    let in_frame = |v: DVec3| DVec3::new(v.dot(t1), v.dot(t2), v.dot(n));
+    let base = in_frame(lo - c);
+    let size = hi - lo;
+    let steps = [DVec3::X, DVec3::Y, DVec3::Z].map(|axis| in_frame(axis * size));
+    let mut turns = [0.0; 8];
+    for (k, t) in turns.iter_mut().enumerate() {
+        let mut p = base;
+        for (a, step) in steps.iter().enumerate() {
+            if k >> a & 1 == 1 {
+                p += *step;
+            }
+        }
+        let across = p.x * p.x + p.y * p.y;
+        // The sums' rounding is a few units in the last place of the box's size and
+        // distance, far below the clearance asked of the corners.
+        if across <= ZENITH_CLEARANCE * ZENITH_CLEARANCE * (across + p.z * p.z) {
+            return ALL_SECTORS;
+        }
+        *t = turn((p.x, p.y));
+    }
+    let extremes = |turns: &[f64; 8]| {
+        turns
+            .iter()
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), &t| {
+                (lo.min(t), hi.max(t))
+            })
+    };
+    let (mut first, mut last) = extremes(&turns);
+    if last - first >= 2.0 {
+        // Across turn 0: the low turns one turn on.
+        (first, last) = extremes(&turns.map(|t| if t < 2.0 { t + 4.0 } else { t }));
+    }
+    if last - first >= 2.0 - 2.0 * TURN_OVERLAP {
+        return ALL_SECTORS;
+    }
+    // A turn on, so that the widened turns stay positive and truncation floors them.
+    let sector = |t: f64| ((t + 4.0) * SECTORS_PER_TURN) as usize;
+    let (from, to) = (sector(first - TURN_OVERLAP), sector(last + TURN_OVERLAP));
+    (from..=to).fold(0, |bits, k| bits | 1 << (k % SECTORS))
+}
+
+/// A sine rounded up to the next 255th (1 when NaN: never cleared).
+fn sine_step_up(sin: f64) -> u8 {
+    if sin.is_nan() {
+        return u8::MAX;
+    }
+    let q = (sin.clamp(0.0, 1.0) * SINE_STEPS).ceil();
+    // The product's rounding may leave `q` one step short.
+    let q = if q / SINE_STEPS < sin { q + 1.0 } else { q };
+    q.min(SINE_STEPS) as u8
+}
+
+/// Facet `i`'s bound per sector (sines; in `detail`), and the triangle that set the
+/// highest (`None`: nothing rose above the plane). The `seed` triangle is taken first.
 fn facet_bound(
     mesh: &Mesh,
     bvh: &Bvh,
-    i: usize,
+    (i, detail): (usize, BoundDetail),
     widening: f64,
     seed: Option<u32>,
-) -> (f64, Option<u32>) {
+) -> ([f64; SECTORS], Option<u32>) {
     let (c, n) = (mesh.centroids[i], mesh.normals[i]);
     if n == DVec3::ZERO || mesh.areas[i] <= 0.0 {
-        return (1.0, None);
+        return ([1.0; SECTORS], None);
     }
-    let best = Cell::new((0.0f64, None));
+    let (t1, t2) = tangent_frame(n);
+    let frame = (n, t1, t2);
+    let slack = detail.slack();
+    let found = RefCell::new(SectorSines::default());
+    let reached = |lo: DVec3, hi: DVec3| match detail {
+        // Every sector alike: the search is the whole horizon's.
+        BoundDetail::Whole => ALL_SECTORS,
+        BoundDetail::Sectors => sectors_reached(c, frame, (lo, hi), widening),
+    };
     let take = |id: u32, tri: &[DVec3; 3]| {
-        if id as usize != i {
-            let (high, _) = best.get();
-            let value = triangle_bound(c, n, tri, widening, high + SEARCH_SLACK);
-            if value > high {
-                best.set((value, Some(id)));
-            }
+        if id as usize == i {
+            return;
+        }
+        let (lo, hi) = (
+            tri[0].min(tri[1]).min(tri[2]),
+            tri[0].max(tri[1]).max(tri[2]),
+        );
+        // The sectors first (additions and a division per corner): the lowest of those
+        // the triangle reaches rules most triangles out before their exact bound.
+        let sectors = reached(lo, hi);
+        let lowest = found.borrow().lowest_of(sectors);
+        let value = triangle_bound(c, n, tri, widening, lowest + slack);
+        if value > lowest {
+            found.borrow_mut().raise(sectors, value, id);
         }
     };
     if let Some(id) = seed {
@@ -235,11 +464,71 @@ fn facet_bound(
     }
     bvh.search(
         &bvh.viewpoint(c, n, widening),
-        |child| (child.bound > best.get().0 + SEARCH_SLACK).then_some(child.bound),
+        |child| {
+            let found = found.borrow();
+            let bound = child.bound;
+            if bound <= found.lowest() + slack {
+                return None;
+            }
+            if bound > found.highest + slack {
+                return Some(bound);
+            }
+            let (lo, hi) = child.corners();
+            found
+                .any_below(reached(lo, hi), bound - slack)
+                .then_some(bound)
+        },
         take,
     );
-    let (found, setter) = best.get();
-    ((found + SEARCH_SLACK).min(1.0), setter)
+    let found = found.into_inner();
+    (found.sines.map(|s| (s + slack).min(1.0)), found.setter)
+}
+
+/// The highest elevation sines found so far in each sector of a facet's horizon.
+#[derive(Default)]
+struct SectorSines {
+    sines: [f64; SECTORS],
+    /// The highest of them, and the triangle that set it.
+    highest: f64,
+    setter: Option<u32>,
+}
+
+impl SectorSines {
+    fn lowest(&self) -> f64 {
+        self.sines.iter().copied().fold(f64::INFINITY, f64::min)
+    }
+
+    /// The lowest sine of the `sectors` (bits).
+    fn lowest_of(&self, sectors: u32) -> f64 {
+        bits(sectors).fold(f64::INFINITY, |low, k| low.min(self.sines[k]))
+    }
+
+    /// Whether any of the `sectors` (bits) stands below the sine `sin`.
+    fn any_below(&self, sectors: u32, sin: f64) -> bool {
+        bits(sectors).any(|k| self.sines[k] < sin)
+    }
+
+    /// Raises the `sectors` (bits) to the elevation sine `value` of triangle `id`.
+    fn raise(&mut self, sectors: u32, value: f64, id: u32) {
+        for k in bits(sectors) {
+            self.sines[k] = self.sines[k].max(value);
+        }
+        if value > self.highest {
+            self.highest = value;
+            self.setter = Some(id);
+        }
+    }
+}
+
+/// The numbers of the bits set in `set`, lowest first.
+fn bits(mut set: u32) -> impl Iterator<Item = usize> {
+    std::iter::from_fn(move || {
+        (set != 0).then(|| {
+            let k = set.trailing_zeros() as usize;
+            set &= set - 1;
+            k
+        })
+    })
 }
 
 /// False when no point within `widening` of triangle `tri` lies in the cone from `c`
@@ -336,20 +625,32 @@ mod tests {
     fn a_wall_beside_a_floor_is_the_floors_horizon() {
         let (h, wall_x, half) = (3.0, 4.0, 50.0);
         let mesh = Mesh::from_raw(floor_and_wall(h, wall_x, half), LengthUnit::M);
-        let bound = HorizonBound::new(&mesh, mesh.len(), &Bvh::build(&mesh));
+        let bound = HorizonBound::new(&mesh, mesh.len(), &Bvh::build(&mesh), BoundDetail::Sectors);
         for i in 0..2 {
             let c = mesh.centroids[i];
             let expected = h / (h * h + (wall_x - c.x).powi(2)).sqrt();
             let got = bound.sin_max(i);
-            // Stored rounded up to `f32`: up to one unit in its last place above.
-            let most = (expected + SEARCH_SLACK + 1e-9) * (1.0 + f32::EPSILON as f64);
+            // Stored rounded up to a 255th: up to one above.
+            let most = expected + SECTOR_SLACK + 1e-9 + 1.0 / SINE_STEPS;
             assert!(
                 got >= expected && got <= most,
                 "facet {i}: bound {got}, closed form {expected}"
             );
-            // A Sun just above the wall's top is cleared, one just below it is not.
-            assert!(bound.clears(i, got + 2.0 * SIN_MARGIN));
-            assert!(!bound.clears(i, expected - 1e-6));
+            // A Sun straight toward the wall just above its top is cleared, one just below
+            // it is not.
+            let n = mesh.normals[i];
+            let toward_x = |sin: f64| DVec3::new((1.0 - sin * sin).sqrt(), 0.0, sin);
+            let wall_sector = sector_of(n, toward_x(0.5)).expect("off the zenith");
+            let above = bound.sector_sin(i, wall_sector) + 2.0 * SIN_MARGIN;
+            assert!(bound.clears(i, n, toward_x(above), above));
+            assert!(!bound.clears(i, n, toward_x(expected - 1e-6), expected - 1e-6));
+            // Away from the wall (it spans ±85° of azimuth around +x) nothing rises: a
+            // Sun 3° up toward −x is cleared by its sector, not by the whole horizon.
+            let away = DVec3::new(-(1.0 - 0.05f64 * 0.05).sqrt(), 0.0, 0.05);
+            let away_sector = sector_of(n, away).expect("off the zenith");
+            assert!(bound.sector_sin(i, away_sector) <= SECTOR_SLACK + 1.0 / SINE_STEPS);
+            assert!(bound.clears(i, n, away, 0.05));
+            assert!(!bound.clears_all_around(i, 0.05));
         }
     }
 
@@ -362,7 +663,7 @@ mod tests {
         let (h, wall_x, half) = (3.0, 4.0, 50.0);
         let mesh = Mesh::from_raw(floor_and_wall(h, wall_x, half), LengthUnit::M);
         let bvh = Bvh::build(&mesh);
-        let bound = HorizonBound::new(&mesh, mesh.len(), &bvh);
+        let bound = HorizonBound::new(&mesh, mesh.len(), &bvh, BoundDetail::Sectors);
         let c = mesh.centroids[0];
         let d = wall_x - c.x;
         // Toward the wall at height z above the floor, straight across.
@@ -387,13 +688,9 @@ mod tests {
     /// on a polar grid of the cone out to 0.999 of its half-angle.
     #[test]
     fn cone_views_agree_with_rays_through_the_cone() {
-        let raw =
-            crate::mesh::generate::height_field((14, 14), (-10.0, 10.0), (-10.0, 10.0), |x, y| {
-                2.5 * (x / 2.3).sin() * (y / 3.1).cos() + 0.3 * x
-            });
-        let mesh = Mesh::from_raw(raw, LengthUnit::M);
+        let mesh = rough_terrain();
         let bvh = Bvh::build(&mesh);
-        let bound = HorizonBound::new(&mesh, mesh.len(), &bvh);
+        let bound = HorizonBound::new(&mesh, mesh.len(), &bvh, BoundDetail::Sectors);
         let mut rng = crate::TestRng::new(11);
         let mut seen = [0usize; 3];
         let mut partial_rays = [0usize; 2];
@@ -445,12 +742,121 @@ mod tests {
         );
     }
 
+    /// Rough terrain (folds of ±2.5 m over 20 m): for every facet and Suns at several
+    /// elevations, around the horizon and exactly on every sector's boundary, a ray
+    /// either bound clears is unblocked for the BVH's rays; and the sectors clear many
+    /// rays the whole horizon's bound traces.
+    #[test]
+    fn a_ray_the_bound_clears_is_never_blocked() {
+        let mesh = rough_terrain();
+        let bvh = Bvh::build(&mesh);
+        // In-plane directions: 64 around the turn, and one on each sector boundary
+        // (turns k·4/SECTORS, exact in the pseudo-angle: y/(x+y) = f in the first
+        // quadrant, turned by quarter turns).
+        let mut in_plane: Vec<(f64, f64)> = (0..64)
+            .map(|k| {
+                let a = (k as f64 + 0.37) * std::f64::consts::TAU / 64.0;
+                (a.cos(), a.sin())
+            })
+            .collect();
+        for k in 0..SECTORS {
+            let t = k as f64 * 4.0 / SECTORS as f64;
+            let (q, f) = (t.floor() as usize, t.fract());
+            let (x, y) = (1.0 - f, f);
+            in_plane.push([(x, y), (-y, x), (-x, -y), (y, -x)][q]);
+        }
+        let mut cleared = [0usize; 2];
+        let mut blocked = 0;
+        let bounds = [BoundDetail::Whole, BoundDetail::Sectors]
+            .map(|detail| HorizonBound::new(&mesh, mesh.len(), &bvh, detail));
+        for i in 0..mesh.len() {
+            let (c, n) = (mesh.centroids[i], mesh.normals[i]);
+            let (t1, t2) = tangent_frame(n);
+            for sin_e in [0.02f64, 0.06, 0.15, 0.3, 0.6] {
+                let cos_e = (1.0 - sin_e * sin_e).sqrt();
+                for &(x, y) in &in_plane {
+                    let across = (t1 * x + t2 * y).normalize();
+                    let sun = (across * cos_e + n * sin_e).normalize();
+                    let sin = n.dot(sun);
+                    let is_blocked = bvh.toward(sun).blocked(c, 1e-9, Some(i as u32));
+                    blocked += usize::from(is_blocked);
+                    for (bound, count) in bounds.iter().zip(&mut cleared) {
+                        if bound.clears(i, n, sun, sin) {
+                            assert!(!is_blocked, "facet {i}: {:?} cleared {sun}", bound.detail);
+                            *count += 1;
+                        }
+                    }
+                }
+            }
+        }
+        let [whole, by_sector] = cleared;
+        assert!(blocked > 1000, "blocked {blocked}");
+        assert!(whole > 5000, "cleared by the whole bound {whole}");
+        assert!(
+            by_sector > whole + 1000,
+            "by sectors {by_sector}, whole {whole}"
+        );
+    }
+
+    /// Random boxes around a tilted facet's centroid, some across its zenith line: every
+    /// point of a box lies in a sector the box is said to reach.
+    #[test]
+    fn a_box_reaches_the_sector_of_each_of_its_points() {
+        let mut rng = crate::TestRng::new(5);
+        let mut u = || rng.unit() - 0.5;
+        let c = DVec3::new(3.0, -2.0, 1.0);
+        let n = DVec3::new(0.3, -0.5, 0.8).normalize();
+        let (t1, t2) = tangent_frame(n);
+        let mut partial = 0;
+        for _ in 0..2000 {
+            let centre = c + DVec3::new(u(), u(), u()) * 8.0;
+            let half = DVec3::new(u().abs(), u().abs(), u().abs()) * 2.0;
+            let (lo, hi) = (centre - half, centre + half);
+            let reached = sectors_reached(c, (n, t1, t2), (lo, hi), 0.0);
+            partial += usize::from(reached != ALL_SECTORS);
+            for _ in 0..40 {
+                let q = lo + (hi - lo) * DVec3::new(u() + 0.5, u() + 0.5, u() + 0.5);
+                if let Some(k) = sector_of(n, (q - c).normalize()) {
+                    assert!(
+                        reached >> k & 1 == 1,
+                        "{q} in sector {k}, box reaches {reached:b}"
+                    );
+                }
+            }
+        }
+        assert!(
+            partial > 1000,
+            "boxes reaching some sectors only: {partial}"
+        );
+    }
+
+    /// Sectors by turn: a boundary belongs to the sector above it; the zenith has none.
+    #[test]
+    fn sectors_follow_the_turn_and_the_zenith_has_none() {
+        let n = DVec3::Z;
+        let sector = |x: f64, y: f64| sector_of(n, DVec3::new(x, y, 0.5).normalize());
+        assert_eq!(sector(1.0, 0.0), Some(0));
+        assert_eq!(sector(1.0, 1.0), Some(SECTORS / 8));
+        assert_eq!(sector(-1.0, 0.0), Some(SECTORS / 2));
+        assert_eq!(sector(1.0, -1e-12), Some(SECTORS - 1));
+        assert_eq!(sector_of(n, DVec3::new(1e-9, 0.0, 1.0).normalize()), None);
+    }
+
+    fn rough_terrain() -> Mesh {
+        let raw =
+            crate::mesh::generate::height_field((14, 14), (-10.0, 10.0), (-10.0, 10.0), |x, y| {
+                2.5 * (x / 2.3).sin() * (y / 3.1).cos() + 0.3 * x
+            });
+        Mesh::from_raw(raw, LengthUnit::M)
+    }
+
     #[test]
     fn a_convex_body_hides_nothing_above_any_facets_plane() {
         let mesh = Mesh::from_raw(icosphere(3, 1.0, DVec3::new(5e3, 0.0, 0.0)), LengthUnit::Km);
-        let bound = HorizonBound::new(&mesh, mesh.len(), &Bvh::build(&mesh));
+        let bound = HorizonBound::new(&mesh, mesh.len(), &Bvh::build(&mesh), BoundDetail::Sectors);
         let worst = (0..mesh.len()).fold(0.0f64, |m, i| m.max(bound.sin_max(i)));
-        // Nothing rises above a face of a convex solid: only the search's slack remains.
-        assert!(worst <= SEARCH_SLACK + 1e-6, "{worst}");
+        // Nothing rises above a face of a convex solid: only the search's slack remains,
+        // rounded up to a 255th.
+        assert!(worst <= SECTOR_SLACK + 1.0 / SINE_STEPS, "{worst}");
     }
 }

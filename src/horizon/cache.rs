@@ -26,7 +26,7 @@
 //! out, so that changed code never reads an old map), A, the receiving facets, every
 //! vertex (f64 m) and every triangle.
 
-use super::bound::HorizonBound;
+use super::bound::{BoundDetail, HorizonBound};
 use super::map::{HorizonMap, MapParts};
 use crate::cache::{self, Kind, Lookup, Reader};
 use crate::error::Result;
@@ -43,12 +43,13 @@ pub const KIND: Kind = Kind {
 };
 
 /// Horizon-bound files ([`HorizonBound`]): payload the facet count F (u64), then per
-/// facet its bound's sine (f32), in files named `horizon-bound-<key>.bin`. The key hashes
-/// the format version, the code that builds a bound (the bound and the map's code, whose
-/// seeded runs it shares), the receiving facets and the mesh's content.
+/// facet its sine in 255ths (one byte), or [`super::bound::SECTORS`] of them for a bound
+/// by sectors, in files named `horizon-bound-<key>.bin`. The key hashes the format
+/// version, the code that builds a bound (the bound and the map's code, whose seeded runs
+/// it shares), the receiving facets, the detail and the mesh's content.
 pub const BOUND_KIND: Kind = Kind {
     magic: b"SLIMHZB\0",
-    version: 1,
+    version: 2,
     prefix: "horizon-bound",
 };
 
@@ -90,20 +91,21 @@ fn texts<'a>(sources: &[(&str, &'a str)]) -> Vec<&'a str> {
     sources.iter().map(|&(_, text)| text).collect()
 }
 
-/// The content key of the horizon bound of `mesh`'s first `receivers` facets.
-pub fn bound_key(mesh: &Mesh, receivers: usize) -> [u8; 32] {
+/// The content key of the horizon bound of `mesh`'s first `receivers` facets, in `detail`.
+pub fn bound_key(mesh: &Mesh, receivers: usize, detail: BoundDetail) -> [u8; 32] {
     let mut h = cache::key_hasher(b"slim horizon bound", &BOUND_KIND, &texts(&bound_sources()));
     h.update((receivers as u64).to_le_bytes());
+    h.update([u8::from(detail == BoundDetail::Sectors)]);
     cache::mesh_content(&mut h, mesh);
     h.finalize().into()
 }
 
-/// Reads the bound for `key` of `mesh`'s first `receivers` facets from `path`.
+/// Reads the bound for `key` of `mesh`'s first `receivers` facets, in `detail`, from `path`.
 pub fn load_bound(
     path: &Path,
     key: &[u8; 32],
     mesh: &Mesh,
-    receivers: usize,
+    (receivers, detail): (usize, BoundDetail),
 ) -> Lookup<HorizonBound> {
     cache::load(path, &BOUND_KIND, key).decode(|payload| {
         let mut r = Reader::new(&payload);
@@ -112,11 +114,12 @@ pub fn load_bound(
             return Err(format!("holds {stored} facets, expected {receivers}"));
         }
         let sines = r
-            .items(receivers, 4, "the sines")?
-            .map(|b| f32::from_le_bytes(b.try_into().expect("4 bytes")))
+            .items(receivers, detail.stride(), "the sines")?
+            .flatten()
+            .copied()
             .collect();
         r.finish()?;
-        Ok(HorizonBound::from_sines(mesh, sines))
+        Ok(HorizonBound::from_sines(mesh, sines, detail))
     })
 }
 
@@ -124,10 +127,9 @@ pub fn load_bound(
 /// copy of its sines.
 pub fn store_bound(path: &Path, key: &[u8; 32], bound: &HorizonBound) -> Result<()> {
     let sines = bound.sines();
-    let head = (sines.len() as u64).to_le_bytes().to_vec();
-    store_streamed(path, &BOUND_KIND, key, head, sines, |piece| {
-        piece.iter().flat_map(|s| s.to_le_bytes()).collect()
-    })
+    let facets = sines.len() / bound.detail().stride();
+    let head = (facets as u64).to_le_bytes().to_vec();
+    store_streamed(path, &BOUND_KIND, key, head, sines, <[u8]>::to_vec)
 }
 
 /// The content key of `mesh`'s map with `azimuths` wedges.

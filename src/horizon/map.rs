@@ -466,7 +466,7 @@ impl Span {
 /// A number that orders directions `(cos, sin)` (any length) by their angle in
 /// `(−π, π]` as `atan2` does: in `[−1, 1]` on the right half, beyond it on the left
 /// (`−2` toward `−π`, `2` at `π`); 0 for the zero vector, as `atan2(0, 0)`.
-fn pseudo_angle((x, y): (f64, f64)) -> f64 {
+pub(super) fn pseudo_angle((x, y): (f64, f64)) -> f64 {
     let r = x.abs() + y.abs();
     if r == 0.0 {
         return 0.0;
@@ -872,7 +872,7 @@ impl<'a> FacetSky<'a> {
 }
 
 /// True when the line `c + λ·n` (any λ) meets the box `lo..hi`.
-fn line_meets_box(c: DVec3, n: DVec3, lo: DVec3, hi: DVec3) -> bool {
+pub(super) fn line_meets_box(c: DVec3, n: DVec3, lo: DVec3, hi: DVec3) -> bool {
     let (mut enter, mut leave) = (f64::NEG_INFINITY, f64::INFINITY);
     for a in 0..3 {
         if n[a] == 0.0 {

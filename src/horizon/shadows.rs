@@ -11,7 +11,7 @@
 //! traced, so the choice never changes a result; the approximate mode and the Sun as a
 //! disk read the horizon from the map alone.
 
-use super::bound::HorizonBound;
+use super::bound::{BoundDetail, HorizonBound};
 use super::cache;
 use super::disk::SolarDisk;
 use super::map::{HorizonMap, MapParts, AZIMUTHS_MAX, AZIMUTHS_MIN, CEILING_BYTES, MAP_PART};
@@ -20,7 +20,7 @@ use crate::error::{Error, Result};
 use crate::journal::Journal;
 use crate::progress::Progress;
 use crate::trace::bvh::Bvh;
-use crate::trace::TracerKind;
+use crate::trace::{choice, TracerKind};
 use crate::world::{Body, World};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
@@ -78,6 +78,9 @@ pub struct Shadows {
     pub sun_samples: u32,
     /// Where maps are cached; `None`: not cached.
     pub cache_dir: Option<PathBuf>,
+    /// How finely the BVH tracer's horizon bounds follow the horizon (the run's length
+    /// decides: [`bound_detail_for_run`]).
+    pub bound_detail: BoundDetail,
 }
 
 impl Default for Shadows {
@@ -92,6 +95,7 @@ impl Default for Shadows {
             },
             sun_samples: DEFAULT_SUN_SAMPLES,
             cache_dir: None,
+            bound_detail: BoundDetail::Whole,
         }
     }
 }
@@ -276,14 +280,20 @@ impl Shadows {
             source: "cache".into(),
             file: file.as_ref().map(|(f, _)| f.clone()),
             build_s: 0.0,
+            detail: match self.bound_detail {
+                BoundDetail::Whole => "whole",
+                BoundDetail::Sectors => "sectors",
+            }
+            .into(),
         };
         if let Some((file, key)) = &file {
-            if let Lookup::Hit(bound) = cache::load_bound(file, key, mesh, receivers) {
+            let lookup = cache::load_bound(file, key, mesh, (receivers, self.bound_detail));
+            if let Lookup::Hit(bound) = lookup {
                 return (bound, record);
             }
         }
         let started = Instant::now();
-        let bound = HorizonBound::new(mesh, receivers, bvh);
+        let bound = HorizonBound::new(mesh, receivers, bvh, self.bound_detail);
         record.build_s = started.elapsed().as_secs_f64();
         record.source = "built".into();
         if let Some((file, key)) = &file {
@@ -306,7 +316,7 @@ impl Shadows {
     /// The cache file of `body`'s horizon bound and its content key.
     fn bound_file(&self, body: &Body) -> Option<(PathBuf, [u8; 32])> {
         let dir = self.cache_dir.as_deref()?;
-        let key = cache::bound_key(body.shadow_mesh(), body.mesh.len());
+        let key = cache::bound_key(body.shadow_mesh(), body.mesh.len(), self.bound_detail);
         Some((crate::cache::file_for(dir, &cache::BOUND_KIND, &key), key))
     }
 
@@ -688,6 +698,74 @@ fn minutes_and_seconds(s: f64) -> String {
     }
 }
 
+/// CPU seconds per facet that a bound by sectors costs beyond a whole one over `casters`
+/// facets (proving each sector's horizon, not only the highest): growing as √N, fitted
+/// from above to the builds measured on 2026-11-27 (`bench_peer MESH --tracer
+/// bvh-sectors`, then `--tracer bvh`, `--threads 1`, the difference of their setups):
+/// 76 µs on m1phobos (32k facets), 105 µs on Itokawa (49k); the model gives 86 and 106.
+fn sectors_extra_s_per_facet(casters: usize) -> f64 {
+    0.48e-6 * (casters as f64).sqrt()
+}
+
+/// CPU seconds a bound by sectors spares over a whole one per facet and step of a point
+/// Sun: the rays of a Sun below the facet's highest horizon but above its sector's, and
+/// the walk from the last blocker that the mostly shadowed rays left then allow. The
+/// lower of the two measured with the builds above (360 steps, 1° apart): 0.0335 µs on
+/// m1phobos (2.76 → 1.68 ms per step), 0.0302 µs on Itokawa (3.94 → 2.46). Steps much
+/// farther apart spare less (the last blocker is then seldom still in the way).
+const SECTORS_SAVED_S_PER_FACET_STEP: f64 = 0.030e-6;
+
+/// CPU seconds on one core that bounds by sectors take beyond whole ones, for the bodies
+/// that get a bound ([`crate::trace::choice::bounded`]; `maps[b]`: body `b` has a horizon map) and are
+/// not in the cache (`cached[b]`).
+pub fn sectors_extra_seconds(world: &World, maps: &[bool], cached: &[bool]) -> f64 {
+    (world.bodies.iter().zip(maps).zip(cached))
+        .filter(|((_, &map), &cached)| !map && !cached)
+        .map(|((body, _), _)| body)
+        .filter(|body| !body.convex)
+        .map(|b| b.mesh.len() as f64 * sectors_extra_s_per_facet(b.shadow_mesh().len()))
+        .sum()
+}
+
+/// The detail of the BVH tracer's horizon bounds for a run of `steps` steps, and why:
+/// by sectors when the steps spare more than the sectors cost to build (counted on one
+/// core, as built, like the tracer's choice, [`crate::trace::choice::choose`]), else whole. A disk Sun
+/// (`disk_samples`) reads the whole horizon: its cones span sectors.
+pub fn bound_detail_for_run(
+    world: &World,
+    maps: &[bool],
+    steps: usize,
+    disk_samples: Option<u32>,
+) -> (BoundDetail, String) {
+    if disk_samples.is_some() {
+        let why = "horizon bound whole: a disk Sun's cones read the whole horizon";
+        return (BoundDetail::Whole, why.into());
+    }
+    let facets: usize = (choice::bounded(world, maps).iter())
+        .map(|b| b.mesh.len())
+        .sum();
+    if facets == 0 {
+        return (BoundDetail::Whole, "no horizon bound".into());
+    }
+    let extra_s = sectors_extra_seconds(world, maps, &vec![false; maps.len()]);
+    let per_step = facets as f64 * SECTORS_SAVED_S_PER_FACET_STEP;
+    let break_even = (extra_s / per_step).ceil() as usize;
+    let cost = choice::about_seconds(extra_s);
+    if steps >= break_even {
+        let why = format!(
+            "horizon bound by sectors: {steps} steps ≥ {break_even}, where its sectors \
+             ({cost} more on one core) cost less than the rays they spare"
+        );
+        (BoundDetail::Sectors, why)
+    } else {
+        let why = format!(
+            "horizon bound whole: {steps} steps < {break_even}, too few to pay for its \
+             sectors ({cost} more on one core)"
+        );
+        (BoundDetail::Whole, why)
+    }
+}
+
 /// Where a run's horizon bound came from (kept in `run.json`): the BVH tracer's, per
 /// body that has one.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -700,6 +778,9 @@ pub struct BoundRecord {
     pub file: Option<PathBuf>,
     /// Seconds spent building it (0 when read).
     pub build_s: f64,
+    /// "whole" or "sectors" ([`BoundDetail`]).
+    #[serde(default)]
+    pub detail: String,
 }
 
 /// Where a run's horizon map came from (kept in `run.json`).
@@ -725,6 +806,35 @@ pub struct MapRecord {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Sectors once the steps pay for their extra build, from both sides; never for a
+    /// disk Sun, nor for a body with a map; their build is counted beside the tree's.
+    #[test]
+    fn the_bound_takes_sectors_once_the_steps_pay_for_them() {
+        let raw =
+            crate::mesh::generate::height_field((14, 14), (-10.0, 10.0), (-10.0, 10.0), |x, y| {
+                2.5 * (x / 2.3).sin() * (y / 3.1).cos()
+            });
+        let mesh = crate::mesh::Mesh::from_raw(raw, crate::mesh::LengthUnit::M);
+        let body = Body::new("terrain", mesh, false);
+        let w = World { bodies: vec![body] };
+        let casters = w.bodies[0].shadow_mesh().len();
+        let even =
+            (sectors_extra_s_per_facet(casters) / SECTORS_SAVED_S_PER_FACET_STEP).ceil() as usize;
+        assert!(even > 100, "{even}");
+        let pick = |steps, sun| bound_detail_for_run(&w, &[false], steps, sun);
+        assert_eq!(pick(even, None).0, BoundDetail::Sectors);
+        let (detail, why) = pick(even - 1, None);
+        assert_eq!(detail, BoundDetail::Whole);
+        assert!(why.contains(&format!("< {even}")), "{why}");
+        assert_eq!(pick(1_000_000, Some(32)).0, BoundDetail::Whole);
+        assert_eq!(
+            bound_detail_for_run(&w, &[true], 1_000_000, None).0,
+            BoundDetail::Whole
+        );
+        assert!(sectors_extra_seconds(&w, &[false], &[false]) > 0.0);
+        assert_eq!(sectors_extra_seconds(&w, &[false], &[true]), 0.0);
+    }
 
     #[test]
     fn a_builds_progress_says_how_far_it_is_and_how_long_is_left() {
@@ -904,7 +1014,12 @@ mod tests {
             bodies: vec![body.clone()],
         };
         assert_eq!(shadows.cached_bounds(&world), vec![false]);
-        let fresh = HorizonBound::new(body.shadow_mesh(), body.mesh.len(), &bvh);
+        let fresh = HorizonBound::new(
+            body.shadow_mesh(),
+            body.mesh.len(),
+            &bvh,
+            BoundDetail::Whole,
+        );
         let sines = |b: &HorizonBound| {
             (0..body.mesh.len())
                 .map(|i| b.sin_max(i))
@@ -923,10 +1038,14 @@ mod tests {
         assert_eq!(obtained(), (sines(&fresh), "cache".to_string()));
         // Read back, not rebuilt: a file holding other sines (with a valid checksum)
         // would be believed, so fake one and see it come back.
-        let key = cache::bound_key(body.shadow_mesh(), body.mesh.len());
-        let faked = HorizonBound::from_sines(body.shadow_mesh(), vec![0.5; body.mesh.len()]);
+        let key = cache::bound_key(body.shadow_mesh(), body.mesh.len(), BoundDetail::Whole);
+        let faked = HorizonBound::from_sines(
+            body.shadow_mesh(),
+            vec![51; body.mesh.len()],
+            BoundDetail::Whole,
+        );
         cache::store_bound(&file, &key, &faked).expect("store");
-        assert!(obtained().0.iter().all(|&s| s == 0.5));
+        assert!(obtained().0.iter().all(|&s| s == 0.2));
         // A damaged file is refused and replaced by a fresh build.
         let mut damaged = stored.clone();
         damaged[crate::cache::PAYLOAD_OFFSET + 9] ^= 1;

@@ -39,7 +39,7 @@ pub mod visibility;
 use crate::cache::Lookup;
 use crate::ephemeris::EpochState;
 use crate::error::Result;
-use crate::horizon::bound::HorizonBound;
+use crate::horizon::bound::{BoundDetail, HorizonBound};
 use crate::plan::Decision;
 use crate::scene::{FirstBounceKind, PlanetShineKind, Scene};
 use crate::trace::bvh::Bvh;
@@ -763,8 +763,9 @@ impl<'w> Scatter<'w> {
             .iter()
             .enumerate()
             .map(|(b, body)| {
-                (!planets.is_empty() && !body.convex && !settings.is_planet(b))
-                    .then(|| HorizonBound::new(&body.mesh, body.mesh.len(), &bvhs[b]))
+                (!planets.is_empty() && !body.convex && !settings.is_planet(b)).then(|| {
+                    HorizonBound::new(&body.mesh, body.mesh.len(), &bvhs[b], BoundDetail::Whole)
+                })
             })
             .collect();
         Scatter {

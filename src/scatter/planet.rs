@@ -218,7 +218,9 @@ impl PlanetShine {
                     if incidence <= 0.0 || emission <= 0.0 {
                         continue;
                     }
-                    let clear = receiver.bound.is_none_or(|b| b.clears(i, incidence))
+                    let clear = receiver
+                        .bound
+                        .is_none_or(|b| b.clears(i, n, dir, incidence))
                         || !receiver.bvh.segment_blocked(
                             c,
                             p.position,
@@ -449,7 +451,12 @@ mod tests {
             vec![[0, 1, 2], [3, 5, 4], [3, 6, 5]],
         );
         let bvh = Bvh::build(&walled);
-        let bound = HorizonBound::new(&walled, walled.len(), &bvh);
+        let bound = HorizonBound::new(
+            &walled,
+            walled.len(),
+            &bvh,
+            crate::horizon::bound::BoundDetail::Whole,
+        );
         assert_eq!(shine(&walled, Some(&bound), radius, centre, sun, 8), 0.0);
     }
 

@@ -21,6 +21,7 @@ pub use schema::*;
 pub use validate::{camera_size_problem, MAX_BODIES, MAX_SPAN_S, MAX_STEPS};
 
 use crate::error::{printable, Error, Result};
+use crate::horizon::bound::BoundDetail;
 use crate::horizon::disk::SolarDisk;
 use crate::horizon::{Shadows, SunShape};
 use hifitime::Epoch;
@@ -111,6 +112,8 @@ impl Scene {
             },
             sun_samples: self.run.sun_samples,
             cache_dir: self.cache_dir(),
+            // The plan decides, from the run's length (`crate::prepare`).
+            bound_detail: BoundDetail::Whole,
         }
     }
 
