@@ -702,16 +702,16 @@ fn minutes_and_seconds(s: f64) -> String {
 /// facets (proving each sector's horizon, not only the highest): growing as √N, fitted
 /// from above to the builds measured on 2026-11-27 (`bench_peer MESH --tracer
 /// bvh-sectors`, then `--tracer bvh`, `--threads 1`, the difference of their setups):
-/// 76 µs on m1phobos (32k facets), 105 µs on Itokawa (49k); the model gives 86 and 106.
+/// 73 µs on m1phobos (32k facets), 98 µs on Itokawa (49k); the model gives 86 and 106.
 fn sectors_extra_s_per_facet(casters: usize) -> f64 {
     0.48e-6 * (casters as f64).sqrt()
 }
 
 /// CPU seconds a bound by sectors spares over a whole one per facet and step of a point
 /// Sun: the rays of a Sun below the facet's highest horizon but above its sector's, and
-/// the walk from the last blocker that the mostly shadowed rays left then allow. The
-/// lower of the two measured with the builds above (360 steps, 1° apart): 0.0335 µs on
-/// m1phobos (2.76 → 1.68 ms per step), 0.0302 µs on Itokawa (3.94 → 2.46). Steps much
+/// the walk from the last blocker that the mostly shadowed rays left then allow. Below
+/// both measured with the builds above (360 steps, 1° apart): 0.048 µs on m1phobos
+/// (3.04 → 1.51 ms per step), 0.038 µs on Itokawa (4.12 → 2.25); taken low because steps
 /// farther apart spare less (the last blocker is then seldom still in the way).
 const SECTORS_SAVED_S_PER_FACET_STEP: f64 = 0.030e-6;
 

@@ -28,7 +28,7 @@
 //!
 //! With the BVH, [`crate::horizon::shadows::bound_detail_for_run`] then picks the
 //! bound's detail the same way: by sectors of azimuth (a build 4–6× as dear, each step
-//! about 1.6× faster under a point Sun) once the run's steps spare more than the sectors
+//! about 1.8× faster under a point Sun) once the run's steps spare more than the sectors
 //! cost, else whole.
 
 use super::TracerKind;
