@@ -179,7 +179,13 @@ impl<'w> Direct<'w> {
         shadows: &Shadows,
     ) -> Direct<'w> {
         let exact = shadows.mode == HorizonMode::Exact;
+        let point = shadows.sun == SunShape::Point;
+        // The last blockers (their edge neighbours) are found before the body's tree is
+        // built: the hash maps that find them are freed first, and the tree and the
+        // bound reuse their memory instead of adding to it.
+        let remember = |b: &Body, remembers: bool| remembers.then(|| LastBlockers::new(b));
         let mut bound_records = Vec::new();
+        let mut last_blockers = Vec::new();
         let (tracers, horizons) = world
             .bodies
             .iter()
@@ -187,22 +193,31 @@ impl<'w> Direct<'w> {
             .map(|(b, map)| match (map, kind) {
                 // The few rays a map leaves are traced by the BVH, which costs nothing per
                 // step (every tracer classifies each ray identically).
-                (Some(map), _) => (
-                    Box::new(Bvh::build(b.shadow_mesh())) as Box<dyn Tracer + 'w>,
-                    OwnHorizon::Map { map, exact },
-                ),
+                (Some(map), _) => {
+                    last_blockers.push(remember(b, exact && point));
+                    (
+                        Box::new(Bvh::build(b.shadow_mesh())) as Box<dyn Tracer + 'w>,
+                        OwnHorizon::Map { map, exact },
+                    )
+                }
                 (None, TracerKind::Bvh) if !b.convex => {
+                    let sectors = shadows.bound_detail == BoundDetail::Sectors;
+                    last_blockers.push(remember(b, sectors && point));
                     let bvh = Arc::new(Bvh::build(b.shadow_mesh()));
                     let (bound, record) = shadows.bound(b, &bvh);
                     bound_records.push(record);
                     let tracer = Box::new(Arc::clone(&bvh)) as Box<dyn Tracer + 'w>;
                     (tracer, OwnHorizon::Bound { bound, bvh })
                 }
-                (None, _) => (trace::build(kind, b.shadow_mesh()), OwnHorizon::None),
+                (None, _) => {
+                    last_blockers.push(None);
+                    (trace::build(kind, b.shadow_mesh()), OwnHorizon::None)
+                }
             })
             .unzip();
         Direct {
             bound_records,
+            last_blockers,
             ..Direct::assemble(world, tracers, horizons, shadows)
         }
     }
@@ -225,19 +240,6 @@ impl<'w> Direct<'w> {
         horizons: Vec<OwnHorizon<'w>>,
         shadows: &Shadows,
     ) -> Direct<'w> {
-        let last_blockers = (world.bodies.iter().zip(&horizons))
-            .map(|(b, horizon)| match horizon {
-                OwnHorizon::Map { exact: true, .. } if shadows.sun == SunShape::Point => {
-                    Some(LastBlockers::new(b))
-                }
-                OwnHorizon::Bound { bound, .. }
-                    if shadows.sun == SunShape::Point && bound.detail() == BoundDetail::Sectors =>
-                {
-                    Some(LastBlockers::new(b))
-                }
-                _ => None,
-            })
-            .collect();
         Direct {
             world,
             tracers,
@@ -252,7 +254,7 @@ impl<'w> Direct<'w> {
             offsets: world.offsets(),
             lit: vec![true; world.bodies.len()],
             bound_records: Vec::new(),
-            last_blockers,
+            last_blockers: world.bodies.iter().map(|_| None).collect(),
         }
     }
 
