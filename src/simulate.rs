@@ -255,6 +255,10 @@ fn announce_bvh_build(
 ) {
     let bounded = choice::bounded(world, mapped);
     let facets: usize = bounded.iter().map(|b| b.mesh.len()).sum();
+    let sectors = match detail {
+        BoundDetail::Whole => 0.0,
+        BoundDetail::Sectors => sectors_extra_seconds(world, mapped, cached),
+    };
     if facets > 0 {
         let what = if choice::bounds_all_cached(world, mapped, cached) {
             "the tree (the horizon bound read from the cache)"
@@ -263,13 +267,7 @@ fn announce_bvh_build(
         };
         progress.note(&format!(
             "tracer bvh: building {what} of {facets} facets once ({} on one core)",
-            choice::about_seconds(match detail {
-                BoundDetail::Whole => choice::bound_seconds(world, mapped, cached),
-                BoundDetail::Sectors => {
-                    choice::bound_seconds(world, mapped, cached)
-                        + sectors_extra_seconds(world, mapped, cached)
-                }
-            })
+            choice::about_seconds(choice::bound_seconds(world, mapped, cached) + sectors)
         ));
     }
 }

@@ -37,6 +37,7 @@ use super::map::{in_seeded_runs, line_meets_box, pseudo_angle};
 use crate::mesh::Mesh;
 use crate::trace::bvh::Bvh;
 use glam::DVec3;
+use serde::{Deserialize, Serialize};
 use std::cell::{Cell, RefCell};
 
 /// How far above the highest horizon found a whole bound may lie (sine): the search
@@ -52,8 +53,10 @@ const SECTOR_SLACK: f64 = 0.01;
 /// above the widened triangles: the rounding of `n·s` itself.
 const SIN_MARGIN: f64 = 1e-9;
 
-/// How finely a bound follows the horizon around a facet.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+/// How finely a bound follows the horizon around a facet (in `run.json`: "whole" or
+/// "sectors").
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
 pub enum BoundDetail {
     /// One bound for the whole horizon (every sector holds the highest): cheap to build,
     /// about a tenth of [`BoundDetail::Sectors`].

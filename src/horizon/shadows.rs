@@ -280,11 +280,7 @@ impl Shadows {
             source: "cache".into(),
             file: file.as_ref().map(|(f, _)| f.clone()),
             build_s: 0.0,
-            detail: match self.bound_detail {
-                BoundDetail::Whole => "whole",
-                BoundDetail::Sectors => "sectors",
-            }
-            .into(),
+            detail: self.bound_detail,
         };
         if let Some((file, key)) = &file {
             let lookup = cache::load_bound(file, key, mesh, (receivers, self.bound_detail));
@@ -716,21 +712,19 @@ fn sectors_extra_s_per_facet(casters: usize) -> f64 {
 const SECTORS_SAVED_S_PER_FACET_STEP: f64 = 0.030e-6;
 
 /// CPU seconds on one core that bounds by sectors take beyond whole ones, for the bodies
-/// that get a bound ([`crate::trace::choice::bounded`]; `maps[b]`: body `b` has a horizon map) and are
-/// not in the cache (`cached[b]`).
+/// that get a bound ([`crate::trace::choice::bounded`]; `maps[b]`: body `b` has a
+/// horizon map) and are not in the cache (`cached[b]`).
 pub fn sectors_extra_seconds(world: &World, maps: &[bool], cached: &[bool]) -> f64 {
     (world.bodies.iter().zip(maps).zip(cached))
-        .filter(|((_, &map), &cached)| !map && !cached)
-        .map(|((body, _), _)| body)
-        .filter(|body| !body.convex)
-        .map(|b| b.mesh.len() as f64 * sectors_extra_s_per_facet(b.shadow_mesh().len()))
+        .filter(|((body, &map), &cached)| choice::needs_bound(body, map) && !cached)
+        .map(|((b, _), _)| b.mesh.len() as f64 * sectors_extra_s_per_facet(b.shadow_mesh().len()))
         .sum()
 }
 
 /// The detail of the BVH tracer's horizon bounds for a run of `steps` steps, and why:
 /// by sectors when the steps spare more than the sectors cost to build (counted on one
-/// core, as built, like the tracer's choice, [`crate::trace::choice::choose`]), else whole. A disk Sun
-/// (`disk_samples`) reads the whole horizon: its cones span sectors.
+/// core, as built, like the tracer's choice, [`crate::trace::choice::choose`]), else
+/// whole. A disk Sun (`disk_samples`) reads the whole horizon: its cones span sectors.
 pub fn bound_detail_for_run(
     world: &World,
     maps: &[bool],
@@ -778,9 +772,9 @@ pub struct BoundRecord {
     pub file: Option<PathBuf>,
     /// Seconds spent building it (0 when read).
     pub build_s: f64,
-    /// "whole" or "sectors" ([`BoundDetail`]).
+    /// How finely it follows the horizon (runs before there were sectors: whole).
     #[serde(default)]
-    pub detail: String,
+    pub detail: BoundDetail,
 }
 
 /// Where a run's horizon map came from (kept in `run.json`).

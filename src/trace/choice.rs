@@ -66,7 +66,7 @@ pub fn bounded<'w>(world: &'w World, maps: &[bool]) -> Vec<&'w Body> {
 }
 
 /// Whether `body` gets a horizon bound: it shadows itself and has no map (`map`).
-fn needs_bound(body: &Body, map: bool) -> bool {
+pub(crate) fn needs_bound(body: &Body, map: bool) -> bool {
     !body.convex && !map
 }
 
