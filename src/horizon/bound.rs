@@ -32,8 +32,11 @@
 //! beside the horizon maps and read back by later runs (`super::cache`). Memory: a byte
 //! per facet, [`SECTORS`] bytes by sectors (each sine rounded up to a 255th).
 
-use super::geometry::{distance_to_triangle, rounding_widening, tangent_frame, triangle_bound};
-use super::map::{in_seeded_runs, line_meets_box, pseudo_angle};
+use super::geometry::{
+    azimuth_extremes, distance_to_triangle, pseudo_angle, rounding_widening, tangent_frame,
+    triangle_bound, EXTREMES_ERROR,
+};
+use super::map::{in_seeded_runs, line_meets_box};
 use crate::mesh::Mesh;
 use crate::trace::bvh::Bvh;
 use glam::DVec3;
@@ -87,7 +90,7 @@ impl BoundDetail {
 }
 
 /// Sectors of azimuth a bound keeps apart. A direction's azimuth in the facet's tangent
-/// frame is taken as its turn: a pseudo-angle (`map::pseudo_angle`, without `atan2`) from 0
+/// frame is taken as its turn: a pseudo-angle (`geometry::pseudo_angle`, without `atan2`) from 0
 /// to 4, a quarter turn per unit, monotone in azimuth and exact at every eighth of a turn.
 /// Sector `k` holds the turns `[k, k+1) · 4/SECTORS`: with 16, sectors 18.4° to 26.6°
 /// wide, so that a Sun low in one sector is not held to the horizon of another.
@@ -102,6 +105,9 @@ const ALL_SECTORS: u32 = u32::MAX >> (32 - SECTORS);
 /// How far (units of turn) the sectors a box reaches are widened on both sides: far more
 /// than the rounding of a turn of a direction at least `ZENITH_CLEARANCE` off the zenith.
 const TURN_OVERLAP: f64 = 1e-9;
+
+// A turn changes by at most a unit per radian of azimuth: the extremes' error fits.
+const _: () = assert!(EXTREMES_ERROR < TURN_OVERLAP / 100.0);
 
 /// Least sine of the angle from the zenith line at which a direction's azimuth is taken:
 /// nearer, a box reaches every sector and a Sun is held to the highest (the azimuth of a
@@ -375,8 +381,8 @@ fn sectors_reached(
     let base = in_frame(lo - c);
     let size = hi - lo;
     let steps = [DVec3::X, DVec3::Y, DVec3::Z].map(|axis| in_frame(axis * size));
-    let mut turns = [0.0; 8];
-    for (k, t) in turns.iter_mut().enumerate() {
+    let mut corners = [(0.0, 0.0); 8];
+    for (k, corner) in corners.iter_mut().enumerate() {
         let mut p = base;
         for (a, step) in steps.iter().enumerate() {
             if k >> a & 1 == 1 {
@@ -389,27 +395,33 @@ fn sectors_reached(
         if across <= ZENITH_CLEARANCE * ZENITH_CLEARANCE * (across + p.z * p.z) {
             return ALL_SECTORS;
         }
-        *t = turn((p.x, p.y));
+        *corner = (p.x, p.y);
     }
-    let extremes = |turns: &[f64; 8]| {
-        turns
-            .iter()
-            .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), &t| {
-                (lo.min(t), hi.max(t))
-            })
+    // Only the two extreme corners need a turn (a division each).
+    let Some((first, last)) = azimuth_extremes(&corners) else {
+        return ALL_SECTORS;
     };
-    let (mut first, mut last) = extremes(&turns);
-    if last - first >= 2.0 {
-        // Across turn 0: the low turns one turn on.
-        (first, last) = extremes(&turns.map(|t| if t < 2.0 { t + 4.0 } else { t }));
-    }
+    let (first, last) = (turn(first), turn(last));
+    // Below the first: across turn 0 (by more than 2, as they are less than half a turn
+    // apart), the last is a turn on; by a hair, only rounding put it there.
+    let last = if last < first - 1.0 {
+        last + 4.0
+    } else {
+        last.max(first)
+    };
     if last - first >= 2.0 - 2.0 * TURN_OVERLAP {
         return ALL_SECTORS;
     }
     // A turn on, so that the widened turns stay positive and truncation floors them.
     let sector = |t: f64| ((t + 4.0) * SECTORS_PER_TURN) as usize;
-    let (from, to) = (sector(first - TURN_OVERLAP), sector(last + TURN_OVERLAP));
-    (from..=to).fold(0, |bits, k| bits | 1 << (k % SECTORS))
+    sector_bits(sector(first - TURN_OVERLAP), sector(last + TURN_OVERLAP))
+}
+
+/// The sectors `from..=to` as bits (numbers taken modulo [`SECTORS`]; fewer than
+/// [`SECTORS`] of them).
+fn sector_bits(from: usize, to: usize) -> u32 {
+    let run = ((1u32 << (to - from + 1)) - 1) << (from % SECTORS);
+    (run | run >> SECTORS) & ALL_SECTORS
 }
 
 /// A sine rounded up to the next 255th (1 when NaN: never cleared).
@@ -453,7 +465,7 @@ fn facet_bound(
             tri[0].min(tri[1]).min(tri[2]),
             tri[0].max(tri[1]).max(tri[2]),
         );
-        // The sectors first (additions and a division per corner): the lowest of those
+        // The sectors first (additions, cross products, two divisions): the lowest of those
         // the triangle reaches rules most triangles out before their exact bound.
         let sectors = reached(lo, hi);
         let lowest = found.borrow().lowest_of(sectors);
@@ -816,7 +828,10 @@ mod tests {
             let half = DVec3::new(u().abs(), u().abs(), u().abs()) * 2.0;
             let (lo, hi) = (centre - half, centre + half);
             let reached = sectors_reached(c, (n, t1, t2), (lo, hi), 0.0);
-            partial += usize::from(reached != ALL_SECTORS);
+            if reached != ALL_SECTORS {
+                partial += 1;
+                assert_eq!(reached, corners_run(c, n, lo, hi), "{lo} {hi}");
+            }
             for _ in 0..40 {
                 let q = lo + (hi - lo) * DVec3::new(u() + 0.5, u() + 0.5, u() + 0.5);
                 if let Some(k) = sector_of(n, (q - c).normalize()) {
@@ -831,6 +846,33 @@ mod tests {
             partial > 1000,
             "boxes reaching some sectors only: {partial}"
         );
+    }
+
+    /// The shortest run of sectors (as bits, around the turn) holding the sectors of the
+    /// box's eight corners: what a box off the zenith line reaches, no more.
+    fn corners_run(c: DVec3, n: DVec3, lo: DVec3, hi: DVec3) -> u32 {
+        let corners = (0..8).map(|k| {
+            let pick = |bit: usize, a: f64, b: f64| if k >> bit & 1 == 1 { b } else { a };
+            DVec3::new(
+                pick(0, lo.x, hi.x),
+                pick(1, lo.y, hi.y),
+                pick(2, lo.z, hi.z),
+            )
+        });
+        let held = corners.fold(0u32, |bits, q| {
+            bits | sector_of(n, (q - c).normalize()).map_or(ALL_SECTORS, |k| 1 << k)
+        });
+        // Start after the longest run of empty sectors; end at the last held one.
+        let empty_run_from = |k: usize| {
+            (0..SECTORS)
+                .take_while(|j| held >> ((k + j) % SECTORS) & 1 == 0)
+                .count()
+        };
+        let start = (0..SECTORS)
+            .max_by_key(|&k| (empty_run_from(k), SECTORS - k))
+            .unwrap();
+        let gap = empty_run_from(start);
+        (gap..SECTORS).fold(0, |bits, j| bits | 1 << ((start + j) % SECTORS))
     }
 
     /// Sectors by turn: a boundary belongs to the sector above it; the zenith has none.

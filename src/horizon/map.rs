@@ -29,8 +29,9 @@
 //! horizontal kept (a point on a ridge sees down its flanks) and no facet left out.
 
 use super::geometry::{
-    arc_max_sin, atan2_within, directions_max_sin, distance_to_triangle, polygon_max_sin,
-    rounding_widening, signed_box_bound, tangent_frame, ANGLE_ERROR,
+    arc_max_sin, atan2_within, azimuth_extremes, directions_max_sin, distance_to_triangle,
+    polygon_max_sin, rounding_widening, signed_box_bound, tangent_frame, ANGLE_ERROR,
+    EXTREMES_ERROR,
 };
 use super::outline::Outline;
 use crate::mesh::Mesh;
@@ -38,7 +39,7 @@ use crate::trace::bvh::{Bvh, SearchBox};
 use glam::DVec3;
 use rayon::prelude::*;
 use std::cell::RefCell;
-use std::f64::consts::{FRAC_PI_2, PI, TAU};
+use std::f64::consts::{FRAC_PI_2, TAU};
 
 /// Quanta per radian of elevation: 0–90° onto 0–65535.
 pub(super) const QUANTA_PER_RAD: f64 = 65535.0 / FRAC_PI_2;
@@ -400,45 +401,26 @@ enum Span {
 }
 
 impl Span {
-    /// The span of points `rel` (relative to the viewpoint) projected on the tangent
-    /// plane `(t1, t2)`. Their hull must not hold the zenith axis (then every azimuth is
-    /// spanned, which the caller knows from another test). The ends are widened by the
-    /// error of their angles ([`ANGLE_ERROR`]), so that the span holds every point.
+    /// The span of points `rel` (at most eight, relative to the viewpoint) projected on
+    /// the tangent plane `(t1, t2)`: every azimuth unless they lie within less than half
+    /// a turn (off the zenith axis). The ends are widened by the error of their angles
+    /// and of the extremes' choice ([`ANGLE_ERROR`], [`EXTREMES_ERROR`]), so that the
+    /// span holds every point.
     fn of(rel: &[DVec3], t1: DVec3, t2: DVec3) -> Span {
-        let in_plane = |p: &DVec3| (p.dot(t1), p.dot(t2));
-        let first = in_plane(&rel[0]);
-        // Each point's turn from the first, as (cos, sin) up to a common factor. The
-        // extremes are found by a pseudo-angle that orders turns as `atan2` does, so
-        // only they need an angle (a box has eight corners).
-        let turn = |(x, y): (f64, f64)| {
-            // `+ 0.0` turns a −0 sine into +0, so that a turn of exactly π is π for the
-            // pseudo-angle and for the cross product below alike.
-            (first.0 * x + first.1 * y, first.0 * y - first.1 * x + 0.0)
-        };
-        let start = (0.0, (1.0, 0.0), first);
-        let (mut lo, mut hi) = (start, start);
-        for point in rel[1..].iter().map(in_plane) {
-            let t = turn(point);
-            let order = pseudo_angle(t);
-            if order < lo.0 {
-                lo = (order, t, point);
-            }
-            if order > hi.0 {
-                hi = (order, t, point);
-            }
+        let mut in_plane = [(0.0, 0.0); 8];
+        for (q, p) in in_plane.iter_mut().zip(rel) {
+            *q = (p.dot(t1), p.dot(t2));
         }
-        // The turn from the lowest to the highest is half a turn or more when their
-        // cross product is negative, or zero with the two pointing apart.
-        let ((lx, ly), (hx, hy)) = (lo.1, hi.1);
-        let cross = lx * hy - ly * hx;
-        if cross < 0.0 || (cross == 0.0 && lx * hx + ly * hy < 0.0) {
+        // Only the extreme points need an angle (a box has eight corners).
+        let Some((lo, hi)) = azimuth_extremes(&in_plane[..rel.len()]) else {
             return Span::All;
-        }
+        };
         let angle = |(x, y): (f64, f64)| atan2_within(y, x);
-        let (lo, hi) = (angle(lo.2), angle(hi.2));
+        let (lo, hi) = (angle(lo), angle(hi));
         // Less than half a turn apart: `hi` below `lo` by more than that has crossed ±π;
-        // by less, only rounding put it there. The angles' error is taken up by widening.
-        Span::Range(lo, if hi < lo - PI { hi + TAU } else { hi.max(lo) }).widened(ANGLE_ERROR)
+        // by a hair, only rounding put it there. The angles' error is taken up by widening.
+        Span::Range(lo, if hi < lo - 1.0 { hi + TAU } else { hi.max(lo) })
+            .widened(ANGLE_ERROR + EXTREMES_ERROR)
     }
 
     /// The span widened by `by` radians on both sides.
@@ -460,22 +442,6 @@ impl Span {
                 phi <= hi
             }
         }
-    }
-}
-
-/// A number that orders directions `(cos, sin)` (any length) by their angle in
-/// `(−π, π]` as `atan2` does: in `[−1, 1]` on the right half, beyond it on the left
-/// (`−2` toward `−π`, `2` at `π`); 0 for the zero vector, as `atan2(0, 0)`.
-pub(super) fn pseudo_angle((x, y): (f64, f64)) -> f64 {
-    let r = x.abs() + y.abs();
-    if r == 0.0 {
-        return 0.0;
-    }
-    let p = y / r;
-    match (x >= 0.0, y >= 0.0) {
-        (true, _) => p,
-        (false, true) => 2.0 - p,
-        (false, false) => -2.0 - p,
     }
 }
 
@@ -982,6 +948,7 @@ mod tests {
     use crate::mesh::LengthUnit;
     use crate::trace::TracerKind;
     use crate::TestRng;
+    use std::f64::consts::PI;
 
     fn build(mesh: &Mesh, azimuths: u32) -> HorizonMap {
         HorizonMap::build(mesh, mesh.len(), &Bvh::build(mesh), azimuths)
@@ -1061,6 +1028,46 @@ mod tests {
         }
     }
 
+    /// A triangle with a corner exactly on the zenith axis below the viewpoint (it has no
+    /// azimuth) and its top edge to the north (+y, azimuth 90°, elevation atan(2/5))
+    /// bounds the wedges it rises in. When such a corner gave the triangle's corners a
+    /// span of one azimuth, only the wedges at 0° heard of it, and a Sun 10° up in the
+    /// north was cleared through it.
+    #[test]
+    fn a_corner_straight_below_the_viewpoint_leaves_no_wedge_unbounded() {
+        let vertices = vec![
+            DVec3::new(-0.1, -0.1, 0.0),
+            DVec3::new(0.2, -0.1, 0.0),
+            DVec3::new(-0.1, 0.2, 0.0),
+            DVec3::new(0.0, 0.0, -1.0),
+            DVec3::new(1.0, 5.0, 2.0),
+            DVec3::new(-1.0, 5.0, 2.0),
+        ];
+        let m = crate::mesh::in_metres(vertices, vec![[0, 1, 2], [3, 4, 5]]);
+        assert_eq!((m.centroids[0], m.normals[0]), (DVec3::ZERO, DVec3::Z));
+        let a = 64;
+        let map = build(&m, a);
+        let north = a as usize / 4;
+        let expected = (2.0f64 / 5.0).atan();
+        for k in [north - 1, north] {
+            let [upper, centre] = map.wedge(0, k);
+            assert!(
+                upper >= expected,
+                "wedge {k}: upper {upper} below {expected}"
+            );
+            assert!(
+                (centre - expected).abs() < 0.01,
+                "wedge {k}: centre {centre}"
+            );
+        }
+        // The Sun 10° up in the north is not cleared: the exact tracers call it blocked.
+        let sun = DVec3::new(0.0, 10f64.to_radians().cos(), 10f64.to_radians().sin());
+        let at = map.position(DVec3::Z, sun, sun.z);
+        assert!(!map.clears(0, &at));
+        let tracer = crate::trace::build(TracerKind::Grid, &m);
+        assert!(tracer.toward(sun).blocked(DVec3::ZERO, 0.0, Some(0)));
+    }
+
     /// A random rough height field: every ray the exact tracer calls blocked lies no
     /// higher than its wedge's upper bound; and the centre horizon is where the tracer
     /// changes its answer along the wedge's centre azimuth (a height field's blocked
@@ -1122,15 +1129,16 @@ mod tests {
         let mut rng = TestRng::new(12);
         let (t1, t2) = (DVec3::X, DVec3::Y);
         for case in 0..2000 {
-            // Three to eight points within `width` of azimuth around a random start, at
-            // random heights and distances; every fourth case across ±π.
+            // Four to eight points (as many as a box's corners at most) within `width` of
+            // azimuth around a random start, at random heights and distances; every fourth
+            // case across ±π.
             let width = PI * rng.unit() * if case % 2 == 0 { 0.99 } else { 1.6 };
             let start = if case % 4 == 0 {
                 PI - 0.5 * width
             } else {
                 TAU * rng.unit() - PI
             };
-            let count = 3 + (rng.unit() * 6.0) as usize;
+            let count = 3 + (rng.unit() * 5.0) as usize;
             let mut azimuths: Vec<f64> = (0..count).map(|_| start + width * rng.unit()).collect();
             azimuths.push(start + width);
             azimuths.swap(0, count);
@@ -1167,40 +1175,6 @@ mod tests {
                     for &a in &azimuths {
                         assert!(Span::Range(lo - 1e-12, hi + 1e-12).holds(a));
                     }
-                }
-            }
-        }
-    }
-
-    #[test]
-    fn pseudo_angles_order_turns_as_atan2_does() {
-        // Axes, signed zeros, the half-turn and random directions of every size: any two
-        // turns are ordered alike by both (ties of `atan2` allowed either way).
-        let mut rng = TestRng::new(11);
-        let mut turns = vec![
-            (1.0, 0.0),
-            (0.0, 1.0),
-            (-1.0, 0.0),
-            (-1.0, -0.0 + 0.0),
-            (0.0, -1.0),
-            (1.0, -0.0),
-            (0.0, 0.0),
-            (-1.0, 1e-300),
-            (-1.0, -1e-300),
-        ];
-        turns.extend((0..400).map(|_| {
-            let a = TAU * rng.unit() - PI;
-            let scale = 10f64.powf(12.0 * rng.unit() - 6.0);
-            (scale * a.cos(), scale * a.sin())
-        }));
-        for &p in &turns {
-            for &q in &turns {
-                let (ap, aq) = (p.1.atan2(p.0), q.1.atan2(q.0));
-                if ap < aq {
-                    assert!(pseudo_angle(p) <= pseudo_angle(q), "{p:?} {q:?}");
-                }
-                if pseudo_angle(p) < pseudo_angle(q) {
-                    assert!(ap <= aq, "{p:?} {q:?}");
                 }
             }
         }
