@@ -74,6 +74,17 @@ impl<T> Lookup<T> {
     }
 }
 
+/// The code of the tree and of the mesh, path (as seen from a stage's folder, `src/horizon/`
+/// or `src/scatter/`) and text: every cached product built through a mesh's BVH (horizon
+/// maps and bounds, form factors) depends on it, and hashes it into its key beside its
+/// own stage's files.
+pub const TREE_SOURCES: [(&str, &str); 4] = [
+    ("../trace/mod.rs", include_str!("trace/mod.rs")),
+    ("../trace/bvh.rs", include_str!("trace/bvh.rs")),
+    ("../trace/ray.rs", include_str!("trace/ray.rs")),
+    ("../mesh/mod.rs", include_str!("mesh/mod.rs")),
+];
+
 /// A content key's hash begun with what every key holds: what the file is for (`label`),
 /// its kind's format version and the source of the code that builds it ([`code`]).
 pub fn key_hasher(label: &[u8], kind: &Kind, sources: &[&str]) -> Sha256 {

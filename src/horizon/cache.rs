@@ -22,7 +22,7 @@
 //!
 //! The content key is the SHA-256 of the format version, the source of the code that
 //! builds a map (the map, its triangles' outlines, its geometry, this file, the tree, the
-//! ray predicate and the mesh's centroids and normals: `MAP_SOURCES`, unit tests left
+//! ray predicate and the mesh's centroids and normals: `map_sources`, unit tests left
 //! out, so that changed code never reads an old map), A, the receiving facets, every
 //! vertex (f64 m) and every triangle.
 
@@ -66,24 +66,23 @@ pub const PART_KIND: Kind = Kind {
 /// horizon and of the tree that the build imports, and those they import
 /// (`the_keys_hash_every_file_their_builds_import` holds the list to the code), and the
 /// mesh's own file, which derives the facets' centroids and normals from the vertices
-/// the key hashes. The sky lookups (`sky.rs`) are not among them: they read a map, they
-/// do not make it.
-const MAP_SOURCES: [(&str, &str); 8] = [
-    ("map.rs", include_str!("map.rs")),
-    ("outline.rs", include_str!("outline.rs")),
-    ("geometry.rs", include_str!("geometry.rs")),
-    ("cache.rs", include_str!("cache.rs")),
-    ("../trace/mod.rs", include_str!("../trace/mod.rs")),
-    ("../trace/bvh.rs", include_str!("../trace/bvh.rs")),
-    ("../trace/ray.rs", include_str!("../trace/ray.rs")),
-    ("../mesh/mod.rs", include_str!("../mesh/mod.rs")),
-];
+/// the key hashes ([`cache::TREE_SOURCES`]). The sky lookups (`sky.rs`) are not among
+/// them: they read a map, they do not make it.
+fn map_sources() -> Vec<(&'static str, &'static str)> {
+    let own = [
+        ("map.rs", include_str!("map.rs")),
+        ("outline.rs", include_str!("outline.rs")),
+        ("geometry.rs", include_str!("geometry.rs")),
+        ("cache.rs", include_str!("cache.rs")),
+    ];
+    own.into_iter().chain(cache::TREE_SOURCES).collect()
+}
 
 /// The code that builds a horizon bound: its own file, and the map's (whose seeded runs
 /// it shares).
 fn bound_sources() -> Vec<(&'static str, &'static str)> {
     let own = ("bound.rs", include_str!("bound.rs"));
-    std::iter::once(own).chain(MAP_SOURCES).collect()
+    std::iter::once(own).chain(map_sources()).collect()
 }
 
 /// The texts of `sources`.
@@ -134,7 +133,7 @@ pub fn store_bound(path: &Path, key: &[u8; 32], bound: &HorizonBound) -> Result<
 
 /// The content key of `mesh`'s map with `azimuths` wedges.
 pub fn content_key(mesh: &Mesh, receivers: usize, azimuths: u32) -> [u8; 32] {
-    let mut h = cache::key_hasher(b"slim horizon map", &KIND, &texts(&MAP_SOURCES));
+    let mut h = cache::key_hasher(b"slim horizon map", &KIND, &texts(&map_sources()));
     h.update(azimuths.to_le_bytes());
     if receivers < mesh.len() {
         // Facets after the first `receivers` only cast shadows (surrounding terrain).
@@ -456,20 +455,20 @@ mod tests {
     fn the_keys_hash_every_file_their_builds_import() {
         // A file the build imports but the key leaves out would let a changed build read
         // maps of the old one (the triangles' outlines were once left out so).
-        assert_eq!(unhashed(&MAP_SOURCES), Vec::<String>::new());
+        assert_eq!(unhashed(&map_sources()), Vec::<String>::new());
         assert_eq!(unhashed(&bound_sources()), Vec::<String>::new());
-        let without_outlines: Vec<_> = MAP_SOURCES
+        let without_outlines: Vec<_> = map_sources()
             .into_iter()
             .filter(|&(path, _)| path != "outline.rs")
             .collect();
         assert_eq!(unhashed(&without_outlines), ["outline.rs"]);
-        let without_tree_interface: Vec<_> = MAP_SOURCES
+        let without_tree_interface: Vec<_> = map_sources()
             .into_iter()
             .filter(|&(path, _)| path != "../trace/mod.rs")
             .collect();
         assert_eq!(unhashed(&without_tree_interface), ["../trace/mod.rs"]);
         // The lookups stay out: changing them keeps every cached map.
-        assert!(!MAP_SOURCES.iter().any(|&(path, _)| path == "sky.rs"));
+        assert!(!map_sources().iter().any(|&(path, _)| path == "sky.rs"));
     }
 
     #[test]

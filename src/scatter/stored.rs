@@ -42,21 +42,15 @@ pub struct OwnBlock {
 
 /// The content key of `mesh`'s own block with these near-field settings.
 pub fn content_key(mesh: &Mesh, near: &NearField) -> [u8; 32] {
-    let mut h = cache::key_hasher(
-        b"slim form factors",
-        &KIND,
-        &[
-            include_str!("mod.rs"),
-            include_str!("form_factor.rs"),
-            include_str!("visibility.rs"),
-            include_str!("csr.rs"),
-            include_str!("stored.rs"),
-            include_str!("../trace/mod.rs"),
-            include_str!("../trace/bvh.rs"),
-            include_str!("../trace/ray.rs"),
-            include_str!("../mesh/mod.rs"),
-        ],
-    );
+    let own = [
+        include_str!("mod.rs"),
+        include_str!("form_factor.rs"),
+        include_str!("visibility.rs"),
+        include_str!("csr.rs"),
+        include_str!("stored.rs"),
+    ];
+    let tree = cache::TREE_SOURCES.map(|(_, text)| text);
+    let mut h = cache::key_hasher(b"slim form factors", &KIND, &[&own[..], &tree[..]].concat());
     h.update(near.far_ratio.to_le_bytes());
     h.update(near.tolerance.to_le_bytes());
     h.update(near.max_depth.to_le_bytes());
