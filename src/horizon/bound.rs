@@ -33,8 +33,7 @@
 //! per facet, [`SECTORS`] bytes by sectors (each sine rounded up to a 255th).
 
 use super::geometry::{
-    azimuth_extremes, distance_to_triangle, pseudo_angle, rounding_widening, tangent_frame,
-    triangle_bound, EXTREMES_ERROR,
+    distance_to_triangle, pseudo_angle, rounding_widening, tangent_frame, triangle_bound,
 };
 use super::map::{in_seeded_runs, line_meets_box};
 use crate::mesh::Mesh;
@@ -105,9 +104,6 @@ const ALL_SECTORS: u32 = u32::MAX >> (32 - SECTORS);
 /// How far (units of turn) the sectors a box reaches are widened on both sides: far more
 /// than the rounding of a turn of a direction at least `ZENITH_CLEARANCE` off the zenith.
 const TURN_OVERLAP: f64 = 1e-9;
-
-// A turn changes by at most a unit per radian of azimuth: the extremes' error fits.
-const _: () = assert!(EXTREMES_ERROR < TURN_OVERLAP / 100.0);
 
 /// Least sine of the angle from the zenith line at which a direction's azimuth is taken:
 /// nearer, a box reaches every sector and a Sun is held to the highest (the azimuth of a
@@ -381,8 +377,8 @@ fn sectors_reached(
     let base = in_frame(lo - c);
     let size = hi - lo;
     let steps = [DVec3::X, DVec3::Y, DVec3::Z].map(|axis| in_frame(axis * size));
-    let mut corners = [(0.0, 0.0); 8];
-    for (k, corner) in corners.iter_mut().enumerate() {
+    let mut turns = [0.0; 8];
+    for (k, t) in turns.iter_mut().enumerate() {
         let mut p = base;
         for (a, step) in steps.iter().enumerate() {
             if k >> a & 1 == 1 {
@@ -395,33 +391,27 @@ fn sectors_reached(
         if across <= ZENITH_CLEARANCE * ZENITH_CLEARANCE * (across + p.z * p.z) {
             return ALL_SECTORS;
         }
-        *corner = (p.x, p.y);
+        *t = turn((p.x, p.y));
     }
-    // Only the two extreme corners need a turn (a division each).
-    let Some((first, last)) = azimuth_extremes(&corners) else {
-        return ALL_SECTORS;
+    let extremes = |turns: &[f64; 8]| {
+        turns
+            .iter()
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), &t| {
+                (lo.min(t), hi.max(t))
+            })
     };
-    let (first, last) = (turn(first), turn(last));
-    // Below the first: across turn 0 (by more than 2, as they are less than half a turn
-    // apart), the last is a turn on; by a hair, only rounding put it there.
-    let last = if last < first - 1.0 {
-        last + 4.0
-    } else {
-        last.max(first)
-    };
+    let (mut first, mut last) = extremes(&turns);
+    if last - first >= 2.0 {
+        // Across turn 0: the low turns one turn on.
+        (first, last) = extremes(&turns.map(|t| if t < 2.0 { t + 4.0 } else { t }));
+    }
     if last - first >= 2.0 - 2.0 * TURN_OVERLAP {
         return ALL_SECTORS;
     }
     // A turn on, so that the widened turns stay positive and truncation floors them.
     let sector = |t: f64| ((t + 4.0) * SECTORS_PER_TURN) as usize;
-    sector_bits(sector(first - TURN_OVERLAP), sector(last + TURN_OVERLAP))
-}
-
-/// The sectors `from..=to` as bits (numbers taken modulo [`SECTORS`]; fewer than
-/// [`SECTORS`] of them).
-fn sector_bits(from: usize, to: usize) -> u32 {
-    let run = ((1u32 << (to - from + 1)) - 1) << (from % SECTORS);
-    (run | run >> SECTORS) & ALL_SECTORS
+    let (from, to) = (sector(first - TURN_OVERLAP), sector(last + TURN_OVERLAP));
+    (from..=to).fold(0, |bits, k| bits | 1 << (k % SECTORS))
 }
 
 /// A sine rounded up to the next 255th (1 when NaN: never cleared).
@@ -465,7 +455,7 @@ fn facet_bound(
             tri[0].min(tri[1]).min(tri[2]),
             tri[0].max(tri[1]).max(tri[2]),
         );
-        // The sectors first (additions, cross products, two divisions): the lowest of those
+        // The sectors first (additions and a division per corner): the lowest of those
         // the triangle reaches rules most triangles out before their exact bound.
         let sectors = reached(lo, hi);
         let lowest = found.borrow().lowest_of(sectors);

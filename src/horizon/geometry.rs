@@ -291,51 +291,6 @@ pub(super) fn pseudo_angle((x, y): (f64, f64)) -> f64 {
     }
 }
 
-/// How far (radians) a point may stand outside the azimuths between the two that
-/// [`azimuth_extremes`] returns: the rounding of the cross products that place it,
-/// with room to spare.
-pub(super) const EXTREMES_ERROR: f64 = 1e-12;
-
-/// The two of `points` (directions projected on a tangent plane, as `(x, y)`) at the
-/// least and the greatest azimuth, when all of them lie within less than half a turn:
-/// found by cross products, without an angle or a division. `None` when they do not
-/// (the hull of the points may hold the zenith axis), or when one of them has no
-/// azimuth (zero, or NaN). Every point's azimuth lies between the two returned, to
-/// within [`EXTREMES_ERROR`].
-///
-/// Within less than half a turn, a point turns counter-clockwise from the highest so far
-/// exactly when it lies beyond it, and clockwise from the lowest when short of it; one
-/// pass finds the two, and a second proves that the premise held.
-#[inline]
-pub(super) fn azimuth_extremes(points: &[(f64, f64)]) -> Option<((f64, f64), (f64, f64))> {
-    let cross = |a: (f64, f64), b: (f64, f64)| a.0 * b.1 - a.1 * b.0;
-    // |a|₁|b|₁ bounds |a||b|, so that the slack is at most the error in radians.
-    let size = |a: (f64, f64)| a.0.abs() + a.1.abs();
-    let (&first, rest) = points.split_first()?;
-    let (mut lo, mut hi) = (first, first);
-    for &p in rest {
-        if cross(hi, p) > 0.0 {
-            hi = p;
-        } else if cross(lo, p) < 0.0 {
-            lo = p;
-        }
-    }
-    let dot = |a: (f64, f64), b: (f64, f64)| a.0 * b.0 + a.1 * b.1;
-    let turns_from =
-        |a: (f64, f64), b: (f64, f64)| cross(a, b) >= -EXTREMES_ERROR * size(a) * size(b);
-    // Between the two: counter-clockwise from `lo`, clockwise from `hi`, and less than a
-    // quarter turn from one of them (which only a point opposite them both can fail).
-    let between = |p: (f64, f64)| {
-        size(p) > 0.0
-            && turns_from(lo, p)
-            && turns_from(p, hi)
-            && (dot(lo, p) > 0.0 || dot(p, hi) > 0.0)
-    };
-    // The two less than half a turn apart (or along one direction), every point between.
-    let apart = cross(lo, hi) > 0.0 || dot(lo, hi) > 0.0;
-    (apart && points.iter().all(|&p| between(p))).then_some((lo, hi))
-}
-
 /// An orthonormal tangent basis `(t1, t2)` of the plane with unit normal `n`, with
 /// `t1 × t2 = n`; a fixed function of `n` alone (Duff et al. 2017, "Building an
 /// orthonormal basis, revisited"), so maps and lookups agree without storing it.
@@ -573,6 +528,7 @@ mod tests {
         assert!(worst <= ANGLE_ERROR, "worst error {worst:e} rad");
         assert_eq!(atan2_within(0.0, 0.0), 0.0);
     }
+
     #[test]
     fn pseudo_angles_order_turns_as_atan2_does() {
         // Axes, signed zeros, the half-turn and random directions of every size: any two
@@ -605,70 +561,5 @@ mod tests {
                 }
             }
         }
-    }
-
-    /// Sets of points within less than half a turn give back the two whose `atan2` is
-    /// least and greatest (by angle, within the extremes' error); sets across half a turn
-    /// or more, or with a point on the axis, give none. Fails if the second pass is left
-    /// out (the greedy pass alone picks a pair for any set).
-    #[test]
-    fn extremes_are_the_least_and_greatest_azimuths_within_half_a_turn() {
-        let mut rng = TestRng::new(12);
-        let (mut found, mut refused) = (0, 0);
-        for _ in 0..4000 {
-            let centre = TAU * rng.unit();
-            let width = TAU * rng.unit();
-            let count = 1 + (rng.unit() * 8.0) as usize;
-            let angles: Vec<f64> = (0..count)
-                .map(|_| centre + width * (rng.unit() - 0.5))
-                .collect();
-            let points: Vec<(f64, f64)> = angles
-                .iter()
-                .map(|a| {
-                    let r = 10f64.powf(6.0 * rng.unit() - 3.0);
-                    (r * a.cos(), r * a.sin())
-                })
-                .collect();
-            // The shortest arc holding them all: after the widest gap around the circle.
-            let mut turns: Vec<f64> = angles.iter().map(|a| a.rem_euclid(TAU)).collect();
-            turns.sort_by(f64::total_cmp);
-            let gap_after = |k: usize| (turns[(k + 1) % count] - turns[k]).rem_euclid(TAU);
-            let widest = (0..count)
-                .max_by(|&a, &b| gap_after(a).total_cmp(&gap_after(b)))
-                .unwrap();
-            let least = turns[(widest + 1) % count];
-            let spread = if count == 1 {
-                0.0
-            } else {
-                TAU - gap_after(widest)
-            };
-            let most = least + spread;
-            match azimuth_extremes(&points) {
-                Some((lo, hi)) => {
-                    found += 1;
-                    assert!(spread < PI + 1e-9, "{spread} rad apart, yet {lo:?} {hi:?}");
-                    let off = |(x, y): (f64, f64), a: f64| {
-                        let d = (y.atan2(x) - a).rem_euclid(TAU);
-                        d.min(TAU - d)
-                    };
-                    assert!(off(lo, least) < 1e-9 && off(hi, most) < 1e-9, "{angles:?}");
-                }
-                None => {
-                    refused += 1;
-                    assert!(spread > PI - 1e-9, "{spread} rad apart, refused");
-                }
-            }
-        }
-        assert!(
-            found > 1000 && refused > 500,
-            "{found} found, {refused} refused"
-        );
-        assert_eq!(azimuth_extremes(&[(1.0, 0.0), (0.0, 0.0)]), None);
-        assert_eq!(azimuth_extremes(&[(1.0, 0.0), (-1.0, 0.0)]), None);
-        assert_eq!(azimuth_extremes(&[(f64::NAN, 1.0)]), None);
-        assert_eq!(
-            azimuth_extremes(&[(2.0, 0.0), (1.0, 0.0)]),
-            Some(((2.0, 0.0), (2.0, 0.0)))
-        );
     }
 }

@@ -29,9 +29,8 @@
 //! horizontal kept (a point on a ridge sees down its flanks) and no facet left out.
 
 use super::geometry::{
-    arc_max_sin, atan2_within, azimuth_extremes, directions_max_sin, distance_to_triangle,
-    polygon_max_sin, rounding_widening, signed_box_bound, tangent_frame, ANGLE_ERROR,
-    EXTREMES_ERROR,
+    arc_max_sin, atan2_within, directions_max_sin, distance_to_triangle, polygon_max_sin,
+    pseudo_angle, rounding_widening, signed_box_bound, tangent_frame, ANGLE_ERROR,
 };
 use super::outline::Outline;
 use crate::mesh::Mesh;
@@ -39,7 +38,7 @@ use crate::trace::bvh::{Bvh, SearchBox};
 use glam::DVec3;
 use rayon::prelude::*;
 use std::cell::RefCell;
-use std::f64::consts::{FRAC_PI_2, TAU};
+use std::f64::consts::{FRAC_PI_2, PI, TAU};
 
 /// Quanta per radian of elevation: 0–90° onto 0–65535.
 pub(super) const QUANTA_PER_RAD: f64 = 65535.0 / FRAC_PI_2;
@@ -401,26 +400,55 @@ enum Span {
 }
 
 impl Span {
-    /// The span of points `rel` (at most eight, relative to the viewpoint) projected on
-    /// the tangent plane `(t1, t2)`: every azimuth unless they lie within less than half
-    /// a turn (off the zenith axis). The ends are widened by the error of their angles
-    /// and of the extremes' choice ([`ANGLE_ERROR`], [`EXTREMES_ERROR`]), so that the
-    /// span holds every point.
+    /// The span of points `rel` (relative to the viewpoint) projected on the tangent
+    /// plane `(t1, t2)`: every azimuth when one of them lies on the zenith axis. Their hull
+    /// must not hold the zenith axis (then every azimuth is spanned, which the caller
+    /// knows from another test). The ends are widened by the error of their angles
+    /// ([`ANGLE_ERROR`]), so that the span holds every point.
     fn of(rel: &[DVec3], t1: DVec3, t2: DVec3) -> Span {
-        let mut in_plane = [(0.0, 0.0); 8];
-        for (q, p) in in_plane.iter_mut().zip(rel) {
-            *q = (p.dot(t1), p.dot(t2));
-        }
-        // Only the extreme points need an angle (a box has eight corners).
-        let Some((lo, hi)) = azimuth_extremes(&in_plane[..rel.len()]) else {
+        let in_plane = |p: &DVec3| (p.dot(t1), p.dot(t2));
+        // A point on the zenith axis has no azimuth (as the first, it would turn every
+        // other by zero).
+        let on_axis = |(x, y): (f64, f64)| x == 0.0 && y == 0.0;
+        let first = in_plane(&rel[0]);
+        if on_axis(first) {
             return Span::All;
+        }
+        // Each point's turn from the first, as (cos, sin) up to a common factor. The
+        // extremes are found by a pseudo-angle that orders turns as `atan2` does, so
+        // only they need an angle (a box has eight corners).
+        let turn = |(x, y): (f64, f64)| {
+            // `+ 0.0` turns a −0 sine into +0, so that a turn of exactly π is π for the
+            // pseudo-angle and for the cross product below alike.
+            (first.0 * x + first.1 * y, first.0 * y - first.1 * x + 0.0)
         };
+        let start = (0.0, (1.0, 0.0), first);
+        let (mut lo, mut hi) = (start, start);
+        for point in rel[1..].iter().map(in_plane) {
+            if on_axis(point) {
+                return Span::All;
+            }
+            let t = turn(point);
+            let order = pseudo_angle(t);
+            if order < lo.0 {
+                lo = (order, t, point);
+            }
+            if order > hi.0 {
+                hi = (order, t, point);
+            }
+        }
+        // The turn from the lowest to the highest is half a turn or more when their
+        // cross product is negative, or zero with the two pointing apart.
+        let ((lx, ly), (hx, hy)) = (lo.1, hi.1);
+        let cross = lx * hy - ly * hx;
+        if cross < 0.0 || (cross == 0.0 && lx * hx + ly * hy < 0.0) {
+            return Span::All;
+        }
         let angle = |(x, y): (f64, f64)| atan2_within(y, x);
-        let (lo, hi) = (angle(lo), angle(hi));
+        let (lo, hi) = (angle(lo.2), angle(hi.2));
         // Less than half a turn apart: `hi` below `lo` by more than that has crossed ±π;
-        // by a hair, only rounding put it there. The angles' error is taken up by widening.
-        Span::Range(lo, if hi < lo - 1.0 { hi + TAU } else { hi.max(lo) })
-            .widened(ANGLE_ERROR + EXTREMES_ERROR)
+        // by less, only rounding put it there. The angles' error is taken up by widening.
+        Span::Range(lo, if hi < lo - PI { hi + TAU } else { hi.max(lo) }).widened(ANGLE_ERROR)
     }
 
     /// The span widened by `by` radians on both sides.
@@ -948,7 +976,6 @@ mod tests {
     use crate::mesh::LengthUnit;
     use crate::trace::TracerKind;
     use crate::TestRng;
-    use std::f64::consts::PI;
 
     fn build(mesh: &Mesh, azimuths: u32) -> HorizonMap {
         HorizonMap::build(mesh, mesh.len(), &Bvh::build(mesh), azimuths)
@@ -1129,16 +1156,15 @@ mod tests {
         let mut rng = TestRng::new(12);
         let (t1, t2) = (DVec3::X, DVec3::Y);
         for case in 0..2000 {
-            // Four to eight points (as many as a box's corners at most) within `width` of
-            // azimuth around a random start, at random heights and distances; every fourth
-            // case across ±π.
+            // Three to eight points within `width` of azimuth around a random start, at
+            // random heights and distances; every fourth case across ±π.
             let width = PI * rng.unit() * if case % 2 == 0 { 0.99 } else { 1.6 };
             let start = if case % 4 == 0 {
                 PI - 0.5 * width
             } else {
                 TAU * rng.unit() - PI
             };
-            let count = 3 + (rng.unit() * 5.0) as usize;
+            let count = 3 + (rng.unit() * 6.0) as usize;
             let mut azimuths: Vec<f64> = (0..count).map(|_| start + width * rng.unit()).collect();
             azimuths.push(start + width);
             azimuths.swap(0, count);
