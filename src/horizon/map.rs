@@ -401,17 +401,17 @@ enum Span {
 
 impl Span {
     /// The span of points `rel` (relative to the viewpoint) projected on the tangent
-    /// plane `(t1, t2)`: every azimuth when one of them lies on the zenith axis. Their hull
-    /// must not hold the zenith axis (then every azimuth is spanned, which the caller
-    /// knows from another test). The ends are widened by the error of their angles
-    /// ([`ANGLE_ERROR`]), so that the span holds every point.
+    /// plane `(t1, t2)`. Their hull must not hold the zenith axis (then every azimuth is
+    /// spanned, which the caller knows from another test). The ends are widened by the
+    /// error of their angles ([`ANGLE_ERROR`]), so that the span holds every point.
+    ///
+    /// A point on the zenith axis has no azimuth; the hull's points near it have those
+    /// between the other points', which the span holds. As the first point, the one all
+    /// turns are taken from, it gives every azimuth.
     fn of(rel: &[DVec3], t1: DVec3, t2: DVec3) -> Span {
         let in_plane = |p: &DVec3| (p.dot(t1), p.dot(t2));
-        // A point on the zenith axis has no azimuth (as the first, it would turn every
-        // other by zero).
-        let on_axis = |(x, y): (f64, f64)| x == 0.0 && y == 0.0;
         let first = in_plane(&rel[0]);
-        if on_axis(first) {
+        if first == (0.0, 0.0) {
             return Span::All;
         }
         // Each point's turn from the first, as (cos, sin) up to a common factor. The
@@ -425,9 +425,6 @@ impl Span {
         let start = (0.0, (1.0, 0.0), first);
         let (mut lo, mut hi) = (start, start);
         for point in rel[1..].iter().map(in_plane) {
-            if on_axis(point) {
-                return Span::All;
-            }
             let t = turn(point);
             let order = pseudo_angle(t);
             if order < lo.0 {
@@ -1057,9 +1054,9 @@ mod tests {
 
     /// A triangle with a corner exactly on the zenith axis below the viewpoint (it has no
     /// azimuth) and its top edge to the north (+y, azimuth 90°, elevation atan(2/5))
-    /// bounds the wedges it rises in. When such a corner gave the triangle's corners a
-    /// span of one azimuth, only the wedges at 0° heard of it, and a Sun 10° up in the
-    /// north was cleared through it.
+    /// bounds the wedges it rises in, whichever corner comes first. When that corner came
+    /// first, it gave the triangle's corners a span of one azimuth, only the wedges at 0°
+    /// heard of it, and a Sun 10° up in the north was cleared through it.
     #[test]
     fn a_corner_straight_below_the_viewpoint_leaves_no_wedge_unbounded() {
         let vertices = vec![
@@ -1070,29 +1067,29 @@ mod tests {
             DVec3::new(1.0, 5.0, 2.0),
             DVec3::new(-1.0, 5.0, 2.0),
         ];
-        let m = crate::mesh::in_metres(vertices, vec![[0, 1, 2], [3, 4, 5]]);
-        assert_eq!((m.centroids[0], m.normals[0]), (DVec3::ZERO, DVec3::Z));
-        let a = 64;
-        let map = build(&m, a);
-        let north = a as usize / 4;
-        let expected = (2.0f64 / 5.0).atan();
-        for k in [north - 1, north] {
-            let [upper, centre] = map.wedge(0, k);
-            assert!(
-                upper >= expected,
-                "wedge {k}: upper {upper} below {expected}"
-            );
-            assert!(
-                (centre - expected).abs() < 0.01,
-                "wedge {k}: centre {centre}"
-            );
+        // The corner on the axis first, second and third.
+        for blocker in [[3, 4, 5], [4, 5, 3], [5, 3, 4]] {
+            let m = crate::mesh::in_metres(vertices.clone(), vec![[0, 1, 2], blocker]);
+            assert_eq!((m.centroids[0], m.normals[0]), (DVec3::ZERO, DVec3::Z));
+            let a = 64;
+            let map = build(&m, a);
+            let north = a as usize / 4;
+            let expected = (2.0f64 / 5.0).atan();
+            for k in [north - 1, north] {
+                let [upper, centre] = map.wedge(0, k);
+                assert!(upper >= expected, "{blocker:?} wedge {k}: upper {upper}");
+                assert!(
+                    (centre - expected).abs() < 0.01,
+                    "wedge {k}: centre {centre}"
+                );
+            }
+            // The Sun 10° up in the north is not cleared: the exact tracers call it blocked.
+            let sun = DVec3::new(0.0, 10f64.to_radians().cos(), 10f64.to_radians().sin());
+            let at = map.position(DVec3::Z, sun, sun.z);
+            assert!(!map.clears(0, &at), "{blocker:?}");
+            let tracer = crate::trace::build(TracerKind::Grid, &m);
+            assert!(tracer.toward(sun).blocked(DVec3::ZERO, 0.0, Some(0)));
         }
-        // The Sun 10° up in the north is not cleared: the exact tracers call it blocked.
-        let sun = DVec3::new(0.0, 10f64.to_radians().cos(), 10f64.to_radians().sin());
-        let at = map.position(DVec3::Z, sun, sun.z);
-        assert!(!map.clears(0, &at));
-        let tracer = crate::trace::build(TracerKind::Grid, &m);
-        assert!(tracer.toward(sun).blocked(DVec3::ZERO, 0.0, Some(0)));
     }
 
     /// A random rough height field: every ray the exact tracer calls blocked lies no
