@@ -1001,6 +1001,53 @@ fn tracers_and_maps_agree_on_small_terrain_far_from_the_origin() {
     }
 }
 
+/// Triangles with a corner exactly on a facet's normal line (below the floor, or above
+/// it), standing over a flat floor whose normals are exactly +z, with that corner first,
+/// second or third in the triangle: a corner there has no azimuth in the facet's sky,
+/// and a map once gave such a triangle the span of one azimuth, clearing Suns through
+/// it. Suns toward each blocker's top edge (just above, on and just below it), low all
+/// around, and overhead: the BVH with its bound and the exact horizon map must classify
+/// every facet as the Grid does.
+#[test]
+fn tracers_and_maps_agree_when_corners_stand_on_facets_normal_lines() {
+    let floor = generate::height_field((8, 8), (0.0, 8.0), (0.0, 8.0), |_, _| 0.0);
+    let flat = Mesh::from_raw(floor.clone(), LengthUnit::M);
+    let mut raw = floor;
+    let mut suns = Vec::new();
+    for (j, f) in [9usize, 30, 47, 66, 85, 100].into_iter().enumerate() {
+        let c = flat.centroids[f];
+        assert_eq!(flat.normals[f], DVec3::Z);
+        let turn = 0.7 + 1.1 * j as f64;
+        let (u, v) = (
+            DVec3::new(turn.cos(), turn.sin(), 0.0),
+            DVec3::new(-turn.sin(), turn.cos(), 0.0),
+        );
+        // Below the floor on the normal line, or above it (every second blocker).
+        let on_line = DVec3::new(c.x, c.y, if j % 2 == 0 { -0.5 } else { 2.5 });
+        let top = [c + u * 2.0 + v * 0.6, c + u * 2.0 - v * 0.6].map(|p| p + DVec3::Z * 1.5);
+        let first = raw.vertices.len() as u32;
+        raw.vertices.extend([on_line, top[0], top[1]]);
+        let corners = [first, first + 1, first + 2];
+        raw.triangles
+            .push(std::array::from_fn(|k| corners[(k + j) % 3]));
+        let edge = (top[0] + top[1]) * 0.5 - c;
+        for dip in [-0.5f64, 0.0, 0.5] {
+            let (along, up) = (edge.truncate().length(), edge.z);
+            let elevation = up.atan2(along) + dip.to_radians();
+            suns.push(elevated(edge.x, edge.y, elevation));
+        }
+    }
+    for az in (0..360).step_by(30) {
+        let az = f64::to_radians(az as f64 + 3.0);
+        suns.push(elevated(az.cos(), az.sin(), 5f64.to_radians()));
+    }
+    suns.push(DVec3::Z);
+    let mesh = Mesh::from_raw(raw, LengthUnit::M);
+    let name = "corners on facets' normal lines";
+    compare_tracers(name, &mesh, &suns);
+    compare_horizon_map(name, &mesh, &suns, HorizonMode::Exact);
+}
+
 /// The benchmark's folded body (`examples/common/folded.rs`): Phobos and a scaled
 /// Itokawa interpenetrating at a neck, so that buried facets, fins and overhangs stack
 /// over the same spot seen from the Sun.
