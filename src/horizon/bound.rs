@@ -35,7 +35,7 @@
 use super::geometry::{
     distance_to_triangle, pseudo_angle, rounding_widening, tangent_frame, triangle_bound,
 };
-use super::map::{in_seeded_runs, line_meets_box};
+use super::map::{in_seeded_runs, ZenithLine};
 use crate::mesh::Mesh;
 use crate::trace::bvh::Bvh;
 use glam::DVec3;
@@ -357,20 +357,22 @@ fn turn(xy: (f64, f64)) -> f64 {
 }
 
 /// The sectors (as bits) reached by the points of the box `lo..hi` widened by `widening`,
-/// seen from `c` in the frame `(n, t1, t2)` (zenith, tangent axes): every sector when
-/// the zenith line meets the box or passes near a corner; otherwise those between the
-/// corners' least and greatest turns (a box off the zenith line spans less than half a
-/// turn, and every point of it lies between its corners).
+/// seen from the viewpoint of `zenith` in the frame of its zenith `n` and the tangent
+/// axes `(t1, t2)`: every sector when the zenith line meets the box or passes near a
+/// corner; otherwise those between the corners' least and greatest turns (a box off the
+/// zenith line spans less than half a turn, and every point of it lies between its
+/// corners).
 fn sectors_reached(
-    c: DVec3,
-    (n, t1, t2): (DVec3, DVec3, DVec3),
+    zenith: &ZenithLine,
+    (t1, t2): (DVec3, DVec3),
     (lo, hi): (DVec3, DVec3),
     widening: f64,
 ) -> u32 {
     let (lo, hi) = (lo - widening, hi + widening);
-    if line_meets_box(c, n, lo, hi) {
+    if zenith.meets_box(lo, hi) {
         return ALL_SECTORS;
     }
+    let (c, n) = zenith.point_and_zenith();
     // A corner's coordinates in the frame are the lowest corner's plus, per axis, the
     // box's extent along the axis seen in the frame: additions, not products.
     let in_frame = |v: DVec3| DVec3::new(v.dot(t1), v.dot(t2), v.dot(n));
@@ -438,14 +440,14 @@ fn facet_bound(
     if n == DVec3::ZERO || mesh.areas[i] <= 0.0 {
         return ([1.0; SECTORS], None);
     }
-    let (t1, t2) = tangent_frame(n);
-    let frame = (n, t1, t2);
+    let tangents = tangent_frame(n);
+    let zenith = ZenithLine::new(c, n);
     let slack = detail.slack();
     let found = RefCell::new(SectorSines::default());
     let reached = |lo: DVec3, hi: DVec3| match detail {
         // Every sector alike: the search is the whole horizon's.
         BoundDetail::Whole => ALL_SECTORS,
-        BoundDetail::Sectors => sectors_reached(c, frame, (lo, hi), widening),
+        BoundDetail::Sectors => sectors_reached(&zenith, tangents, (lo, hi), widening),
     };
     let take = |id: u32, tri: &[DVec3; 3]| {
         if id as usize == i {
@@ -817,7 +819,7 @@ mod tests {
             let centre = c + DVec3::new(u(), u(), u()) * 8.0;
             let half = DVec3::new(u().abs(), u().abs(), u().abs()) * 2.0;
             let (lo, hi) = (centre - half, centre + half);
-            let reached = sectors_reached(c, (n, t1, t2), (lo, hi), 0.0);
+            let reached = sectors_reached(&ZenithLine::new(c, n), (t1, t2), (lo, hi), 0.0);
             if reached != ALL_SECTORS {
                 partial += 1;
                 assert_eq!(reached, corners_run(c, n, lo, hi), "{lo} {hi}");

@@ -618,6 +618,7 @@ struct FacetSky<'a> {
     n: DVec3,
     t1: DVec3,
     t2: DVec3,
+    zenith: ZenithLine,
     wedges: &'a Wedges,
     widening: f64,
     upper: Vec<f64>,
@@ -641,6 +642,7 @@ impl<'a> FacetSky<'a> {
             n,
             t1,
             t2,
+            zenith: ZenithLine::new(c, n),
             wedges,
             widening,
             upper: vec![floor; wedges.count],
@@ -677,7 +679,7 @@ impl<'a> FacetSky<'a> {
                 if k & 4 == 0 { lo.z } else { hi.z },
             ) - self.c
         });
-        let span = if line_meets_box(self.c, self.n, lo, hi) {
+        let span = if self.zenith.meets_box(lo, hi) {
             Span::All
         } else {
             Span::of(&corners, self.t1, self.t2)
@@ -742,7 +744,7 @@ impl<'a> FacetSky<'a> {
         // The corners' span, once: the box test and the exact test differ only in how
         // they learn that the zenith may lie inside.
         let corners = Span::of(&rel, self.t1, self.t2);
-        let rough = if line_meets_box(self.c, self.n, lo, hi) {
+        let rough = if self.zenith.meets_box(lo, hi) {
             Span::All
         } else {
             corners
@@ -862,21 +864,52 @@ impl<'a> FacetSky<'a> {
     }
 }
 
-/// True when the line `c + λ·n` (any λ) meets the box `lo..hi`.
-pub(super) fn line_meets_box(c: DVec3, n: DVec3, lo: DVec3, hi: DVec3) -> bool {
-    let (mut enter, mut leave) = (f64::NEG_INFINITY, f64::INFINITY);
-    for a in 0..3 {
-        if n[a] == 0.0 {
-            if c[a] < lo[a] || c[a] > hi[a] {
-                return false;
-            }
-            continue;
+/// The line through a viewpoint `c` along its unit zenith `n` (both ways), for the slab
+/// test of boxes: the reciprocals of `n`'s components are taken once per viewpoint, not
+/// twice per box and axis (a test of every box and triangle the searches meet).
+#[derive(Debug, Clone, Copy)]
+pub(super) struct ZenithLine {
+    c: DVec3,
+    n: DVec3,
+    inverse: DVec3,
+}
+
+impl ZenithLine {
+    pub(super) fn new(c: DVec3, n: DVec3) -> ZenithLine {
+        ZenithLine {
+            c,
+            n,
+            inverse: n.recip(),
         }
-        let (t0, t1) = ((lo[a] - c[a]) / n[a], (hi[a] - c[a]) / n[a]);
-        enter = enter.max(t0.min(t1));
-        leave = leave.min(t0.max(t1));
     }
-    enter <= leave
+
+    /// The viewpoint and its zenith.
+    pub(super) fn point_and_zenith(&self) -> (DVec3, DVec3) {
+        (self.c, self.n)
+    }
+
+    /// Whether the line meets the box `lo..hi` (closed). Within the rounding of a product,
+    /// a line grazing the box may be found either side of it: the callers' spans of
+    /// azimuth then come out as (nearly) half a turn, which they take as every azimuth.
+    pub(super) fn meets_box(&self, lo: DVec3, hi: DVec3) -> bool {
+        let (c, n) = (self.c, self.n);
+        let (mut enter, mut leave) = (f64::NEG_INFINITY, f64::INFINITY);
+        for a in 0..3 {
+            if n[a] == 0.0 {
+                if c[a] < lo[a] || c[a] > hi[a] {
+                    return false;
+                }
+                continue;
+            }
+            let (t0, t1) = (
+                (lo[a] - c[a]) * self.inverse[a],
+                (hi[a] - c[a]) * self.inverse[a],
+            );
+            enter = enter.max(t0.min(t1));
+            leave = leave.min(t0.max(t1));
+        }
+        enter <= leave
+    }
 }
 
 /// The highest elevation sine of the triangle `rel` (relative to the viewpoint) in the
