@@ -8,6 +8,10 @@
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
 
+#[path = "common/imports.rs"]
+mod imports;
+use imports::names_after;
+
 fn src() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("src")
 }
@@ -33,22 +37,6 @@ fn module_of(file: &Path) -> Option<String> {
     (!matches!(name, "lib" | "main" | "cli")).then(|| name.to_string())
 }
 
-/// The names that follow `crate::` in `text`, comments and doc comments left out (a doc
-/// link is a reference for the reader, not a dependency).
-fn crate_paths(text: &str) -> BTreeSet<String> {
-    text.lines()
-        .map(|line| line.split("//").next().unwrap_or(""))
-        .flat_map(|code| {
-            code.match_indices("crate::").map(move |(at, _)| {
-                code[at + "crate::".len()..]
-                    .chars()
-                    .take_while(|c| c.is_ascii_alphanumeric() || *c == '_')
-                    .collect::<String>()
-            })
-        })
-        .collect()
-}
-
 /// Module → the other top-level modules it names.
 fn module_graph() -> BTreeMap<String, BTreeSet<String>> {
     let mut files = Vec::new();
@@ -61,7 +49,7 @@ fn module_graph() -> BTreeMap<String, BTreeSet<String>> {
         };
         let text = std::fs::read_to_string(file).unwrap();
         let edges = graph.entry(from.clone()).or_default();
-        for to in crate_paths(&text) {
+        for to in names_after(&text, "crate::") {
             if to != from && modules.contains(&to) {
                 edges.insert(to);
             }
@@ -107,37 +95,6 @@ fn file_graphs() -> BTreeMap<String, BTreeMap<String, BTreeSet<String>>> {
             .insert(from, edges);
     }
     graphs
-}
-
-/// The names that follow `prefix` in `text`'s code (comments left out), each name of a
-/// group `prefix{a, b::c}` too.
-fn names_after(text: &str, prefix: &str) -> BTreeSet<String> {
-    let name = |s: &str| -> String {
-        s.trim()
-            .chars()
-            .take_while(|c| c.is_ascii_alphanumeric() || *c == '_')
-            .collect()
-    };
-    let mut names = BTreeSet::new();
-    for line in text.lines() {
-        // `super::super::NAME` names a file of the folder above, not a sibling.
-        let code = line
-            .split("//")
-            .next()
-            .unwrap_or("")
-            .replace("super::super::", "");
-        for (at, _) in code.match_indices(prefix) {
-            let rest = &code[at + prefix.len()..];
-            match rest.strip_prefix('{') {
-                Some(group) => names.extend(group.split(['}', ',']).map(name)),
-                None => {
-                    names.insert(name(rest));
-                }
-            }
-        }
-    }
-    names.remove("");
-    names
 }
 
 /// A circle through `node`, if the depth-first walk from it finds one.

@@ -361,8 +361,14 @@ pub fn clear_parts(path: &Path, count: usize) {
     }
 }
 
+/// How the tests read a file's imports, shared with the crate's structure test.
+#[cfg(test)]
+#[path = "../../tests/common/imports.rs"]
+mod imports;
+
 #[cfg(test)]
 mod tests {
+    use super::imports::names_after;
     use super::*;
     use crate::mesh::generate::icosphere;
     use crate::mesh::LengthUnit;
@@ -397,32 +403,14 @@ mod tests {
         } else {
             ""
         };
-        let is_name = |c: char| c.is_alphanumeric() || c == '_';
         let mut found = Vec::new();
         for part in crate::cache::without_unit_tests(text) {
-            for line in part.lines().filter(|l| !l.trim_start().starts_with("//")) {
-                for (prefix, folder) in [
-                    ("super::", own),
-                    ("crate::horizon::", ""),
-                    ("crate::trace::", "../trace/"),
-                ] {
-                    for (at, _) in line.match_indices(prefix) {
-                        let rest = &line[at + prefix.len()..];
-                        let names: Vec<&str> = match rest.strip_prefix('{') {
-                            Some(group) => group[..group.find('}').unwrap_or(group.len())]
-                                .split(',')
-                                .map(|n| n.trim().split("::").next().unwrap_or(""))
-                                .collect(),
-                            None => vec![rest.split(|c| !is_name(c)).next().unwrap_or("")],
-                        };
-                        found.extend(
-                            names
-                                .into_iter()
-                                .filter(|n| !n.is_empty())
-                                .map(|n| file(folder, n)),
-                        );
-                    }
-                }
+            for (prefix, folder) in [
+                ("super::", own),
+                ("crate::horizon::", ""),
+                ("crate::trace::", "../trace/"),
+            ] {
+                found.extend(names_after(part, prefix).iter().map(|n| file(folder, n)));
             }
         }
         found.sort();
