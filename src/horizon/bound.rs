@@ -342,7 +342,32 @@ pub fn sector_of(normal: DVec3, toward: DVec3) -> Option<usize> {
     if x * x + y * y < ZENITH_CLEARANCE * ZENITH_CLEARANCE {
         return None;
     }
-    Some(((turn((x, y)) * SECTORS_PER_TURN) as usize).min(SECTORS - 1))
+    Some(sector_in_plane(x, y))
+}
+
+/// The sector of the in-plane direction `(x, y)` (not zero): that of its turn, found by
+/// comparisons instead of the turn's division (the lighting pass asks it of every facet
+/// facing the Sun at every step). Within a quadrant the sectors' boundaries are the
+/// directions a quarter of a turn's unit apart: `y = x/3`, `y = x`, `y = 3x` in the first
+/// (pseudo-angle `y/(x+y)` of 1/4, 1/2, 3/4), alike in the others; a direction on a
+/// boundary belongs to the sector above it, as by its turn. Rounding may put a direction
+/// within a few units in the last place of a boundary on its other side: far inside the
+/// overlap by which the build widens each sector (`TURN_OVERLAP`).
+#[inline]
+fn sector_in_plane(x: f64, y: f64) -> usize {
+    const _: () = assert!(SECTORS == 16, "four sectors per quadrant");
+    let (a, b) = (x.abs(), y.abs());
+    let count = |tests: [bool; 4]| tests.into_iter().map(usize::from).sum::<usize>();
+    match (x >= 0.0, y >= 0.0) {
+        // Turns 0 to 1 (1 on the axis x = 0).
+        (true, true) => count([3.0 * y >= x, y >= x, y >= 3.0 * x, x == 0.0]),
+        // Turns 1 to 2, falling as y rises (2 on the axis y = 0).
+        (false, true) => 8 - count([y > 0.0, 3.0 * y > a, y > a, y > 3.0 * a]),
+        // Turns 2 to 3.
+        (false, false) => 8 + count([3.0 * b >= a, b >= a, b >= 3.0 * a, false]),
+        // Turns 3 to 4 (3 on the axis x = 0).
+        (true, false) => 12 + count([b <= 3.0 * x, b <= x, 3.0 * b <= x, false]),
+    }
 }
 
 /// The turn of the in-plane direction `(x, y)`: its pseudo-angle from 0 to 4.
@@ -865,6 +890,43 @@ mod tests {
             .unwrap();
         let gap = empty_run_from(start);
         (gap..SECTORS).fold(0, |bits, j| bits | 1 << ((start + j) % SECTORS))
+    }
+
+    /// Sectors by comparisons are the sectors of the turns: on every boundary (the axes,
+    /// the diagonals, y = ±x/3 and ±3x, which the pseudo-angle gives exactly) and for
+    /// random directions of every size away from the boundaries.
+    #[test]
+    fn sectors_by_comparisons_are_the_turns_sectors() {
+        let by_turn =
+            |x: f64, y: f64| ((turn((x, y)) * SECTORS_PER_TURN) as usize).min(SECTORS - 1);
+        let mut directions = Vec::new();
+        for (sx, sy) in [(1.0, 1.0), (-1.0, 1.0), (-1.0, -1.0), (1.0, -1.0)] {
+            for (x, y) in [
+                (1.0, 0.0),
+                (0.0, 1.0),
+                (1.0, 1.0),
+                (3.0, 1.0),
+                (1.0, 3.0),
+                (0.0, 0.0),
+            ] {
+                directions.push((sx * x, sy * y));
+            }
+        }
+        directions.extend([(-0.0, 1.0), (-0.0, -1.0), (-1.0, -0.0), (1.0, -0.0)]);
+        directions.retain(|&(x, y)| x != 0.0 || y != 0.0);
+        for &(x, y) in &directions {
+            assert_eq!(sector_in_plane(x, y), by_turn(x, y), "({x}, {y})");
+        }
+        let mut rng = crate::TestRng::new(9);
+        for _ in 0..100_000 {
+            let angle = std::f64::consts::TAU * rng.unit();
+            let size = 10f64.powf(8.0 * rng.unit() - 4.0);
+            let (x, y) = (size * angle.cos(), size * angle.sin());
+            let t = turn((x, y)) * SECTORS_PER_TURN;
+            if (t - t.round()).abs() > 1e-9 {
+                assert_eq!(sector_in_plane(x, y), by_turn(x, y), "({x}, {y})");
+            }
+        }
     }
 
     /// Sectors by turn: a boundary belongs to the sector above it; the zenith has none.
