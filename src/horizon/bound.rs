@@ -89,8 +89,9 @@ impl BoundDetail {
 }
 
 /// Sectors of azimuth a bound keeps apart. A direction's azimuth in the facet's tangent
-/// frame is taken as its turn: a pseudo-angle (`geometry::pseudo_angle`, without `atan2`) from 0
-/// to 4, a quarter turn per unit, monotone in azimuth and exact at every eighth of a turn.
+/// frame is taken as its turn: a pseudo-angle (`geometry::pseudo_angle`, without
+/// `atan2`) from 0 to 4, a quarter turn per unit, monotone in azimuth and exact at every
+/// eighth of a turn.
 /// Sector `k` holds the turns `[k, k+1) · 4/SECTORS`: with 16, sectors 18.4° to 26.6°
 /// wide, so that a Sun low in one sector is not held to the horizon of another.
 pub const SECTORS: usize = 16;
