@@ -91,9 +91,9 @@ impl BoundDetail {
 /// Sectors of azimuth a bound keeps apart. A direction's azimuth in the facet's tangent
 /// frame is taken as its turn: a pseudo-angle (`geometry::pseudo_angle`, without
 /// `atan2`) from 0 to 4, a quarter turn per unit, monotone in azimuth and exact at every
-/// eighth of a turn.
-/// Sector `k` holds the turns `[k, k+1) · 4/SECTORS`: with 16, sectors 18.4° to 26.6°
-/// wide, so that a Sun low in one sector is not held to the horizon of another.
+/// eighth of a turn. Sector `k` holds the turns `[k, k+1) · 4/SECTORS`: with 16, sectors
+/// 18.4° to 26.6° wide, so that a Sun low in one sector is not held to the horizon of
+/// another.
 pub const SECTORS: usize = 16;
 
 /// Sectors per unit of turn.
@@ -453,8 +453,9 @@ fn sine_step_up(sin: f64) -> u8 {
     q.min(SINE_STEPS) as u8
 }
 
-/// Facet `i`'s bound per sector (sines; in `detail`), and the triangle that set the
-/// highest (`None`: nothing rose above the plane). The `seed` triangle is taken first.
+/// Facet `i`'s bound per sector (sines; in `detail`: a whole bound in sector 0 alone),
+/// and the triangle that set the highest (`None`: nothing rose above the plane). The
+/// `seed` triangle is taken first.
 fn facet_bound(
     mesh: &Mesh,
     bvh: &Bvh,
@@ -469,10 +470,10 @@ fn facet_bound(
     let tangents = tangent_frame(n);
     let zenith = ZenithLine::new(c, n);
     let slack = detail.slack();
-    let found = RefCell::new(SectorSines::default());
+    let found = RefCell::new(SectorSines::new(detail.stride()));
     let reached = |lo: DVec3, hi: DVec3| match detail {
-        // Every sector alike: the search is the whole horizon's.
-        BoundDetail::Whole => ALL_SECTORS,
+        // A whole bound keeps its horizon in sector 0 alone, which every box reaches.
+        BoundDetail::Whole => 1,
         BoundDetail::Sectors => sectors_reached(&zenith, tangents, (lo, hi), widening),
     };
     let take = |id: u32, tri: &[DVec3; 3]| {
@@ -518,17 +519,31 @@ fn facet_bound(
 }
 
 /// The highest elevation sines found so far in each sector of a facet's horizon.
-#[derive(Default)]
 struct SectorSines {
     sines: [f64; SECTORS],
+    /// How many sectors are kept, from sector 0: all of them, or one for a whole bound.
+    kept: usize,
     /// The highest of them, and the triangle that set it.
     highest: f64,
     setter: Option<u32>,
 }
 
 impl SectorSines {
+    fn new(kept: usize) -> SectorSines {
+        SectorSines {
+            sines: [0.0; SECTORS],
+            kept,
+            highest: 0.0,
+            setter: None,
+        }
+    }
+
+    /// The lowest sine of the sectors kept.
     fn lowest(&self) -> f64 {
-        self.sines.iter().copied().fold(f64::INFINITY, f64::min)
+        self.sines[..self.kept]
+            .iter()
+            .copied()
+            .fold(f64::INFINITY, f64::min)
     }
 
     /// The lowest sine of the `sectors` (bits).
