@@ -26,8 +26,8 @@
 //! horizon, which it adds to the bound: a Sun less than that above the horizon is
 //! simply traced.
 //!
-//! Cost: a tree search per facet, parallel over facets, each seeded with the triangle
-//! that set its neighbour's highest sector; by sectors 4–6× a whole bound's (every
+//! Cost: a tree search per facet, parallel over facets, each seeded with the triangles
+//! that set its neighbour's sectors; by sectors 4–6× a whole bound's (every
 //! sector's horizon proved, not only the highest; docs/performance.md); kept on disk
 //! beside the horizon maps and read back by later runs (`super::cache`). Memory: a byte
 //! per facet, [`SECTORS`] bytes by sectors (each sine rounded up to a 255th).
@@ -167,20 +167,20 @@ impl HorizonBound {
     /// The bound of facets `0..receivers` of `mesh`, using `bvh` (built over all of
     /// `mesh`, whose other facets only cast shadows), in the given `detail`.
     pub fn new(mesh: &Mesh, receivers: usize, bvh: &Bvh, detail: BoundDetail) -> HorizonBound {
-        // Each facet is seeded with the triangle that set its neighbour's highest sector:
-        // it is likely high here too, and the higher the first value, the more of the
+        // Each facet is seeded with the triangles that set its neighbour's sectors: they
+        // are likely high here too, and the higher the first values, the more of the
         // tree the search prunes.
         let widening = rounding_widening(mesh);
-        let search = |i, seed| facet_bound(mesh, bvh, (i, detail), widening, seed);
+        let search = |i, seeds: &Setters| facet_bound(mesh, bvh, (i, detail), widening, seeds);
         let sines = match detail {
             // Every sector holds the same: one byte per facet.
-            BoundDetail::Whole => in_seeded_runs(0..receivers, |i, &seed| {
-                let (sines, setter) = search(i, seed);
-                (sine_step_up(sines[0]), setter)
+            BoundDetail::Whole => in_seeded_runs(0..receivers, |i, seeds: &Setters| {
+                let (sines, setters) = search(i, seeds);
+                (sine_step_up(sines[0]), setters)
             }),
-            BoundDetail::Sectors => in_seeded_runs(0..receivers, |i, &seed| {
-                let (sines, setter) = search(i, seed);
-                (sines.map(sine_step_up), setter)
+            BoundDetail::Sectors => in_seeded_runs(0..receivers, |i, seeds: &Setters| {
+                let (sines, setters) = search(i, seeds);
+                (sines.map(sine_step_up), setters)
             })
             .into_flattened(),
         };
@@ -461,11 +461,11 @@ fn facet_bound(
     bvh: &Bvh,
     (i, detail): (usize, BoundDetail),
     widening: f64,
-    seed: Option<u32>,
-) -> ([f64; SECTORS], Option<u32>) {
+    seeds: &Setters,
+) -> ([f64; SECTORS], Setters) {
     let (c, n) = (mesh.centroids[i], mesh.normals[i]);
     if n == DVec3::ZERO || mesh.areas[i] <= 0.0 {
-        return ([1.0; SECTORS], None);
+        return ([1.0; SECTORS], Setters::default());
     }
     let tangents = tangent_frame(n);
     let zenith = ZenithLine::new(c, n);
@@ -493,7 +493,7 @@ fn facet_bound(
             found.borrow_mut().raise(sectors, value, id);
         }
     };
-    if let Some(id) = seed {
+    for id in seeds.distinct() {
         take(id, &mesh.corners(id as usize));
     }
     bvh.search(
@@ -515,7 +515,27 @@ fn facet_bound(
         take,
     );
     let found = found.into_inner();
-    (found.sines.map(|s| (s + slack).min(1.0)), found.setter)
+    (found.sines.map(|s| (s + slack).min(1.0)), found.setters)
+}
+
+/// The triangles that set each sector's sine (`u32::MAX`: none).
+#[derive(Clone, Copy)]
+struct Setters([u32; SECTORS]);
+
+impl Default for Setters {
+    fn default() -> Setters {
+        Setters([u32::MAX; SECTORS])
+    }
+}
+
+impl Setters {
+    /// Each triangle once.
+    fn distinct(&self) -> impl Iterator<Item = u32> + '_ {
+        let ids = &self.0;
+        (0..SECTORS)
+            .filter(move |&k| ids[k] != u32::MAX && !ids[..k].contains(&ids[k]))
+            .map(move |k| ids[k])
+    }
 }
 
 /// The highest elevation sines found so far in each sector of a facet's horizon.
@@ -523,9 +543,9 @@ struct SectorSines {
     sines: [f64; SECTORS],
     /// How many sectors are kept, from sector 0: all of them, or one for a whole bound.
     kept: usize,
-    /// The highest of them, and the triangle that set it.
+    /// The highest of them.
     highest: f64,
-    setter: Option<u32>,
+    setters: Setters,
 }
 
 impl SectorSines {
@@ -534,7 +554,7 @@ impl SectorSines {
             sines: [0.0; SECTORS],
             kept,
             highest: 0.0,
-            setter: None,
+            setters: Setters::default(),
         }
     }
 
@@ -559,12 +579,12 @@ impl SectorSines {
     /// Raises the `sectors` (bits) to the elevation sine `value` of triangle `id`.
     fn raise(&mut self, sectors: u32, value: f64, id: u32) {
         for k in bits(sectors) {
-            self.sines[k] = self.sines[k].max(value);
+            if value > self.sines[k] {
+                self.sines[k] = value;
+                self.setters.0[k] = id;
+            }
         }
-        if value > self.highest {
-            self.highest = value;
-            self.setter = Some(id);
-        }
+        self.highest = self.highest.max(value);
     }
 }
 
