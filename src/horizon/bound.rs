@@ -27,7 +27,7 @@
 //! simply traced.
 //!
 //! Cost: a tree search per facet, parallel over facets, each seeded with the triangles
-//! that set its neighbour's sectors; by sectors 4–6× a whole bound's (every
+//! that set its neighbour's sectors; by sectors 5–8× a whole bound's (every
 //! sector's horizon proved, not only the highest; docs/performance.md); kept on disk
 //! beside the horizon maps and read back by later runs (`super::cache`). Memory: a byte
 //! per facet, [`SECTORS`] bytes by sectors (each sine rounded up to a 255th).

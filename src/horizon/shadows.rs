@@ -696,19 +696,20 @@ fn minutes_and_seconds(s: f64) -> String {
 
 /// CPU seconds per facet that a bound by sectors costs beyond a whole one over `casters`
 /// facets (proving each sector's horizon, not only the highest): growing as √N, fitted
-/// from above to the builds measured on 2026-11-27 (`bench_peer MESH --tracer
-/// bvh-sectors`, then `--tracer bvh`, `--threads 1`, the difference of their setups):
-/// 73 µs on m1phobos (32k facets), 98 µs on Itokawa (49k); the model gives 86 and 106.
+/// from above to the builds measured on 2026-11-28 at f5f4e7e (`bench_peer MESH --tracer
+/// bvh-sectors`, then `--tracer bvh`, `--threads 1`, the difference of their setups, two
+/// rounds alike within 2 %): 60 µs on m1phobos (32k facets), 76 µs on Itokawa (49k); the
+/// model gives 63 and 78.
 fn sectors_extra_s_per_facet(casters: usize) -> f64 {
-    0.48e-6 * (casters as f64).sqrt()
+    0.35e-6 * (casters as f64).sqrt()
 }
 
 /// CPU seconds a bound by sectors spares over a whole one per facet and step of a point
 /// Sun: the rays of a Sun below the facet's highest horizon but above its sector's, and
-/// the walk from the last blocker that the mostly shadowed rays left then allow. Below
-/// both measured with the builds above (360 steps, 1° apart): 0.048 µs on m1phobos
-/// (3.04 → 1.51 ms per step), 0.038 µs on Itokawa (4.12 → 2.25); taken low because steps
-/// farther apart spare less (the last blocker is then seldom still in the way).
+/// the walk from the last blocker that the mostly shadowed rays left then allow. Measured
+/// with the builds above (360 steps, 1° apart): 0.032 µs on m1phobos (2.35 → 1.31 ms per
+/// step), 0.029 µs on Itokawa (3.29 → 1.88); steps farther apart spare less (the last
+/// blocker is then seldom still in the way).
 const SECTORS_SAVED_S_PER_FACET_STEP: f64 = 0.030e-6;
 
 /// CPU seconds on one core that bounds by sectors take beyond whole ones, for the bodies

@@ -27,7 +27,7 @@
 //! the Sun-view grid's), which the model leaves out on the same side.
 //!
 //! With the BVH, [`crate::horizon::shadows::bound_detail_for_run`] then picks the
-//! bound's detail the same way: by sectors of azimuth (a build 4–6× as dear, each step
+//! bound's detail the same way: by sectors of azimuth (a build 5–8× as dear, each step
 //! about 1.8× faster under a point Sun) once the run's steps spare more than the sectors
 //! cost, else whole.
 
