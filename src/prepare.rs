@@ -316,7 +316,7 @@ pub fn build_world(
         let convex = report.convex;
         let mut body = Body::new(b.name.clone(), mesh, convex);
         body.outputs = b.outputs;
-        body.open = report.boundary_edges > 0;
+        body.open = report.is_patch();
         if let Some(radii_m) = ellipsoid_radii_m {
             body = body.with_ellipsoid(radii_m);
         }

@@ -73,8 +73,9 @@ pub struct Body {
     /// The mesh followed by terrain around it that only casts shadows (so facet ids of
     /// the mesh are the same in both); `None`: the mesh alone casts.
     pub casters: Option<Mesh>,
-    /// True for terrain: a mesh with a boundary (a patch of a larger surface), or one with
-    /// surroundings. Its horizons are far and low all around, which makes its horizon
+    /// True for terrain: a patch of a larger surface (`MeshReport::is_patch`: a boundary
+    /// whose openings are a sizeable share of its area, not a body's seams or small
+    /// holes), or a mesh with surroundings. Its horizons are far and low all around, which makes its horizon
     /// map dearer to build (`horizon::shadows`). Set from the mesh inspection when a
     /// scene is prepared; a body made with [`Body::new`] counts as closed until told.
     pub open: bool,

@@ -112,19 +112,25 @@ pub const SUN_SAMPLES_MAX: u32 = 1024;
 
 /// Measured costs behind `auto` and the build's announced time (CPU seconds, 128 wedges;
 /// see docs/performance.md). Building a map costs per facet a fixed part and a part that
-/// grows with the square root of the casting facets: a horizon is a line across the
-/// mesh, so the triangles that set it grow as √N. Re-fitted on 2026-11-26 (ff278ab) as a
-/// bound above the Itokawa builds, one thread: 12,288 facets 0.18 ms, 49,152 0.39 ms,
-/// 786,432 (subdivided) 2.5 ms per facet, where the fit says 0.36, 0.67 and 2.5; m1phobos's
-/// 32,070: 0.24 ms, the fit 0.55. Terrain ([`Body::open`]), whose horizons are far and
-/// low all around, costs about four times more and has a term of its own, a bound above
-/// Haworth's 5,412 facets (0.84 ms; 1.24 on the Intel machine of 2026-11-26, where its
-/// year's patch with 9,528 facets of surroundings took 1.52, the fit 1.37). The saving:
-/// what a map spares over Sun-view rays per facet and step in the exact mode (m1phobos,
-/// 360 steps: 0.37 µs).
+/// grows with the casting facets N. A horizon is a line across the mesh, which suggests
+/// √N, but the Itokawa builds grow faster (one thread, 2026-11-26: 12,288 facets 0.18 ms,
+/// 49,152 0.39 ms, 786,432 subdivided 2.5 ms per facet; 0.35 ms at 49k on 2026-11-28):
+/// as N^(2/3), fitted as a bound above them all, the fit gives 0.20, 0.44 and 2.52 ms,
+/// and 0.34 for m1phobos's 32,070 (0.24 measured) — where a √N fit through the 786k
+/// build gave 0.36, 0.67 and 0.55, announcing the smaller maps' builds at up to twice
+/// their time and building them later than they pay. Terrain ([`Body::open`]), whose
+/// horizons are far and low all around, costs about four times more and keeps a √N term
+/// of its own, a bound above Haworth's 5,412 facets (0.84 ms; 1.24 on the Intel machine
+/// of 2026-11-26, where its year's patch with 9,528 facets of surroundings took 1.52,
+/// the fit 1.37). The saving: what a map spares over Sun-view rays per facet and step in
+/// the exact mode (m1phobos, 360 steps: 0.37 µs).
 fn build_s_per_facet(body: &Body) -> f64 {
-    let per_root_caster = if body.open { 10.8e-6 } else { 2.8e-6 };
-    0.05e-3 + per_root_caster * (body.shadow_mesh().len() as f64).sqrt()
+    let casters = body.shadow_mesh().len() as f64;
+    let growing = match body.open {
+        true => 10.8e-6 * casters.sqrt(),
+        false => 0.29e-6 * casters.powf(2.0 / 3.0),
+    };
+    0.05e-3 + growing
 }
 
 /// CPU seconds the map of `body` takes to build (its facets against all it casts from).
@@ -138,7 +144,11 @@ const SAVED_S_PER_FACET_STEP: f64 = 0.37e-6;
 /// point Sun and for a disk Sun of 32 samples: m1phobos, 360 steps on one thread
 /// (`bench_direct MESH --threads 1` with `--tracer bvh`, `--horizon exact`, `--sun
 /// disk`; 2026-11-26): the BVH 2.30 ms per step (disk, with the cones' leaf screen of
-/// a4318f1: 11.9), the map 1.26 (disk: 1.28).
+/// a4318f1: 11.9), the map 1.26 (disk: 1.28). Checked for a point Sun on 2026-11-28
+/// (`bench_peer MESH --tracer map-exact|bvh-sectors|bvh --steps 360 --threads 1`): the
+/// exact map now spares 0.050 µs (m1phobos) and 0.046 µs (Itokawa) over the whole bound,
+/// but only 0.019 µs over the bound by sectors, which a run long enough for a map takes
+/// (with 1° steps; steps far apart leave sectors less). 0.032 lies between.
 const SAVED_OVER_BVH: (f64, f64) = (0.032e-6, 0.33e-6);
 
 impl Shadows {

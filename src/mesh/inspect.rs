@@ -28,6 +28,11 @@ pub struct MeshReport {
     pub degenerate_facets: usize,
     /// Undirected edges used by exactly one facet.
     pub boundary_edges: usize,
+    /// The length of the facets' summed area vectors over their total area: 0 for a
+    /// closed surface (its area vectors cancel), the area of its openings seen face on
+    /// over its area otherwise, near 1 for a patch of terrain.
+    #[serde(default)]
+    pub open_share: f64,
     /// Undirected edges used by more than two facets.
     pub non_manifold_edges: usize,
     /// Edges shared by two facets that traverse it in the same direction.
@@ -84,6 +89,7 @@ pub fn inspect(mesh: &Mesh) -> MeshReport {
         unreferenced_vertices: unreferenced_vertices(mesh),
         degenerate_facets,
         boundary_edges,
+        open_share: open_share(mesh),
         non_manifold_edges,
         inconsistent_edges,
         closed,
@@ -93,6 +99,31 @@ pub fn inspect(mesh: &Mesh) -> MeshReport {
         extent_m: extent.to_array(),
         total_area_m2: mesh.areas.iter().sum(),
         mean_edge_m: mean_edge_length(mesh, &edges),
+    }
+}
+
+/// The least [`MeshReport::open_share`] of a patch of a larger surface
+/// ([`MeshReport::is_patch`]): a tenth. The shipped terrain stands near 1 (Haworth 0.974,
+/// its surroundings 0.978); a body's shape model with boundary edges at its seams or a
+/// few small holes near 0 (m1phobos, 152 boundary edges: 3e-15).
+const PATCH_OPEN_SHARE: f64 = 0.1;
+
+impl MeshReport {
+    /// Whether the mesh is a patch of a larger surface (terrain), not a body: it has a
+    /// boundary, and its openings are a sizeable share of its area.
+    pub fn is_patch(&self) -> bool {
+        self.boundary_edges > 0 && self.open_share > PATCH_OPEN_SHARE
+    }
+}
+
+/// [`MeshReport::open_share`] of `mesh` (0 when it has no area).
+fn open_share(mesh: &Mesh) -> f64 {
+    let (vector, total) = (mesh.normals.iter().zip(&mesh.areas))
+        .fold((DVec3::ZERO, 0.0), |(v, t), (&n, &a)| (v + n * a, t + a));
+    if total > 0.0 {
+        vector.length() / total
+    } else {
+        0.0
     }
 }
 
@@ -497,8 +528,35 @@ fn write_volume(f: &mut fmt::Formatter<'_>, report: &MeshReport) -> fmt::Result 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::mesh::generate::icosphere;
+    use crate::mesh::generate::{height_field, icosphere};
     use crate::mesh::{LengthUnit, RawMesh};
+
+    /// A sphere is closed, with or without a facet taken out (its opening's area over
+    /// the sphere's); a height field is a patch, its opening as wide as itself.
+    #[test]
+    fn terrain_is_a_patch_and_a_body_with_a_hole_is_not() {
+        let raw = icosphere(3, 1.0, DVec3::new(5.0, 0.0, 0.0));
+        let sphere = inspect(&Mesh::from_raw(raw.clone(), LengthUnit::M));
+        assert!(
+            sphere.open_share < 1e-12 && !sphere.is_patch(),
+            "{sphere:?}"
+        );
+        let holed = RawMesh {
+            triangles: raw.triangles[1..].to_vec(),
+            ..raw
+        };
+        let holed = inspect(&Mesh::from_raw(holed, LengthUnit::M));
+        // One of 1,280 nearly equal facets: its area over the rest's, about 1/1280.
+        assert!(holed.boundary_edges == 3, "{holed:?}");
+        assert!((holed.open_share * 1280.0 - 1.0).abs() < 0.2, "{holed:?}");
+        assert!(!holed.is_patch());
+        let bumps = height_field((8, 8), (0.0, 1.0), (0.0, 1.0), |x, y| 0.1 * (x * y).sin());
+        let terrain = inspect(&Mesh::from_raw(bumps, LengthUnit::M));
+        assert!(
+            terrain.open_share > 0.9 && terrain.is_patch(),
+            "{terrain:?}"
+        );
+    }
 
     #[test]
     fn each_edge_names_the_facet_on_its_other_side() {
