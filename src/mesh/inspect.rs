@@ -461,6 +461,14 @@ impl fmt::Display for MeshReport {
             "edges belong to a single facet: the surface is open (a terrain patch or a mesh \
              with holes), so light can reach the back of facets through the holes",
         )?;
+        if self.boundary_edges > 0 {
+            let share = 100.0 * self.open_share;
+            let kind = match self.is_patch() {
+                true => "a patch of terrain (horizon maps cost more to build)",
+                false => "a body with seams or small holes",
+            };
+            writeln!(f, "  the openings are {share:.2} % of the area: {kind}")?;
+        }
         line(
             f,
             self.non_manifold_edges,
