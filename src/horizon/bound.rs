@@ -460,8 +460,8 @@ fn sine_step_up(sin: f64) -> u8 {
 }
 
 /// Facet `i`'s bound per sector (sines; in `detail`: a whole bound in sector 0 alone),
-/// and the triangle that set the highest (`None`: nothing rose above the plane). The
-/// `seed` triangle is taken first.
+/// and the triangle that set each sector (none where nothing rose above the plane). The
+/// `seeds` (a neighbour's setters) are taken first.
 fn facet_bound(
     mesh: &Mesh,
     bvh: &Bvh,
