@@ -146,9 +146,10 @@ const SAVED_S_PER_FACET_STEP: f64 = 0.37e-6;
 /// disk`; 2026-11-26): the BVH 2.30 ms per step (disk, with the cones' leaf screen of
 /// a4318f1: 11.9), the map 1.26 (disk: 1.28). Checked for a point Sun on 2026-11-28
 /// (`bench_peer MESH --tracer map-exact|bvh-sectors|bvh --steps 360 --threads 1`): the
-/// exact map now spares 0.050 µs (m1phobos) and 0.046 µs (Itokawa) over the whole bound,
-/// but only 0.019 µs over the bound by sectors, which a run long enough for a map takes
-/// (with 1° steps; steps far apart leave sectors less). 0.032 lies between.
+/// exact map spares 0.052 µs (m1phobos) and 0.049 µs (Itokawa) over the whole bound, but
+/// only 0.012 and 0.011 µs over the bound by sectors refined by outlines (the same run,
+/// later that morning), which a run long enough for a map takes (with 1° steps; steps
+/// far apart leave sectors less). 0.032 lies between.
 const SAVED_OVER_BVH: (f64, f64) = (0.032e-6, 0.33e-6);
 
 impl Shadows {
@@ -705,22 +706,23 @@ fn minutes_and_seconds(s: f64) -> String {
 }
 
 /// CPU seconds per facet that a bound by sectors costs beyond a whole one over `casters`
-/// facets (proving each sector's horizon, not only the highest): growing as √N, fitted
-/// from above to the builds measured on 2026-11-28 at f5f4e7e (`bench_peer MESH --tracer
+/// facets (proving each sector's horizon, each triangle's part in it, not only the
+/// highest): growing as √N, fitted from above to the builds measured on 2026-11-28 with
+/// the sectors refined by the triangles' outlines (`bench_peer MESH --tracer
 /// bvh-sectors`, then `--tracer bvh`, `--threads 1`, the difference of their setups, two
-/// rounds alike within 2 %): 60 µs on m1phobos (32k facets), 76 µs on Itokawa (49k); the
-/// model gives 63 and 78.
+/// rounds alike within 3 %): 82 µs on m1phobos (32k facets), 100 µs on Itokawa (49k); the
+/// model gives 82 and 102.
 fn sectors_extra_s_per_facet(casters: usize) -> f64 {
-    0.35e-6 * (casters as f64).sqrt()
+    0.46e-6 * (casters as f64).sqrt()
 }
 
 /// CPU seconds a bound by sectors spares over a whole one per facet and step of a point
 /// Sun: the rays of a Sun below the facet's highest horizon but above its sector's, and
 /// the walk from the last blocker that the mostly shadowed rays left then allow. Measured
-/// with the builds above (360 steps, 1° apart): 0.032 µs on m1phobos (2.35 → 1.31 ms per
-/// step), 0.029 µs on Itokawa (3.29 → 1.88); steps farther apart spare less (the last
-/// blocker is then seldom still in the way).
-const SECTORS_SAVED_S_PER_FACET_STEP: f64 = 0.030e-6;
+/// with the builds above (360 steps, 1° apart, two rounds each): 0.040 µs on m1phobos
+/// (2.39 → 1.10 ms per step), 0.036 µs on Itokawa (3.43 → 1.66); steps farther apart
+/// spare less (the last blocker is then seldom still in the way).
+const SECTORS_SAVED_S_PER_FACET_STEP: f64 = 0.037e-6;
 
 /// CPU seconds on one core that bounds by sectors take beyond whole ones, for the bodies
 /// that get a bound ([`crate::trace::choice::bounded`]; `maps[b]`: body `b` has a
