@@ -120,6 +120,19 @@ const ZENITH_CLEARANCE: f64 = 1e-6;
 /// Steps of a stored sine: each sector's sine is rounded up to a multiple of 1/255.
 const SINE_STEPS: f64 = 255.0;
 
+/// The sine each stored byte stands for, `q / 255`: divided once here, where the
+/// lighting pass would divide at every facet facing the Sun (a quarter of
+/// [`HorizonBound::clears`]' time in a profile).
+const STEP_SINES: [f64; 256] = {
+    let mut sines = [0.0; 256];
+    let mut q = 0;
+    while q < 256 {
+        sines[q] = q as f64 / SINE_STEPS;
+        q += 1;
+    }
+    sines
+};
+
 /// Per facet (and sector, in [`BoundDetail::Sectors`]), the sine of the highest elevation
 /// of any other facet seen from its centroid.
 #[derive(Debug, Clone)]
@@ -325,7 +338,7 @@ impl HorizonBound {
     pub fn sin_max(&self, i: usize) -> f64 {
         let stride = self.detail.stride();
         let row = &self.sines[i * stride..(i + 1) * stride];
-        f64::from(row.iter().copied().max().unwrap_or(u8::MAX)) / SINE_STEPS
+        STEP_SINES[usize::from(row.iter().copied().max().unwrap_or(u8::MAX))]
     }
 
     /// Facet `i`'s bound in `sector` (0..[`SECTORS`]), a sine.
@@ -335,7 +348,7 @@ impl HorizonBound {
             BoundDetail::Whole => i,
             BoundDetail::Sectors => i * SECTORS + sector,
         };
-        f64::from(self.sines[at]) / SINE_STEPS
+        STEP_SINES[usize::from(self.sines[at])]
     }
 }
 
