@@ -196,7 +196,7 @@ def main():
               f"{stamp['logical_cpus']} logical CPUs, {stamp['embree']}")
     notes = [
         "1T/2T: slim with 1 or 2 rayon threads; Embree (embreex, rtcOccluded1 per ray) on "
-        "one thread, pinned to one CPU.",
+        "one thread; the one-thread runs of both pinned to the same CPU.",
         "ms/step: mean over the steps (with --block K, slim computes K steps at a time, "
         "as slim run does, each step taking the block's time over K; Embree casts each "
         "step's rays in turn); slim's includes its per-step tracer build (sunview; "
