@@ -564,8 +564,8 @@ const SECTOR_EDGE_OVERLAP: f64 = 1e-8;
 /// Raises each of `sectors` whose sine is below `value` (triangle `tri`'s bound over
 /// all of them, widened) to the bound of the triangle's part in that sector alone: a
 /// triangle beside the facet spans many sectors but rises high in few. Where its
-/// outline is ill conditioned, or the widening turns azimuths by more than a sliver of
-/// a sector (near the zenith), every sector takes `value`.
+/// outline is ill conditioned, or the widening may turn azimuths by more than 1e-3 rad
+/// (near the zenith, or a triangle touching the centroid), every sector takes `value`.
 fn raise_by_sector(
     found: &mut SectorSines,
     view: &Viewpoint,
@@ -583,10 +583,14 @@ fn raise_by_sector(
         found.raise(sectors, value, id);
         return;
     };
-    // Widening moves points by `margin` radians, their azimuth by `margin / cos e`.
+    // Widening moves points by `asin(margin)` radians, their azimuth by up to
+    // `asin(margin / cos e)`: `margin / cos e` within 2e-10 while that stays below
+    // 1e-3, which the edges' overlap covers. Beyond (a triangle all but touching the
+    // centroid, or near its zenith), every sector takes the top.
     let margin = widening / (gap - widening);
-    let overlap = SECTOR_EDGE_OVERLAP + margin / (1.0 - value * value).sqrt();
-    if overlap > 0.05 {
+    let turn = margin / (1.0 - value * value).sqrt();
+    let overlap = SECTOR_EDGE_OVERLAP + turn;
+    if turn > 1e-3 {
         found.raise(sectors, value, id);
         return;
     }
@@ -829,10 +833,6 @@ mod tests {
         }
     }
 
-    /// From the floor, cones toward the wall: above its top (clear), inside its upper
-    /// triangle (covered), across the diagonal between its two triangles (covered by the
-    /// pair), across its top edge (partial), and inside it but nearer than asked
-    /// (partial).
     /// Each sector's bound follows the triangle's part in that sector, not its highest
     /// point: a slanted triangle beside a floor facet spans ±72° of azimuth but rises to
     /// 34° only straight ahead (a dense sampling of its points per sector is the
@@ -885,6 +885,10 @@ mod tests {
         assert!(sampled[0] > top - 0.005 && sampled[3] > 0.0 && sampled[3] < 0.01);
     }
 
+    /// From the floor, cones toward the wall: above its top (clear), inside its upper
+    /// triangle (covered), across the diagonal between its two triangles (covered by the
+    /// pair), across its top edge (partial), and inside it but nearer than asked
+    /// (partial).
     #[test]
     fn a_wall_covers_cones_inside_it_but_not_across_its_top() {
         let (h, wall_x, half) = (3.0, 4.0, 50.0);
