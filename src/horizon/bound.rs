@@ -519,7 +519,7 @@ fn facet_bound(
             if sectors.count_ones() == 1 {
                 found.raise(sectors, value, id);
             } else {
-                let view = Viewpoint { c, n, tangents };
+                let view = FacetFrame { c, n, tangents };
                 raise_by_sector(&mut found, &view, (id, tri), (sectors, value), widening);
             }
         }
@@ -550,7 +550,7 @@ fn facet_bound(
 }
 
 /// A facet's centroid with its zenith and tangent axes.
-struct Viewpoint {
+struct FacetFrame {
     c: DVec3,
     n: DVec3,
     tangents: (DVec3, DVec3),
@@ -568,15 +568,17 @@ const SECTOR_EDGE_OVERLAP: f64 = 1e-8;
 /// (near the zenith, or a triangle touching the centroid), every sector takes `value`.
 fn raise_by_sector(
     found: &mut SectorSines,
-    view: &Viewpoint,
+    view: &FacetFrame,
     (id, tri): (u32, &[DVec3; 3]),
     (sectors, value): (u32, f64),
     widening: f64,
 ) {
     let (t1, t2) = view.tangents;
     let rel = tri.map(|p| p - view.c);
+    // Below 1, `value` came from a triangle farther than `triangle_bound`'s touching
+    // distance: the gap below leaves the widening's margin finite.
     let gap = distance_to_triangle(view.c, tri);
-    let outline = (value < 1.0 && gap > 64.0 * widening)
+    let outline = (value < 1.0)
         .then(|| Outline::new(&rel, view.n, t1, t2))
         .flatten();
     let Some(outline) = outline else {
