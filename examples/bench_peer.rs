@@ -4,14 +4,15 @@
 //! ```text
 //! cargo run --release --example bench_peer -- [MESH] [--subdivide N] [--folded]
 //!     [--steps N] [--threads N] [--tracer sunview|bvh|map-exact|map-approximate]
-//!     [--cache DIR] [--block K] --out DIR
+//!     [--cache DIR] [--bound-cache DIR] [--block K] --out DIR
 //! ```
 //! In: a mesh file in km (default: the 49,152-facet Itokawa model) or `--folded` (the
 //! bilobed test shape of `examples/common/folded.rs`), optionally subdivided (×4 facets
 //! per level); `--steps` states over one spin about z with the Sun along +x in the
 //! equator plane, as `bench_direct` uses. Only the step loop is timed, with the per-step
 //! tracer build included (`--tracer sunview`, the default) or the tracer built once with
-//! its horizon bound before the loop (`--tracer bvh`, reported as `direct_new_s`), or a
+//! its horizon bound before the loop (`--tracer bvh`, reported as `direct_new_s`; with
+//! `--tracer bvh-sectors`, read from `--bound-cache DIR` when it is there), or a
 //! horizon map of 128 wedges looked up instead of tracing (`map-exact`: rays only where
 //! the map is not certain, the same classification as the tracers; `map-approximate`:
 //! no rays), its build (or its read from `--cache DIR`) in `direct_new_s`. The
@@ -52,6 +53,7 @@ const VALUE_FLAGS: &[&str] = &[
     "--out",
     "--tracer",
     "--cache",
+    "--bound-cache",
     "--block",
 ];
 const SWITCHES: &[&str] = &["--folded"];
@@ -189,8 +191,12 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
         "bvh" => Direct::new(&world, TracerKind::Bvh),
         "bvh-sectors" => {
             // The bound a run takes when its steps pay for the sectors (`choice`).
+            // Read from `--bound-cache DIR` when it holds this bound (to time the step
+            // loop of several builds without building the bound each time; the peer
+            // harness leaves it out, so that its setup is always a build).
             let shadows = Shadows {
                 bound_detail: BoundDetail::Sectors,
+                cache_dir: options.optional("--bound-cache")?,
                 ..Shadows::default()
             };
             let none = world.bodies.iter().map(|_| None).collect();

@@ -453,33 +453,57 @@ impl<'m> Bvh<'m> {
     /// with the hit distance bounded on both sides.
     #[inline]
     fn crosses(&self, s: &Exact, id: u32) -> bool {
-        if s.skip.contains(&id) {
-            return false;
-        }
-        let corners = self.mesh.corners(id as usize).map(|p| s.frame.project(p));
-        let normal = s.frame.project(self.mesh.normals[id as usize]);
-        let t = DepthPlane::new(normal, corners[0]).distance(s.q);
-        t > s.t0 && t < s.t1 && inside(&corners, s.q)
+        !s.skip.contains(&id) && self.crosses_seen(s, id, &self.seen(s, id))
     }
 
-    /// The edge of facet `id` (corner `k` to `k + 1`, seen along the ray) beyond which the
-    /// ray passes farthest, or `None` when it passes within all three or the facet is seen
-    /// edge-on: where a walk toward the facet the ray crosses goes next.
-    fn edge_passed(&self, s: &Exact, id: u32) -> Option<usize> {
-        let p = self
-            .mesh
-            .corners(id as usize)
-            .map(|c| s.frame.project(c).truncate());
+    /// Facet `id`'s corners in the frame of the segment's direction.
+    #[inline]
+    fn seen(&self, s: &Exact, id: u32) -> [DVec3; 3] {
+        self.mesh.corners(id as usize).map(|p| s.frame.project(p))
+    }
+
+    /// [`Bvh::crosses`] for a facet not left out, its corners `seen` along the segment.
+    /// The projection test comes first: a walk over the surface meets mostly facets the
+    /// ray passes beside, which it rules out without the depth plane's divisions (the
+    /// order does not change the answer).
+    #[inline]
+    fn crosses_seen(&self, s: &Exact, id: u32, seen: &[DVec3; 3]) -> bool {
+        inside(seen, s.q) && {
+            let normal = s.frame.project(self.mesh.normals[id as usize]);
+            let t = DepthPlane::new(normal, seen[0]).distance(s.q);
+            t > s.t0 && t < s.t1
+        }
+    }
+
+    /// The edge of a facet whose corners are `seen` along the ray (corner `k` to
+    /// `k + 1`) beyond which the ray passes farthest, or `None` when it passes within all
+    /// three or the facet is seen edge-on: where a walk toward the facet the ray crosses
+    /// goes next.
+    fn edge_passed(s: &Exact, seen: &[DVec3; 3]) -> Option<usize> {
+        let p = seen.map(|c| c.truncate());
         let q = s.q.truncate();
         let turn = (p[1] - p[0]).perp_dot(p[2] - p[0]);
-        let beyond = |k: usize| {
+        if turn == 0.0 {
+            return None;
+        }
+        // The ray passes beyond edge `k` by `h / |edge|`, `h` its edge function turned
+        // outward. The farthest is found by comparing `h² |other edge|²` with `h_other²
+        // |edge|²` among the positive `h`: no root and no division, on a path where a
+        // walk spends most of its time.
+        let mut farthest: Option<(usize, f64, f64)> = None;
+        for k in 0..3 {
             let edge = p[(k + 1) % 3] - p[k];
-            -turn.signum() * edge.perp_dot(q - p[k]) / edge.length()
-        };
-        let (k, most) = (0..3)
-            .map(|k| (k, beyond(k)))
-            .max_by(|a, b| a.1.total_cmp(&b.1))?;
-        (turn != 0.0 && most > 0.0).then_some(k)
+            let h = -turn.signum() * edge.perp_dot(q - p[k]);
+            if h > 0.0 {
+                let (h2, length2) = (h * h, edge.length_squared());
+                if farthest
+                    .is_none_or(|(_, best_h2, best_length2)| h2 * best_length2 > best_h2 * length2)
+                {
+                    farthest = Some((k, h2, length2));
+                }
+            }
+        }
+        farthest.map(|(k, ..)| k)
     }
 }
 
@@ -538,11 +562,18 @@ impl ShadowQuery for BvhRays<'_> {
         let exact = self.exact(origin, t_min, skip);
         let (mut facet, mut came_from) = (start, NO_NEIGHBOUR);
         for _ in 0..WALK_FACETS {
+            // Each facet is projected once, for the test and for the way on; its
+            // neighbours are asked for first, so that their load overlaps the tests.
+            let seen = self.bvh.seen(&exact, facet);
+            let around = neighbours[facet as usize];
             // Only facets the tree holds may block: the answer must be the tree's.
-            if casts_shadows(self.bvh.mesh, facet) && self.bvh.crosses(&exact, facet) {
+            if !exact.skip.contains(&facet)
+                && self.bvh.crosses_seen(&exact, facet, &seen)
+                && casts_shadows(self.bvh.mesh, facet)
+            {
                 return Some(facet);
             }
-            let next = neighbours[facet as usize][self.bvh.edge_passed(&exact, facet)?];
+            let next = around[Bvh::edge_passed(&exact, &seen)?];
             if next == NO_NEIGHBOUR || next == came_from {
                 return None;
             }
@@ -1511,6 +1542,35 @@ mod tests {
         }
         // The rows are quantised, not exact: the error takes a visible share of the bound.
         assert!(worst > 0.1, "worst error only {worst} of the bound");
+    }
+
+    #[test]
+    fn a_walk_leaves_a_facet_across_the_edge_the_ray_passes_farthest_beyond() {
+        // Seen along +z (whose frame keeps x and y): a long edge on y = 0, a short one on
+        // x = 0. A ray 0.3 below the long edge and 0.5 left of the short one passes
+        // farther beyond the short edge, although its edge function (the distance times
+        // the edge's length) is six times larger on the long one.
+        let seen = [
+            DVec3::ZERO,
+            DVec3::new(10.0, 0.0, 0.0),
+            DVec3::new(0.0, 1.0, 0.0),
+        ];
+        let ray_at = |x, y| {
+            let origin = DVec3::new(x, y, -1.0);
+            Exact::new(origin, RayFrame::new(DVec3::Z), (0.0, 2.0), [u32::MAX; 2])
+        };
+        assert_eq!(Bvh::edge_passed(&ray_at(-0.5, -0.3), &seen), Some(2));
+        assert_eq!(Bvh::edge_passed(&ray_at(-0.2, -0.3), &seen), Some(0));
+        // Beyond the long slanted edge from (10, 0) to (0, 1) alone.
+        assert_eq!(Bvh::edge_passed(&ray_at(6.0, 0.5), &seen), Some(1));
+        assert_eq!(Bvh::edge_passed(&ray_at(0.5, 0.2), &seen), None);
+        // Wound the other way round, the same edges by their new numbers.
+        let reversed = [seen[0], seen[2], seen[1]];
+        assert_eq!(Bvh::edge_passed(&ray_at(-0.5, -0.3), &reversed), Some(0));
+        assert_eq!(Bvh::edge_passed(&ray_at(-0.2, -0.3), &reversed), Some(2));
+        // Seen edge-on: no way on.
+        let edge_on = [DVec3::ZERO, DVec3::X, DVec3::new(2.0, 0.0, 1.0)];
+        assert_eq!(Bvh::edge_passed(&ray_at(0.5, -1.0), &edge_on), None);
     }
 
     #[test]
