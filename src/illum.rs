@@ -299,11 +299,10 @@ impl<'w> Direct<'w> {
                 .iter()
                 .map(|state| self.sky(b, state))
                 .collect::<Result<Vec<_>>>()?;
-            // A body that traces most of its lit facets would hold a block's rays at once
-            // (hundreds of MB at a million facets), and its tracer may build a grid per
-            // direction: it takes its steps one by one. The others trace through a map's
-            // BVH, whose queries cost nothing to hold.
-            let block = if self.traces_most(b) { 1 } else { states.len() };
+            let block = match self.steps_one_by_one(b) {
+                true => 1,
+                false => states.len(),
+            };
             for ((states, skies), views) in states
                 .chunks(block)
                 .zip(skies.chunks(block))
@@ -322,10 +321,18 @@ impl<'w> Direct<'w> {
         Ok(counts)
     }
 
-    /// Whether body `b` traces a ray for most of its facets that face the Sun: it shadows
-    /// itself and has no horizon map, which would decide all but a few of them.
-    fn traces_most(&self, b: usize) -> bool {
-        self.traces_own(b) && !matches!(self.horizons[b], OwnHorizon::Map { .. })
+    /// Whether body `b` takes a block's steps one at a time. A body that traces most of
+    /// its lit facets (it shadows itself and has no horizon map) would hold a block's
+    /// rays at once for a disk Sun's samples (hundreds of MB at a million facets), and
+    /// the Sun-view grid builds a grid per direction. Toward a point Sun through the BVH
+    /// (the tracer with a horizon bound) the rays are traced where they arise and the
+    /// queries cost nothing to hold, so a chunk of facets takes every step of the block
+    /// in turn, as with a map: one parallel pass per block instead of one per step.
+    fn steps_one_by_one(&self, b: usize) -> bool {
+        let traces_most = self.traces_own(b) && !matches!(self.horizons[b], OwnHorizon::Map { .. });
+        let queries_are_free =
+            self.sun == SunShape::Point && matches!(self.horizons[b], OwnHorizon::Bound { .. });
+        traces_most && !queries_are_free
     }
 
     /// Irradiance (W/m²) at `state` of a few facets, each given as (body index, local
