@@ -41,7 +41,7 @@ use super::geometry::{
     distance_to_triangle, pseudo_angle, rounding_widening, tangent_frame, triangle_bound,
 };
 use super::map::{in_seeded_runs, ZenithLine};
-use super::outline::Outline;
+use super::outline::{turned_outward, Outline};
 use crate::mesh::Mesh;
 use crate::trace::bvh::Bvh;
 use glam::DVec3;
@@ -612,7 +612,7 @@ fn raise_by_sector(
 /// by an angle given as its `(cos, sin)`. The sectors' edges are the turns `k/4`: in
 /// the first quadrant the directions `(4 − j, j)`, `j = 0..4`, and alike a quarter turn
 /// on in each other quadrant.
-fn sector_edges(k: usize, (co, so): (f64, f64)) -> ((f64, f64), (f64, f64)) {
+fn sector_edges(k: usize, turn_out: (f64, f64)) -> ((f64, f64), (f64, f64)) {
     let edge = |k: usize| {
         let j = (k % 4) as f64;
         let (x, y) = (4.0 - j, j);
@@ -624,11 +624,7 @@ fn sector_edges(k: usize, (co, so): (f64, f64)) -> ((f64, f64), (f64, f64)) {
             _ => (y / r, -x / r),
         }
     };
-    let ((c0, s0), (c1, s1)) = (edge(k), edge(k + 1));
-    (
-        (c0 * co + s0 * so, s0 * co - c0 * so),
-        (c1 * co - s1 * so, s1 * co + c1 * so),
-    )
+    turned_outward(edge(k), edge(k + 1), turn_out)
 }
 
 /// The triangles that set each sector's sine (`u32::MAX`: none).

@@ -70,10 +70,18 @@ pub(crate) fn triangle_bound(
         return 0.0;
     }
     let gap = distance_to_triangle(c, tri);
-    if gap <= 64.0 * widening {
+    if touches(gap, widening) {
         return 1.0;
     }
     (triangle_max_sin(c, n, tri) + widening / (gap - widening)).min(1.0)
+}
+
+/// Whether a triangle `gap` metres from a viewpoint touches it, for a bound of widened
+/// triangles: within 64 widenings the widening's margin on the elevation sine,
+/// `widening / (gap − widening)`, is no longer small, and the triangle may hide anything.
+#[inline]
+pub(crate) fn touches(gap: f64, widening: f64) -> bool {
+    gap <= 64.0 * widening
 }
 
 /// False when no point within `widening` of triangle `tri` rises above the elevation sine

@@ -30,9 +30,9 @@
 
 use super::geometry::{
     arc_max_sin, atan2_within, directions_max_sin, distance_to_triangle, polygon_max_sin,
-    pseudo_angle, rounding_widening, signed_box_bound, tangent_frame, ANGLE_ERROR,
+    pseudo_angle, rounding_widening, signed_box_bound, tangent_frame, touches, ANGLE_ERROR,
 };
-use super::outline::Outline;
+use super::outline::{turned_outward, Outline};
 use crate::mesh::Mesh;
 use crate::trace::bvh::{Bvh, SearchBox};
 use glam::DVec3;
@@ -328,12 +328,8 @@ impl Wedges {
 
     /// Wedge `k`'s bounding azimuths as in-plane directions, each turned outward by an
     /// overlap given as its `(cos, sin)`.
-    fn widened(&self, k: usize, (co, so): (f64, f64)) -> ((f64, f64), (f64, f64)) {
-        let ((c0, s0), (c1, s1)) = (self.edges[k], self.edges[k + 1]);
-        (
-            (c0 * co + s0 * so, s0 * co - c0 * so),
-            (c1 * co - s1 * so, s1 * co + c1 * so),
-        )
+    fn widened(&self, k: usize, overlap: (f64, f64)) -> ((f64, f64), (f64, f64)) {
+        turned_outward(self.edges[k], self.edges[k + 1], overlap)
     }
 
     /// The wedges met by an azimuth span, each once, in order.
@@ -716,7 +712,7 @@ impl<'a> FacetSky<'a> {
             return;
         }
         let gap = distance_to_triangle(self.c, tri);
-        if gap <= 64.0 * self.widening {
+        if touches(gap, self.widening) {
             // The triangle touches the viewpoint (a degenerate mesh): it may hide anything.
             self.upper.fill(1.0);
             return;

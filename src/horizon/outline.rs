@@ -50,6 +50,21 @@ fn cross((ax, ay): (f64, f64), (bx, by): (f64, f64)) -> f64 {
     ax * by - ay * bx
 }
 
+/// The azimuths `lo` and `hi` (in-plane directions bounding a span counterclockwise from
+/// `lo`) each turned outward, `lo` clockwise and `hi` counterclockwise, by an angle given
+/// as its `(cos, sin)`: a span widened for [`Outline::max_within`] past the rounding of
+/// the turns it is compared with.
+pub(super) fn turned_outward(
+    (c0, s0): (f64, f64),
+    (c1, s1): (f64, f64),
+    (co, so): (f64, f64),
+) -> ((f64, f64), (f64, f64)) {
+    (
+        (c0 * co + s0 * so, s0 * co - c0 * so),
+        (c1 * co - s1 * so, s1 * co + c1 * so),
+    )
+}
+
 impl Outline {
     /// The outline of the triangle `rel` (corners relative to the viewpoint), or `None`
     /// where it would be ill conditioned (module docs).
