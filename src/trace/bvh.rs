@@ -453,7 +453,7 @@ impl<'m> Bvh<'m> {
     /// with the hit distance bounded on both sides.
     #[inline]
     fn crosses(&self, s: &Exact, id: u32) -> bool {
-        !s.skip.contains(&id) && self.crosses_seen(s, id, &self.seen(s, id))
+        self.crosses_seen(s, id, &self.seen(s, id))
     }
 
     /// Facet `id`'s corners in the frame of the segment's direction.
@@ -462,13 +462,13 @@ impl<'m> Bvh<'m> {
         self.mesh.corners(id as usize).map(|p| s.frame.project(p))
     }
 
-    /// [`Bvh::crosses`] for a facet not left out, its corners `seen` along the segment.
-    /// The projection test comes first: a walk over the surface meets mostly facets the
-    /// ray passes beside, which it rules out without the depth plane's divisions (the
-    /// order does not change the answer).
+    /// [`Bvh::crosses`] for facet `id` with its corners `seen` along the segment. The
+    /// projection test comes first: a walk over the surface meets mostly facets the ray
+    /// passes beside, which it rules out without the depth plane's divisions (the order
+    /// does not change the answer).
     #[inline]
     fn crosses_seen(&self, s: &Exact, id: u32, seen: &[DVec3; 3]) -> bool {
-        inside(seen, s.q) && {
+        !s.skip.contains(&id) && inside(seen, s.q) && {
             let normal = s.frame.project(self.mesh.normals[id as usize]);
             let t = DepthPlane::new(normal, seen[0]).distance(s.q);
             t > s.t0 && t < s.t1
@@ -567,10 +567,7 @@ impl ShadowQuery for BvhRays<'_> {
             let seen = self.bvh.seen(&exact, facet);
             let around = neighbours[facet as usize];
             // Only facets the tree holds may block: the answer must be the tree's.
-            if !exact.skip.contains(&facet)
-                && self.bvh.crosses_seen(&exact, facet, &seen)
-                && casts_shadows(self.bvh.mesh, facet)
-            {
+            if self.bvh.crosses_seen(&exact, facet, &seen) && casts_shadows(self.bvh.mesh, facet) {
                 return Some(facet);
             }
             let next = around[Bvh::edge_passed(&exact, &seen)?];
