@@ -1,15 +1,21 @@
 #!/usr/bin/env bash
-# A year of hourly steps with a horizon map at scale: the 49,152-facet Itokawa model
-# subdivided LEVELS times (default 2: 786,432 facets), a spin scene of 730 spins × 12
-# steps (8,760 steps of 1.01 h), `shadows = "horizon"`, `horizon_mode = MODE` (default
-# approximate), Parquet tables only. `slim run` is timed REPEAT times (default 3) with
+# A year of hourly steps at scale: the 49,152-facet Itokawa model subdivided LEVELS times
+# (default 2: 786,432 facets), a spin scene of PERIODS spins × 12 steps (8,760 steps of
+# 1.01 h), Parquet tables only. MODE (default approximate) is the horizon map's
+# `horizon_mode` with `shadows = "horizon"`; MODE=auto leaves `shadows` to the plan (rays
+# through the BVH at a year of steps). `slim run` is timed REPEAT times (default 3) with
 # /usr/bin/time -v (wall time, peak memory) and each run's stage times from run.json.
+#
+# PERIODS (environment, default 730.04) is not a whole number, so that the spins do not
+# repeat exactly and every step is computed, as a year on a real orbit would be. With
+# PERIODS=730 each spin repeats the first bit for bit, and the run computes the light of
+# one spin and hands it on (docs/scene.md, "Repeated steps").
 #
 # The map is kept in bench/results/horizon-year-cache between invocations (its key
 # follows the mesh, the settings and the map's source), so the first run of a fresh
 # clone builds it: about 24 minutes on 2 cores at 786k facets; later runs read it.
 #
-#   bench/horizon_year.sh [LEVELS] [REPEAT] [MODE] [OUT]    (from the repository root)
+#   [PERIODS=P] bench/horizon_year.sh [LEVELS] [REPEAT] [MODE] [OUT]    (from the repository root)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 source bench/common.sh
@@ -18,9 +24,12 @@ bench_init bench/results/horizon_year "${4:-}"
 export SLIM_CACHE_DIR
 SLIM_CACHE_DIR=$(realpath -m bench/results/horizon-year-cache)
 mesh=$(subdivided_itokawa "$LEVELS")
-spin_scene "itokawa-year-x4-$LEVELS" "$mesh" 12 false \
-  "shadows = \"horizon\"
-horizon_mode = \"$MODE\"" | sed 's/^steps_per_period = 12$/steps_per_period = 12\nperiods = 730/' >"$OUT/scene.toml"
+PERIODS=${PERIODS:-730.04}
+run_line="shadows = \"horizon\"
+horizon_mode = \"$MODE\""
+[[ $MODE == auto ]] && run_line=""
+spin_scene "itokawa-year-x4-$LEVELS" "$mesh" 12 false "$run_line" |
+  sed "s/^steps_per_period = 12\$/steps_per_period = 12\nperiods = $PERIODS/" >"$OUT/scene.toml"
 for r in $(seq 1 "$REPEAT"); do
   if ! /usr/bin/time -v "$B" run "$OUT/scene.toml" -o "$OUT/run-$r" --quiet 2>"$OUT/time-$r.txt"; then
     cat "$OUT/time-$r.txt" >&2

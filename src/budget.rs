@@ -145,6 +145,9 @@ pub struct Demand {
     pub kernel_bytes: f64,
     /// Bytes of the horizon maps the run uses.
     pub horizon_map_bytes: f64,
+    /// Steps whose direct light is kept for the later steps that repeat them
+    /// ([`crate::simulate::computed_steps`]; 0 when nothing repeats).
+    pub repeat_values: f64,
 }
 
 /// Bytes per facet of the mesh (vertices, triangles, centroids, normals, areas), its
@@ -280,6 +283,13 @@ impl Demand {
             self.facets * 8.0 * (self.block_values + 2.0 + 3.0 * self.stat_sets),
             "use a coarser mesh",
         );
+        if self.repeat_values > 0.0 {
+            e.push(
+                "repeated steps' light",
+                self.facets * 8.0 * self.repeat_values,
+                "use fewer steps per period (the light of one period is kept) or a coarser mesh",
+            );
+        }
         let cdf_rows = (self.reported() * self.bins).min(CDF_ROWS_PER_BATCH as f64);
         e.push(
             "CDF table batches",

@@ -58,6 +58,11 @@ pub struct StepCounts {
     /// part of a sharded run starts afresh), never on the result.
     #[serde(default)]
     pub remembered: u64,
+    /// Steps whose direct light was copied from the step one repeat of the geometry
+    /// earlier ([`crate::ephemeris::repeat_period`]) instead of computed; the other
+    /// counts cover the computed steps only.
+    #[serde(default)]
+    pub repeated: u64,
 }
 
 impl std::ops::AddAssign for StepCounts {
@@ -68,6 +73,7 @@ impl std::ops::AddAssign for StepCounts {
         self.above_horizon += o.above_horizon;
         self.horizon_lookups += o.horizon_lookups;
         self.remembered += o.remembered;
+        self.repeated += o.repeated;
     }
 }
 

@@ -14,7 +14,7 @@ use crate::ephemeris::fixed::{normalized_direction, FixedGeometry, FixedSun};
 use crate::ephemeris::spice::{parse_aberration, Kernels, SpiceBody, SpiceEphemeris, SpiceMember};
 use crate::ephemeris::spin::{Spin, SpinModel};
 use crate::ephemeris::synthetic::{CircularOrbit, SyntheticMotion};
-use crate::ephemeris::{flux_at, Ephemeris, EpochState};
+use crate::ephemeris::{flux_at, repeat_period, Ephemeris, EpochState};
 use crate::error::{Error, Result};
 use crate::horizon::shadows::bound_detail_for_run;
 use crate::horizon::Shadows;
@@ -30,6 +30,7 @@ use crate::scene::{
     BodySection, EphemerisSection, FixedSection, Orient, Scene, Shape, SpiceSection, SpiceSteps,
     SpinSection,
 };
+use crate::simulate::{computed_steps, REPEAT_KEEP_MAX_BYTES};
 use crate::stats::Bins;
 use crate::trace::{choice, TracerKind};
 use crate::world::{Body, Pose, World};
@@ -128,9 +129,13 @@ pub fn prepare(scene: &Scene, budget: &Budget, timings: &mut Timings) -> Result<
     demand.form_factor_entries = scatter
         .as_ref()
         .map_or(0.0, |s| s.estimated_entries(world, &states));
+    // A geometry that repeats has the light of its first period computed, and the choices
+    // below weigh those steps.
+    let computed = computed_steps(&states, world.facet_count());
+    demand.repeat_values = (computed < states.len()) as u8 as f64 * computed as f64;
     let mut shadows = scene.shadows();
     let (horizon_maps, reasons): (Vec<bool>, Vec<String>) = shadows
-        .choose(world, states.len(), scene.run.tracer)
+        .choose(world, computed, scene.run.tracer)
         .into_iter()
         .unzip();
     demand.horizon_map_bytes = shadows.map_bytes(world, &horizon_maps);
@@ -150,18 +155,20 @@ pub fn prepare(scene: &Scene, budget: &Budget, timings: &mut Timings) -> Result<
     let (tracer, mut why) = choice::choose(
         scene.run.tracer,
         world,
-        states.len(),
+        computed,
         shadows.disk_samples(),
         &horizon_maps,
     );
     if tracer == TracerKind::Bvh {
         let (detail, reason) =
-            bound_detail_for_run(world, &horizon_maps, states.len(), shadows.disk_samples());
+            bound_detail_for_run(world, &horizon_maps, computed, shadows.disk_samples());
         shadows.bound_detail = detail;
         why = format!("{why}; {reason}");
     }
     let mut plan = Plan::new(scene, world, states.len(), (tracer, why), &horizon_maps);
     plan.set_horizon_maps(map_decisions);
+    plan.decisions
+        .extend(repeat_decision(&states, computed, world.facet_count()));
     if let Some(settings) = &scatter {
         plan.set_scatter(settings.decisions(world, &states));
     }
@@ -176,6 +183,36 @@ pub fn prepare(scene: &Scene, budget: &Budget, timings: &mut Timings) -> Result<
         shadows,
         horizon_maps,
     })
+}
+
+/// The plan's word on a geometry that repeats (none when it does not): whether the
+/// later steps copy the direct light of the first `computed`, and what that keeps.
+fn repeat_decision(states: &[EpochState], computed: usize, facets: usize) -> Option<Decision> {
+    let period = repeat_period(states);
+    let mb = (period * facets * std::mem::size_of::<f64>()) as f64 / 1e6;
+    let stage = "repeated steps".to_string();
+    match (period < states.len(), computed < states.len()) {
+        (false, _) => None,
+        (true, true) => Some(Decision {
+            stage,
+            runs: true,
+            reason: format!(
+                "the bodies' geometry repeats every {period} steps: the direct light of the \
+                 first {period} is computed and kept ({mb:.1} MB), the other {} copy it; \
+                 statistics, history and scattered light still take every step",
+                states.len() - period
+            ),
+        }),
+        (true, false) => Some(Decision {
+            stage,
+            runs: false,
+            reason: format!(
+                "the bodies' geometry repeats every {period} steps, but keeping their direct \
+                 light would take {mb:.0} MB (more than {:.0}): every step is computed",
+                REPEAT_KEEP_MAX_BYTES / 1e6
+            ),
+        }),
+    }
 }
 
 /// A warning for every pair of bodies that occupy the same place at `state`: centres and
@@ -237,6 +274,7 @@ fn scene_demand(scene: &Scene) -> Demand {
         form_factor_entries: 0.0,
         kernel_bytes: kernel_bytes(scene),
         horizon_map_bytes: 0.0,
+        repeat_values: 0.0,
     }
 }
 

@@ -15,7 +15,7 @@
 //! depend on the block.
 
 use crate::bands::Bands;
-use crate::ephemeris::EpochState;
+use crate::ephemeris::{repeat_period, EpochState};
 use crate::error::{Error, Result};
 use crate::horizon::bound::BoundDetail;
 use crate::horizon::map::HorizonMap;
@@ -138,7 +138,8 @@ pub fn simulate(
         obtain_maps(world, &shadows, &horizon_maps, progress)
     })?;
     let mapped: Vec<bool> = maps.iter().map(Option::is_some).collect();
-    let (tracer, _) = choice::choose(tracer, world, states.len(), shadows.disk_samples(), &mapped);
+    let computed = computed_steps(states, world.facet_count());
+    let (tracer, _) = choice::choose(tracer, world, computed, shadows.disk_samples(), &mapped);
     if tracer == TracerKind::Bvh {
         let cached = shadows.cached_bounds(world);
         announce_bvh_build(world, (&mapped, &cached), shadows.bound_detail, progress);
@@ -172,34 +173,38 @@ pub fn simulate(
     let mut directs = vec![vec![0.0; n]; batch];
     let mut scattered = vec![vec![0.0; n]; if scatter.is_some() { batch } else { 0 }];
     let mut counts = StepCounts::default();
+    let mut repeats = Repeats::new(computed, states.len());
     progress.begin_steps(states.len() as u64);
-    for chunk in states.chunks(batch) {
+    for (c, chunk) in states.chunks(batch).enumerate() {
         let directs = &mut directs[..chunk.len()];
         let lanes = chunk.len().min(scattered.len());
         let scattered = &mut scattered[..lanes];
         if progress.cancelled() {
             return Err(Error::Cancelled);
         }
-        let mut outs: Vec<&mut [f64]> = directs.iter_mut().map(Vec::as_mut_slice).collect();
+        let first = c * batch;
         counts += timings.time("direct irradiance", || {
-            direct.compute_steps(chunk, &mut outs)
+            repeats.compute(first, chunk, directs, |states, outs| {
+                direct.compute_steps(states, outs)
+            })
         })?;
+        let lights = repeats.lights(first, directs);
         if let Some(stage) = scatter.as_mut() {
             timings.time("scattered light", || {
                 let mut s: Vec<&mut [f64]> = scattered.iter_mut().map(Vec::as_mut_slice).collect();
-                stage.step_many(chunk, &slices(directs), &mut s);
+                stage.step_many(chunk, &lights, &mut s);
                 shines = stage.take_planet_shine();
             });
         }
         if let Some(bands) = bands.as_deref_mut() {
             timings.time("spectral bands", || {
-                bands.add_steps(chunk, &slices(directs), scatter.as_mut())
+                bands.add_steps(chunk, &lights, scatter.as_mut())
             });
         }
-        timings.time("statistics", || acc.add_steps(directs, scattered, &shines));
+        timings.time("statistics", || acc.add_steps(&lights, scattered, &shines));
         for (k, state) in chunk.iter().enumerate() {
             timings.time("history", || {
-                on_step(state, acc.step(k, directs, scattered))
+                on_step(state, acc.step(k, &lights, scattered))
             })?;
             progress.step_done();
         }
@@ -220,6 +225,82 @@ pub fn simulate(
         horizon_maps: records,
         horizon_bounds,
     })
+}
+
+/// The most bytes a run spends keeping one period of every facet's direct light when
+/// its geometry repeats ([`computed_steps`]).
+pub const REPEAT_KEEP_MAX_BYTES: f64 = 1024.0 * 1024.0 * 1024.0;
+
+/// The steps (the first ones) whose direct light a run over `states` with `facets`
+/// facets computes: one period of the geometry when it repeats
+/// ([`crate::ephemeris::repeat_period`]) and that period's light for every facet fits in
+/// [`REPEAT_KEEP_MAX_BYTES`]; every step otherwise. The later steps copy it.
+pub fn computed_steps(states: &[EpochState], facets: usize) -> usize {
+    let period = repeat_period(states);
+    let kept_bytes = (period * facets * std::mem::size_of::<f64>()) as f64;
+    match period < states.len() && kept_bytes <= REPEAT_KEEP_MAX_BYTES {
+        true => period,
+        false => states.len(),
+    }
+}
+
+/// The direct light of a run's first `computed` steps, kept when the geometry repeats so
+/// that every later step takes its own from the step a whole number of periods earlier.
+struct Repeats {
+    computed: usize,
+    kept: Vec<Vec<f64>>,
+    keeps: bool,
+}
+
+impl Repeats {
+    fn new(computed: usize, steps: usize) -> Repeats {
+        Repeats {
+            computed,
+            kept: Vec::new(),
+            keeps: computed < steps,
+        }
+    }
+
+    /// Steps of the block starting at step `first` that are computed, not repeated.
+    fn fresh(&self, first: usize, block: usize) -> usize {
+        self.computed.saturating_sub(first).min(block)
+    }
+
+    /// Computes with `compute` into `outs` the direct light of the steps of `chunk` (the
+    /// first numbered `first`) among the first `computed`, and keeps it when later steps
+    /// repeat it; the counts also say how many of the chunk's steps repeat.
+    fn compute(
+        &mut self,
+        first: usize,
+        chunk: &[EpochState],
+        outs: &mut [Vec<f64>],
+        compute: impl FnOnce(&[EpochState], &mut [&mut [f64]]) -> Result<StepCounts>,
+    ) -> Result<StepCounts> {
+        let fresh = self.fresh(first, chunk.len());
+        let mut counts = StepCounts::default();
+        if fresh > 0 {
+            let mut views: Vec<&mut [f64]> =
+                (outs[..fresh].iter_mut()).map(Vec::as_mut_slice).collect();
+            counts = compute(&chunk[..fresh], &mut views)?;
+            if self.keeps {
+                self.kept.extend(outs[..fresh].iter().cloned());
+            }
+        }
+        counts.repeated = (chunk.len() - fresh) as u64;
+        Ok(counts)
+    }
+
+    /// The direct light of each step of the block starting at step `first`: the computed
+    /// ones from `outs`, the repeated ones (not copied) from the kept period.
+    fn lights<'a>(&'a self, first: usize, outs: &'a [Vec<f64>]) -> Vec<&'a [f64]> {
+        let fresh = self.fresh(first, outs.len());
+        (outs.iter().enumerate())
+            .map(|(k, out)| match k < fresh {
+                true => out.as_slice(),
+                false => self.kept[(first + k) % self.computed].as_slice(),
+            })
+            .collect()
+    }
 }
 
 /// The horizon maps of the bodies flagged in `uses` (none for the others), each read
@@ -353,12 +434,12 @@ impl Accumulators {
 
     /// Adds a block of consecutive steps: their direct and (with parts) scattered
     /// irradiance, and with planets counted apart their planet light (global order).
-    fn add_steps(&mut self, directs: &[Vec<f64>], scattered: &[Vec<f64>], shines: &[Vec<f64>]) {
+    fn add_steps(&mut self, directs: &[&[f64]], scattered: &[Vec<f64>], shines: &[Vec<f64>]) {
         if let Some(stats) = self.planet_stats.as_mut() {
             stats.add_steps_of(&slices(shines), &self.kept);
         }
         let Some((direct_stats, scattered_stats)) = self.part_stats.as_mut() else {
-            self.total_stats.add_steps_of(&slices(directs), &self.kept);
+            self.total_stats.add_steps_of(directs, &self.kept);
             return;
         };
         self.totals.resize_with(directs.len(), Vec::new);
@@ -368,7 +449,7 @@ impl Accumulators {
         }
         self.total_stats
             .add_steps_of(&slices(&self.totals), &self.kept);
-        direct_stats.add_steps_of(&slices(directs), &self.kept);
+        direct_stats.add_steps_of(directs, &self.kept);
         scattered_stats.add_steps_of(&slices(scattered), &self.kept);
     }
 
@@ -377,10 +458,10 @@ impl Accumulators {
     fn step<'a>(
         &'a mut self,
         k: usize,
-        directs: &'a [Vec<f64>],
+        directs: &[&'a [f64]],
         scattered: &'a [Vec<f64>],
     ) -> StepIrradiance<'a> {
-        let direct = self.kept.pick(&directs[k], &mut self.kept_direct);
+        let direct = self.kept.pick(directs[k], &mut self.kept_direct);
         if self.part_stats.is_none() {
             return StepIrradiance {
                 total: direct,

@@ -14,7 +14,7 @@ use hifitime::Epoch;
 use slim::analytic::SphereLatitude;
 use slim::ephemeris::fixed::{FixedGeometry, FixedSun};
 use slim::ephemeris::spin::{Spin, SpinModel};
-use slim::ephemeris::Ephemeris;
+use slim::ephemeris::{repeat_period, Ephemeris};
 use slim::horizon::bound::BoundDetail;
 use slim::horizon::map::{HorizonMap, PointHorizon};
 use slim::horizon::tangent_frame;
@@ -2079,4 +2079,93 @@ fn a_battery_fills_and_drains_as_the_closed_form_says() {
         run.below_low_s
     );
     assert!((run.unmet_wh - 200.0).abs() < 1e-9, "{}", run.unmet_wh);
+}
+
+// ---------------------------------------------------------------------------------------
+// Steps that repeat
+
+/// A bowl (z = 0.1·r², 8 m across) that shadows its own floor under a Sun 0.5 rad up.
+fn bowl() -> World {
+    let bowl = height_field((8, 8), (-4.0, 4.0), (-4.0, 4.0), |x, y| {
+        0.1 * (x * x + y * y)
+    });
+    World {
+        bodies: vec![Body::new("bowl", bowl, false)],
+    }
+}
+
+/// The spin of [`spin_model`] over `periods` periods in `steps` steps.
+fn spins(steps: usize, periods: f64) -> SpinModel {
+    SpinModel {
+        duration_s: 3600.0 * periods,
+        ..spin_model(steps, 0.5)
+    }
+}
+
+/// The spin model takes a step's rotation from its place within the period when whole
+/// steps fill the period, so that every period repeats the first bit for bit; the Sun
+/// must still stand where the continuous rotation θ₀ + 2π·t/P puts it (to rounding).
+#[test]
+fn a_spin_of_whole_periods_repeats_bit_for_bit_where_the_rotation_puts_the_sun() {
+    let model = spins(36, 3.0);
+    let states = epoch_states(&model).expect("epoch states");
+    assert_eq!(repeat_period(&states), 12);
+    let sun = model.sun_dir_scene;
+    for (k, state) in states.iter().enumerate() {
+        let angle = 0.3 + 2.0 * PI * (k as f64 * 300.0) / 3600.0;
+        let expected = DMat3::from_rotation_z(angle).transpose() * sun;
+        let off = state.bodies[0].sun_dir.distance(expected);
+        assert!(off < 1e-12, "step {k}: {off:e}");
+    }
+    // 37 steps over 3 periods: no whole number of steps per period, nothing repeats.
+    assert_eq!(repeat_period(&epoch_states(&spins(37, 3.0)).unwrap()), 37);
+}
+
+/// A geometry that returns to its first step without repeating (Suns A, A, B: step 1
+/// repeats step 0, step 2 does not repeat step 1) is not taken as repeating; one Sun
+/// listed once per step is, every step.
+#[test]
+fn only_a_geometry_that_repeats_throughout_counts_as_repeating() {
+    let a = DVec3::new(1.0, 0.0, 1.0).normalize();
+    let b = DVec3::new(0.0, 1.0, 1.0).normalize();
+    let aab = fixed(&[a, a, b], 1361.0, vec![Pose::IDENTITY]);
+    assert_eq!(repeat_period(&epoch_states(&aab).unwrap()), 3);
+    let aaa = fixed(&[a, a, a, a], 1361.0, vec![Pose::IDENTITY]);
+    assert_eq!(repeat_period(&epoch_states(&aaa).unwrap()), 1);
+    assert_eq!(repeat_period(&[]), 0);
+}
+
+/// Over three whole periods the run computes the first period's light and copies it to
+/// the other two: every step's light, as the step loop hands it on, must equal the light
+/// of that step computed on its own (the bowl's floor is partly shadowed, so a copy from
+/// the wrong step shows), and the counts must say that 24 of 36 steps were copied.
+#[test]
+fn a_repeating_spin_computes_one_period_and_every_copy_equals_its_own_step() {
+    let world = bowl();
+    let states = epoch_states(&spins(36, 3.0)).expect("epoch states");
+    let mut handed_on = Vec::new();
+    let sim = simulate(
+        &world,
+        &states,
+        Options::direct(TracerKind::Bvh, Bins::covering(50.0, FLUX_152)),
+        &mut Timings::default(),
+        &Silent,
+        |_, e| {
+            handed_on.push(e.total.to_vec());
+            Ok(())
+        },
+    )
+    .expect("simulate");
+    assert_eq!(sim.counts.repeated, 24);
+    assert!(sim.counts.shadowed > 0, "the bowl shadows its floor");
+    let direct = Direct::new(&world, TracerKind::Bvh);
+    for (k, state) in states.iter().enumerate() {
+        let mut own = vec![f64::NAN; world.facet_count()];
+        direct.compute(state, &mut own).expect("compute");
+        assert_eq!(handed_on[k], own, "step {k}");
+    }
+    assert_ne!(
+        handed_on[0], handed_on[1],
+        "the steps differ from each other"
+    );
 }

@@ -31,6 +31,61 @@ pub struct BodyState {
     pub pose: Pose,
 }
 
+impl BodyState {
+    /// Every number of the state, as bits: equal bits mean the same light, and NaN (a
+    /// Sun given by its flux alone has no distance) equals itself.
+    fn bits(&self) -> [u64; 17] {
+        let m = self.pose.body_to_scene.to_cols_array();
+        let v = [self.sun_dir, self.pose.position_m].map(|v| v.to_array());
+        let all = [
+            v[0][0],
+            v[0][1],
+            v[0][2],
+            self.sun_distance_m,
+            self.flux_w_m2,
+            m[0],
+            m[1],
+            m[2],
+            m[3],
+            m[4],
+            m[5],
+            m[6],
+            m[7],
+            m[8],
+            v[1][0],
+            v[1][1],
+            v[1][2],
+        ];
+        all.map(f64::to_bits)
+    }
+}
+
+/// The number of steps after which the bodies' geometry repeats: the least `m` such that
+/// every step `k ≥ m` has, bit for bit, the Sun and poses of step `k − m` (a spin scene of
+/// several periods whose steps divide the period, a fixed geometry listing one Sun);
+/// `states.len()` when it never repeats. Only the first step with step 0's geometry is
+/// tried as `m`: a geometry that passes through step 0's within a longer cycle counts as
+/// not repeating, which loses speed but never changes a result.
+pub fn repeat_period(states: &[EpochState]) -> usize {
+    let Some(first) = states.first() else {
+        return 0;
+    };
+    let same = |a: &EpochState, b: &EpochState| {
+        a.bodies.len() == b.bodies.len()
+            && a.bodies
+                .iter()
+                .zip(&b.bodies)
+                .all(|(x, y)| x.bits() == y.bits())
+    };
+    let m = (states.iter().skip(1))
+        .position(|s| same(s, first))
+        .map_or(states.len(), |p| p + 1);
+    match (m..states.len()).all(|k| same(&states[k], &states[k - m])) {
+        true => m,
+        false => states.len(),
+    }
+}
+
 /// The geometry of every body at one step.
 #[derive(Debug, Clone, PartialEq)]
 pub struct EpochState {

@@ -52,6 +52,19 @@ impl SpinModel {
     fn time_s(&self, step: usize) -> f64 {
         self.duration_s * step as f64 / self.steps as f64
     }
+
+    /// Turns a body of period `period_s` has made at `step`, from the step's place within
+    /// the period when a whole number of steps fills it: every period's steps then repeat
+    /// the first's bit for bit, and a run computes the light of one period only
+    /// ([`crate::ephemeris::repeat_period`]).
+    fn turns(&self, step: usize, period_s: f64) -> f64 {
+        let per_turn = period_s * self.steps as f64 / self.duration_s;
+        let whole = per_turn.round();
+        match whole >= 1.0 && whole < u32::MAX as f64 && (per_turn - whole).abs() < 1e-9 * whole {
+            true => (step % whole as usize) as f64 / whole,
+            false => self.time_s(step) / period_s,
+        }
+    }
 }
 
 impl Ephemeris for SpinModel {
@@ -71,7 +84,9 @@ impl Ephemeris for SpinModel {
             .iter()
             .map(|spin| {
                 let angle = spin.initial_angle_rad
-                    + spin.period_s.map_or(0.0, |p| std::f64::consts::TAU * t / p);
+                    + spin
+                        .period_s
+                        .map_or(0.0, |p| std::f64::consts::TAU * self.turns(step, p));
                 let body_to_scene = DMat3::from_rotation_z(angle);
                 BodyState {
                     sun_dir: body_to_scene.transpose() * self.sun_dir_scene,
