@@ -682,11 +682,13 @@ impl<'w> Direct<'w> {
         own: &[Option<Box<dyn ShadowQuery + '_>>],
         outs: &mut [&mut [f64]],
     ) -> Vec<(StepCounts, Vec<OwnRay>)> {
-        // Chunks of 256 to 2048 facets, at least 8 per thread where the mesh allows: they
-        // also share out the rays, which gather where the shadows are.
+        // Chunks of 256 to 2048 facets, at least 48 per thread where the mesh allows, each
+        // taken alone by whichever thread is free: the rays gather where the shadows are,
+        // so chunks cost unevenly, and a thread left with the last few (rayon's default
+        // runs of several) idled its partner for a chunk's time or more per pass.
         let count = outs.first().map_or(0, |o| o.len());
         let chunk = count
-            .div_ceil(8 * rayon::current_num_threads())
+            .div_ceil(48 * rayon::current_num_threads())
             .clamp(256, 2048);
         let mut chunks: Vec<Vec<&mut [f64]>> = Vec::new();
         for out in outs.iter_mut() {
@@ -705,6 +707,7 @@ impl<'w> Direct<'w> {
         };
         chunks
             .into_par_iter()
+            .with_max_len(1)
             .enumerate()
             .map(|(c, steps)| {
                 let facets = Facets {
