@@ -58,11 +58,6 @@ pub struct StepCounts {
     /// part of a sharded run starts afresh), never on the result.
     #[serde(default)]
     pub remembered: u64,
-    /// Steps whose direct light was copied from the step one repeat of the geometry
-    /// earlier ([`crate::ephemeris::repeat_period`]) instead of computed; the other
-    /// counts cover the computed steps only.
-    #[serde(default)]
-    pub repeated: u64,
 }
 
 impl std::ops::AddAssign for StepCounts {
@@ -73,7 +68,6 @@ impl std::ops::AddAssign for StepCounts {
         self.above_horizon += o.above_horizon;
         self.horizon_lookups += o.horizon_lookups;
         self.remembered += o.remembered;
-        self.repeated += o.repeated;
     }
 }
 
@@ -291,8 +285,21 @@ impl<'w> Direct<'w> {
         states: &[EpochState],
         outs: &mut [&mut [f64]],
     ) -> Result<StepCounts> {
+        let each = self.compute_steps_each(states, outs)?;
+        Ok(each.into_iter().fold(StepCounts::default(), |mut all, c| {
+            all += c;
+            all
+        }))
+    }
+
+    /// [`Direct::compute_steps`] with the counts of each step apart.
+    pub fn compute_steps_each(
+        &self,
+        states: &[EpochState],
+        outs: &mut [&mut [f64]],
+    ) -> Result<Vec<StepCounts>> {
         assert_eq!(states.len(), outs.len(), "one output per step");
-        let mut counts = StepCounts::default();
+        let mut counts = vec![StepCounts::default(); states.len()];
         for (b, body) in self.world.bodies.iter().enumerate() {
             let range = self.offsets[b]..self.offsets[b] + body.mesh.len();
             let mut views: Vec<&mut [f64]> =
@@ -309,18 +316,19 @@ impl<'w> Direct<'w> {
                 true => 1,
                 false => states.len(),
             };
-            for ((states, skies), views) in states
+            for (((states, skies), views), counts) in states
                 .chunks(block)
                 .zip(skies.chunks(block))
                 .zip(views.chunks_mut(block))
+                .zip(counts.chunks_mut(block))
             {
                 let own: Vec<_> = skies.iter().map(|sky| self.point_query(b, sky)).collect();
                 let facing = self.light_facing(b, skies, &own, views);
-                for (((state, sky), (lit, rays)), out) in
-                    states.iter().zip(skies).zip(facing).zip(views)
+                for ((((state, sky), (lit, rays)), out), counts) in
+                    states.iter().zip(skies).zip(facing).zip(views).zip(counts)
                 {
-                    counts += lit;
-                    counts += self.shade(b, &self.others_light(b, state, sky), &rays, out);
+                    *counts += lit;
+                    *counts += self.shade(b, &self.others_light(b, state, sky), &rays, out);
                 }
             }
         }

@@ -14,9 +14,9 @@ use crate::ephemeris::fixed::{normalized_direction, FixedGeometry, FixedSun};
 use crate::ephemeris::spice::{parse_aberration, Kernels, SpiceBody, SpiceEphemeris, SpiceMember};
 use crate::ephemeris::spin::{Spin, SpinModel};
 use crate::ephemeris::synthetic::{CircularOrbit, SyntheticMotion};
-use crate::ephemeris::{flux_at, repeat_period, Ephemeris, EpochState};
+use crate::ephemeris::{flux_at, median_sun_turn_deg, repeat_period, Ephemeris, EpochState};
 use crate::error::{Error, Result};
-use crate::horizon::shadows::bound_detail_for_run;
+use crate::horizon::shadows::{bound_detail_for_run, RunSteps};
 use crate::horizon::Shadows;
 use crate::mesh::generate::ellipsoid;
 use crate::mesh::inspect::inspect;
@@ -160,8 +160,12 @@ pub fn prepare(scene: &Scene, budget: &Budget, timings: &mut Timings) -> Result<
         &horizon_maps,
     );
     if tracer == TracerKind::Bvh {
+        let steps = RunSteps {
+            count: computed,
+            spacing_deg: median_sun_turn_deg(&states[..computed]),
+        };
         let (detail, reason) =
-            bound_detail_for_run(world, &horizon_maps, computed, shadows.disk_samples());
+            bound_detail_for_run(world, &horizon_maps, steps, shadows.disk_samples());
         shadows.bound_detail = detail;
         why = format!("{why}; {reason}");
     }

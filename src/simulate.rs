@@ -185,7 +185,7 @@ pub fn simulate(
         let first = c * batch;
         counts += timings.time("direct irradiance", || {
             repeats.compute(first, chunk, directs, |states, outs| {
-                direct.compute_steps(states, outs)
+                direct.compute_steps_each(states, outs)
             })
         })?;
         let lights = repeats.lights(first, directs);
@@ -245,10 +245,14 @@ pub fn computed_steps(states: &[EpochState], facets: usize) -> usize {
 }
 
 /// The direct light of a run's first `computed` steps, kept when the geometry repeats so
-/// that every later step takes its own from the step a whole number of periods earlier.
+/// that every later step takes its own from the step a whole number of periods earlier,
+/// and their counts, which the later steps count again: a run's counts are those of
+/// every step however many were computed, so that the parts of a run split in time add
+/// up to the counts of one run.
 struct Repeats {
     computed: usize,
     kept: Vec<Vec<f64>>,
+    kept_counts: Vec<StepCounts>,
     keeps: bool,
 }
 
@@ -257,6 +261,7 @@ impl Repeats {
         Repeats {
             computed,
             kept: Vec::new(),
+            kept_counts: Vec::new(),
             keeps: computed < steps,
         }
     }
@@ -267,26 +272,30 @@ impl Repeats {
     }
 
     /// Computes with `compute` into `outs` the direct light of the steps of `chunk` (the
-    /// first numbered `first`) among the first `computed`, and keeps it when later steps
-    /// repeat it; the counts also say how many of the chunk's steps repeat.
+    /// first numbered `first`) among the first `computed`, keeps it when later steps
+    /// repeat it, and returns the counts of every step of the chunk.
     fn compute(
         &mut self,
         first: usize,
         chunk: &[EpochState],
         outs: &mut [Vec<f64>],
-        compute: impl FnOnce(&[EpochState], &mut [&mut [f64]]) -> Result<StepCounts>,
+        compute: impl FnOnce(&[EpochState], &mut [&mut [f64]]) -> Result<Vec<StepCounts>>,
     ) -> Result<StepCounts> {
         let fresh = self.fresh(first, chunk.len());
         let mut counts = StepCounts::default();
         if fresh > 0 {
             let mut views: Vec<&mut [f64]> =
                 (outs[..fresh].iter_mut()).map(Vec::as_mut_slice).collect();
-            counts = compute(&chunk[..fresh], &mut views)?;
+            let each = compute(&chunk[..fresh], &mut views)?;
+            each.iter().for_each(|&c| counts += c);
             if self.keeps {
                 self.kept.extend(outs[..fresh].iter().cloned());
+                self.kept_counts.extend(each);
             }
         }
-        counts.repeated = (chunk.len() - fresh) as u64;
+        for k in fresh..chunk.len() {
+            counts += self.kept_counts[(first + k) % self.computed];
+        }
         Ok(counts)
     }
 

@@ -14,7 +14,7 @@ use hifitime::Epoch;
 use slim::analytic::SphereLatitude;
 use slim::ephemeris::fixed::{FixedGeometry, FixedSun};
 use slim::ephemeris::spin::{Spin, SpinModel};
-use slim::ephemeris::{repeat_period, Ephemeris};
+use slim::ephemeris::{median_sun_turn_deg, repeat_period, Ephemeris};
 use slim::horizon::bound::BoundDetail;
 use slim::horizon::map::{HorizonMap, PointHorizon};
 use slim::horizon::tangent_frame;
@@ -2135,10 +2135,10 @@ fn only_a_geometry_that_repeats_throughout_counts_as_repeating() {
     assert_eq!(repeat_period(&[]), 0);
 }
 
-/// Over three whole periods the run computes the first period's light and copies it to
+/// Over three whole periods the run computes the first period's light and hands it on to
 /// the other two: every step's light, as the step loop hands it on, must equal the light
 /// of that step computed on its own (the bowl's floor is partly shadowed, so a copy from
-/// the wrong step shows), and the counts must say that 24 of 36 steps were copied.
+/// the wrong step shows), and the run's counts the sum of the steps' own counts.
 #[test]
 fn a_repeating_spin_computes_one_period_and_every_copy_equals_its_own_step() {
     let world = bowl();
@@ -2156,16 +2156,29 @@ fn a_repeating_spin_computes_one_period_and_every_copy_equals_its_own_step() {
         },
     )
     .expect("simulate");
-    assert_eq!(sim.counts.repeated, 24);
     assert!(sim.counts.shadowed > 0, "the bowl shadows its floor");
     let direct = Direct::new(&world, TracerKind::Bvh);
+    let mut counts = StepCounts::default();
     for (k, state) in states.iter().enumerate() {
         let mut own = vec![f64::NAN; world.facet_count()];
-        direct.compute(state, &mut own).expect("compute");
+        counts += direct.compute(state, &mut own).expect("compute");
         assert_eq!(handed_on[k], own, "step {k}");
     }
+    assert_eq!(sim.counts, counts);
     assert_ne!(
         handed_on[0], handed_on[1],
         "the steps differ from each other"
     );
+}
+
+/// The Sun's turn from step to step in the body frame, which the horizon bound's detail
+/// weighs: a spin of 36 steps turns the Sun 10° about the spin axis, at sub-solar
+/// latitude δ an arc of 2·asin(cos δ · sin 5°) (the chord of a small circle).
+#[test]
+fn the_suns_turn_between_steps_is_the_arc_of_its_small_circle() {
+    let states = epoch_states(&spins(36, 1.0)).expect("epoch states");
+    let expected = 2.0 * (0.5f64.cos() * 5f64.to_radians().sin()).asin();
+    let turn = median_sun_turn_deg(&states);
+    assert!((turn - expected.to_degrees()).abs() < 1e-9, "{turn}");
+    assert_eq!(median_sun_turn_deg(&states[..1]), 0.0);
 }

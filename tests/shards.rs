@@ -196,6 +196,38 @@ fn parts_by_time_and_by_facet_merge_into_the_files_of_one_run() {
     assert_identical(&one, &merged, "4 facet parts");
 }
 
+/// A spin of four whole periods repeats its first one, and each part of it computes the
+/// first period it covers and hands that light on: the merged files must still be one
+/// run's byte for byte, and the counts in run.json (every step's, however many were
+/// computed) the same.
+#[test]
+fn parts_of_a_spin_that_repeats_merge_into_the_files_of_one_run() {
+    let dir = TempDir::new("repeats");
+    let text = format!(
+        "[run]\nname = \"repeats\"\ntracer = \"bvh\"\ncache_dir = {cache:?}\n\n\
+         [output]\ncsv = true\nply = true\nhistory = true\n\n\
+         [ephemeris]\nmode = \"spin\"\ndistance_au = 1.52\nsubsolar_latitude_deg = 20.0\n\
+         steps_per_period = 6\nperiods = 4\n\n\
+         [[body]]\nname = \"phobos\"\nmesh = {mesh:?}\nunits = \"km\"\nspin_period_h = 7.65\n",
+        mesh = data("shapes/phobos/m1phobos.obj"),
+        cache = dir.join("cache").display().to_string(),
+    );
+    let scene = dir.join("repeats.toml");
+    std::fs::write(&scene, text).unwrap();
+    let one = dir.join("one");
+    ok(&["run", s(&scene), "-o", s(&one)]);
+    let plan = std::fs::read_to_string(one.join("run.json")).unwrap();
+    assert!(plan.contains("repeats every 6 steps"), "{plan}");
+    for n in [2, 3, 5] {
+        let merged = run_in_parts(&scene, &dir, n, "time");
+        assert_identical(
+            &one,
+            &merged,
+            &format!("{n} time parts of a repeating spin"),
+        );
+    }
+}
+
 #[test]
 fn parts_with_scattered_light_planet_shine_and_bands_merge_exactly() {
     let dir = TempDir::new("scatter");

@@ -86,6 +86,25 @@ pub fn repeat_period(states: &[EpochState]) -> usize {
     }
 }
 
+/// The median angle (degrees) through which the Sun moves from one step to the next in a
+/// body's frame, over every body and pair of consecutive steps; 0 with fewer than two
+/// steps. The median, not the mean, so that a few long gaps (a window's jumps) do not
+/// stand for the run.
+pub fn median_sun_turn_deg(states: &[EpochState]) -> f64 {
+    let mut turns: Vec<f64> = (states.windows(2))
+        .flat_map(|w| {
+            (w[0].bodies.iter().zip(&w[1].bodies)).map(|(a, b)| a.sun_dir.angle_between(b.sun_dir))
+        })
+        .filter(|t| t.is_finite())
+        .collect();
+    if turns.is_empty() {
+        return 0.0;
+    }
+    let mid = turns.len() / 2;
+    turns.select_nth_unstable_by(mid, f64::total_cmp);
+    turns[mid].to_degrees()
+}
+
 /// The geometry of every body at one step.
 #[derive(Debug, Clone, PartialEq)]
 pub struct EpochState {

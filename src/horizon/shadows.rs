@@ -717,12 +717,31 @@ fn sectors_extra_s_per_facet(casters: usize) -> f64 {
 }
 
 /// CPU seconds a bound by sectors spares over a whole one per facet and step of a point
-/// Sun: the rays of a Sun below the facet's highest horizon but above its sector's, and
-/// the walk from the last blocker that the mostly shadowed rays left then allow. Measured
-/// with the builds above (360 steps, 1° apart, two rounds each): 0.040 µs on m1phobos
-/// (2.39 → 1.10 ms per step), 0.036 µs on Itokawa (3.43 → 1.66); steps farther apart
-/// spare less (the last blocker is then seldom still in the way).
+/// Sun with steps 1° apart or closer: the rays of a Sun below the facet's highest horizon
+/// but above its sector's, and the walk from the last blocker that the mostly shadowed
+/// rays left then allow. Measured with the builds above (360 steps, 1° apart, two rounds
+/// each): 0.040 µs on m1phobos (2.39 → 1.10 ms per step), 0.036 µs on Itokawa (3.43 →
+/// 1.66); 0.035–0.037 µs at 0.1° and 0.5° as well ([`sectors_saving_share`]).
 const SECTORS_SAVED_S_PER_FACET_STEP: f64 = 0.037e-6;
+
+/// The share of [`SECTORS_SAVED_S_PER_FACET_STEP`] that steps `spacing_deg` apart keep:
+/// farther apart, the last blocker is seldom still in the way, and what remains is the
+/// rays the sectors spare. Measured on 2026-11-28 (`bench_peer MESH --tracer bvh|bvh-sectors
+/// --steps N --threads 1 --block 16`, pinned, two rounds; Itokawa 49k and m1phobos 32k):
+/// the same saving at 0.1°, 0.5° and 1°, then 0.74 and 0.85 of it at 5°, 0.50 and 0.60 at
+/// 15°, 0.51 and 0.42 at 30° (three rounds); taken between those points linearly in the
+/// spacing's logarithm, and 0.45 beyond 30°.
+fn sectors_saving_share(spacing_deg: f64) -> f64 {
+    const MEASURED: [(f64, f64); 4] = [(1.0, 1.0), (5.0, 0.8), (15.0, 0.55), (30.0, 0.45)];
+    let x = spacing_deg.clamp(1.0, 30.0).ln();
+    MEASURED
+        .windows(2)
+        .find(|w| x <= w[1].0.ln())
+        .map_or(MEASURED[3].1, |w| {
+            let (x0, x1) = (w[0].0.ln(), w[1].0.ln());
+            w[0].1 + (w[1].1 - w[0].1) * (x - x0) / (x1 - x0)
+        })
+}
 
 /// CPU seconds on one core that bounds by sectors take beyond whole ones, for the bodies
 /// that get a bound ([`crate::trace::choice::bounded`]; `maps[b]`: body `b` has a
@@ -734,14 +753,24 @@ pub fn sectors_extra_seconds(world: &World, maps: &[bool], cached: &[bool]) -> f
         .sum()
 }
 
-/// The detail of the BVH tracer's horizon bounds for a run of `steps` steps, and why:
-/// by sectors when the steps spare more than the sectors cost to build (counted on one
-/// core, as built, like the tracer's choice, [`crate::trace::choice::choose`]), else
-/// whole. A disk Sun (`disk_samples`) reads the whole horizon: its cones span sectors.
+/// A run's steps as the bound's detail weighs them: how many are computed and the
+/// median angle between consecutive Sun directions in a body's frame
+/// ([`crate::ephemeris::median_sun_turn_deg`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RunSteps {
+    pub count: usize,
+    pub spacing_deg: f64,
+}
+
+/// The detail of the BVH tracer's horizon bounds for a run of `steps`, and why: by
+/// sectors when the steps spare more than the sectors cost to build (counted on one
+/// core, as built, like the tracer's choice, [`crate::trace::choice::choose`], and
+/// whatever the cache holds, so that the parts of a run choose alike), else whole. A
+/// disk Sun (`disk_samples`) reads the whole horizon: its cones span sectors.
 pub fn bound_detail_for_run(
     world: &World,
     maps: &[bool],
-    steps: usize,
+    steps: RunSteps,
     disk_samples: Option<u32>,
 ) -> (BoundDetail, String) {
     if disk_samples.is_some() {
@@ -755,19 +784,29 @@ pub fn bound_detail_for_run(
         return (BoundDetail::Whole, "no horizon bound".into());
     }
     let extra_s = sectors_extra_seconds(world, maps, &vec![false; maps.len()]);
-    let per_step = facets as f64 * SECTORS_SAVED_S_PER_FACET_STEP;
+    let RunSteps { count, spacing_deg } = steps;
+    let share = sectors_saving_share(spacing_deg);
+    let per_step = facets as f64 * SECTORS_SAVED_S_PER_FACET_STEP * share;
     let break_even = (extra_s / per_step).ceil() as usize;
     let cost = choice::about_seconds(extra_s);
-    if steps >= break_even {
+    let apart = match share < 1.0 {
+        true => format!(
+            "; steps {spacing_deg:.1}° apart, where sectors spare {:.0} % of what they spare \
+             at 1°",
+            100.0 * share
+        ),
+        false => String::new(),
+    };
+    if count >= break_even {
         let why = format!(
-            "horizon bound by sectors: {steps} steps ≥ {break_even}, where its sectors \
-             ({cost} more on one core) cost less than the rays they spare"
+            "horizon bound by sectors: {count} steps ≥ {break_even}, where its sectors \
+             ({cost} more on one core) cost less than the rays they spare{apart}"
         );
         (BoundDetail::Sectors, why)
     } else {
         let why = format!(
-            "horizon bound whole: {steps} steps < {break_even}, too few to pay for its \
-             sectors ({cost} more on one core)"
+            "horizon bound whole: {count} steps < {break_even}, too few to pay for its \
+             sectors ({cost} more on one core{apart})"
         );
         (BoundDetail::Whole, why)
     }
@@ -829,18 +868,45 @@ mod tests {
         let even =
             (sectors_extra_s_per_facet(casters) / SECTORS_SAVED_S_PER_FACET_STEP).ceil() as usize;
         assert!(even > 100, "{even}");
+        let at = |count, spacing_deg| RunSteps { count, spacing_deg };
         let pick = |steps, sun| bound_detail_for_run(&w, &[false], steps, sun);
-        assert_eq!(pick(even, None).0, BoundDetail::Sectors);
-        let (detail, why) = pick(even - 1, None);
+        assert_eq!(pick(at(even, 1.0), None).0, BoundDetail::Sectors);
+        let (detail, why) = pick(at(even - 1, 1.0), None);
         assert_eq!(detail, BoundDetail::Whole);
         assert!(why.contains(&format!("< {even}")), "{why}");
-        assert_eq!(pick(1_000_000, Some(32)).0, BoundDetail::Whole);
+        assert_eq!(pick(at(1_000_000, 1.0), Some(32)).0, BoundDetail::Whole);
         assert_eq!(
-            bound_detail_for_run(&w, &[true], 1_000_000, None).0,
+            bound_detail_for_run(&w, &[true], at(1_000_000, 1.0), None).0,
             BoundDetail::Whole
         );
+        // Steps 30° apart spare 0.45 of what steps 1° apart spare: they need 1/0.45 as
+        // many steps.
+        let far = (sectors_extra_s_per_facet(casters) / (SECTORS_SAVED_S_PER_FACET_STEP * 0.45))
+            .ceil() as usize;
+        assert!(far > 2 * even, "{far} against {even}");
+        assert_eq!(pick(at(far, 30.0), None).0, BoundDetail::Sectors);
+        let (detail, why) = pick(at(far - 1, 30.0), None);
+        assert_eq!(detail, BoundDetail::Whole);
+        assert!(why.contains("30.0° apart"), "{why}");
         assert!(sectors_extra_seconds(&w, &[false], &[false]) > 0.0);
         assert_eq!(sectors_extra_seconds(&w, &[false], &[true]), 0.0);
+    }
+
+    /// The share follows the measured points (1°, 5°, 15°, 30°) and lies between them.
+    #[test]
+    fn steps_farther_apart_keep_the_measured_share_of_the_sectors_saving() {
+        for (deg, share) in [
+            (0.1, 1.0),
+            (1.0, 1.0),
+            (5.0, 0.8),
+            (15.0, 0.55),
+            (30.0, 0.45),
+            (90.0, 0.45),
+        ] {
+            assert!((sectors_saving_share(deg) - share).abs() < 1e-12, "{deg}°");
+        }
+        let mid = sectors_saving_share(10.0);
+        assert!(mid < 0.8 && mid > 0.55, "{mid}");
     }
 
     #[test]
