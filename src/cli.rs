@@ -796,8 +796,13 @@ fn execute(cli: Cli) -> Result<()> {
                 None => run_scene(&scene, &out, &budget, &progress)?,
             };
             if !quiet {
+                // The counts cover every step; repeated steps were not traced again.
+                let repeated = match record.plan.repeats() {
+                    true => ", counted over every step: the later periods repeat the first's",
+                    false => "",
+                };
                 eprintln!(
-                    "wrote {} files to {} ({} facets, {} steps, {} shadow rays)",
+                    "wrote {} files to {} ({} facets, {} steps, {} shadow rays{repeated})",
                     record.outputs.len(),
                     out.display(),
                     record.plan.facets,

@@ -36,7 +36,16 @@ pub struct Plan {
     pub memory: Estimate,
 }
 
+/// The stage of the plan's decision on steps that repeat ([`crate::prepare`]).
+pub const REPEATED_STEPS: &str = "repeated steps";
+
 impl Plan {
+    /// Whether later steps take the direct light of the first period instead of
+    /// computing it (the geometry repeats; [`crate::ephemeris::repeat_period`]).
+    pub fn repeats(&self) -> bool {
+        (self.decisions.iter()).any(|d| d.stage == REPEATED_STEPS && d.runs)
+    }
+
     /// The plan for `scene` over `world` with `steps` steps, its shadows traced by
     /// `tracer` (chosen, and why: [`crate::trace::choice::choose`]); `maps[b]` says
     /// whether body `b` takes its own shadows from a horizon map.

@@ -23,7 +23,7 @@ use crate::mesh::inspect::inspect;
 use crate::mesh::projection::PolarStereographic;
 use crate::mesh::{read_mesh, LengthUnit, Mesh, MeshFormat, RawMesh};
 use crate::output::record::{input_file, BodyRecord, InputFile};
-use crate::plan::{Decision, Plan};
+use crate::plan::{Decision, Plan, REPEATED_STEPS};
 use crate::progress::Timings;
 use crate::scatter::Settings as ScatterSettings;
 use crate::scene::{
@@ -194,7 +194,7 @@ pub fn prepare(scene: &Scene, budget: &Budget, timings: &mut Timings) -> Result<
 fn repeat_decision(states: &[EpochState], computed: usize, facets: usize) -> Option<Decision> {
     let period = repeat_period(states);
     let mb = (period * facets * std::mem::size_of::<f64>()) as f64 / 1e6;
-    let stage = "repeated steps".to_string();
+    let stage = REPEATED_STEPS.to_string();
     match (period < states.len(), computed < states.len()) {
         (false, _) => None,
         (true, true) => Some(Decision {

@@ -137,6 +137,39 @@ fn run_succeeds_writes_run_json_and_draws_no_bar_when_not_a_terminal() {
     );
 }
 
+/// A spin of three whole periods: the plan says the later periods repeat the first, and
+/// the closing line that its ray count covers every step although only the first
+/// period's rays were traced; one period alone says neither.
+#[test]
+fn a_repeating_spin_says_so_in_the_plan_and_in_its_closing_line() {
+    let dir = TempDir::new("repeats");
+    let base = std::fs::read_to_string(write_scene(&dir, "ito.toml")).unwrap();
+    let scene = dir.join("three.toml");
+    let three = base.replace(
+        "steps_per_period = 24\n",
+        "steps_per_period = 24\nperiods = 3\n",
+    );
+    std::fs::write(&scene, three).unwrap();
+    let out = slim(&["run", s(&scene), "-o", s(&dir.join("three"))], &dir.0);
+    let stderr = text(&out.stderr);
+    assert!(out.status.success(), "{stderr}");
+    assert!(stderr.contains("repeats every 24 steps"), "{stderr}");
+    assert!(
+        stderr.contains("72 steps") && stderr.contains("counted over every step"),
+        "{stderr}"
+    );
+    let one = slim(
+        &["run", s(&dir.join("ito.toml")), "-o", s(&dir.join("one"))],
+        &dir.0,
+    );
+    let stderr = text(&one.stderr);
+    assert!(one.status.success(), "{stderr}");
+    assert!(
+        !stderr.contains("repeated steps") && !stderr.contains("counted over"),
+        "{stderr}"
+    );
+}
+
 /// A body whose own shadows come from a horizon map says so in the plan's self-shadowing
 /// line, with the rays the map leaves, instead of promising a ray per facet.
 #[test]
