@@ -314,7 +314,7 @@ impl<'w> Direct<'w> {
                 .collect::<Result<Vec<_>>>()?;
             let block = match self.steps_one_by_one(b) {
                 true => 1,
-                false => states.len(),
+                false => states.len().max(1),
             };
             for (((states, skies), views), counts) in states
                 .chunks(block)

@@ -2182,3 +2182,18 @@ fn the_suns_turn_between_steps_is_the_arc_of_its_small_circle() {
     assert!((turn - expected.to_degrees()).abs() < 1e-9, "{turn}");
     assert_eq!(median_sun_turn_deg(&states[..1]), 0.0);
 }
+
+/// A block of no steps lights nothing and counts nothing (it once divided the steps into
+/// blocks of zero).
+#[test]
+fn a_block_of_no_steps_computes_nothing() {
+    let world = bowl();
+    let point = Shadows {
+        sun: SunShape::Point,
+        ..Shadows::default()
+    };
+    // Toward a point Sun through the BVH a block's steps go in one pass.
+    let direct = Direct::with_maps(&world, TracerKind::Bvh, vec![None], &point);
+    let each = direct.compute_steps_each(&[], &mut []).expect("no steps");
+    assert!(each.is_empty());
+}
