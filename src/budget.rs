@@ -146,7 +146,7 @@ pub struct Demand {
     /// Bytes of the horizon maps the run uses.
     pub horizon_map_bytes: f64,
     /// Steps whose direct light is kept for the later steps that repeat them
-    /// ([`crate::simulate::computed_steps`]; 0 when nothing repeats).
+    /// ([`crate::simulate::Repetition::computed`]; 0 when nothing repeats).
     pub repeat_values: f64,
 }
 

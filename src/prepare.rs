@@ -14,7 +14,7 @@ use crate::ephemeris::fixed::{normalized_direction, FixedGeometry, FixedSun};
 use crate::ephemeris::spice::{parse_aberration, Kernels, SpiceBody, SpiceEphemeris, SpiceMember};
 use crate::ephemeris::spin::{Spin, SpinModel};
 use crate::ephemeris::synthetic::{CircularOrbit, SyntheticMotion};
-use crate::ephemeris::{flux_at, median_sun_turn_deg, repeat_period, Ephemeris, EpochState};
+use crate::ephemeris::{flux_at, median_sun_turn_deg, Ephemeris, EpochState};
 use crate::error::{Error, Result};
 use crate::horizon::shadows::{bound_detail_for_run, RunSteps};
 use crate::horizon::Shadows;
@@ -30,7 +30,7 @@ use crate::scene::{
     BodySection, EphemerisSection, FixedSection, Orient, Scene, Shape, SpiceSection, SpiceSteps,
     SpinSection,
 };
-use crate::simulate::{computed_steps, REPEAT_KEEP_MAX_BYTES};
+use crate::simulate::{Repetition, REPEAT_KEEP_MAX_BYTES};
 use crate::stats::Bins;
 use crate::trace::{choice, TracerKind};
 use crate::world::{Body, Pose, World};
@@ -131,7 +131,8 @@ pub fn prepare(scene: &Scene, budget: &Budget, timings: &mut Timings) -> Result<
         .map_or(0.0, |s| s.estimated_entries(world, &states));
     // A geometry that repeats has the light of its first period computed, and the choices
     // below weigh those steps.
-    let computed = computed_steps(&states, world.facet_count());
+    let repetition = Repetition::of(&states, world.facet_count());
+    let computed = repetition.computed();
     demand.repeat_values = (computed < states.len()) as u8 as f64 * computed as f64;
     let mut shadows = scene.shadows();
     let (horizon_maps, reasons): (Vec<bool>, Vec<String>) = shadows
@@ -171,8 +172,7 @@ pub fn prepare(scene: &Scene, budget: &Budget, timings: &mut Timings) -> Result<
     }
     let mut plan = Plan::new(scene, world, states.len(), (tracer, why), &horizon_maps);
     plan.set_horizon_maps(map_decisions);
-    plan.decisions
-        .extend(repeat_decision(&states, computed, world.facet_count()));
+    plan.decisions.extend(repeat_decision(&repetition));
     if let Some(settings) = &scatter {
         plan.set_scatter(settings.decisions(world, &states));
     }
@@ -190,12 +190,16 @@ pub fn prepare(scene: &Scene, budget: &Budget, timings: &mut Timings) -> Result<
 }
 
 /// The plan's word on a geometry that repeats (none when it does not): whether the
-/// later steps copy the direct light of the first `computed`, and what that keeps.
-fn repeat_decision(states: &[EpochState], computed: usize, facets: usize) -> Option<Decision> {
-    let period = repeat_period(states);
-    let mb = (period * facets * std::mem::size_of::<f64>()) as f64 / 1e6;
+/// later steps take the direct light of the first period, and what that keeps.
+fn repeat_decision(repetition: &Repetition) -> Option<Decision> {
+    let Repetition {
+        steps,
+        period,
+        kept_bytes,
+    } = *repetition;
+    let mb = kept_bytes / 1e6;
     let stage = REPEATED_STEPS.to_string();
-    match (period < states.len(), computed < states.len()) {
+    match (repetition.repeats(), repetition.computed() < steps) {
         (false, _) => None,
         (true, true) => Some(Decision {
             stage,
@@ -204,7 +208,7 @@ fn repeat_decision(states: &[EpochState], computed: usize, facets: usize) -> Opt
                 "the bodies' geometry repeats every {period} steps: the direct light of the \
                  first {period} is computed and kept ({mb:.1} MB), the other {} copy it; \
                  statistics, history and scattered light still take every step",
-                states.len() - period
+                steps - period
             ),
         }),
         (true, false) => Some(Decision {

@@ -138,7 +138,7 @@ pub fn simulate(
         obtain_maps(world, &shadows, &horizon_maps, progress)
     })?;
     let mapped: Vec<bool> = maps.iter().map(Option::is_some).collect();
-    let computed = computed_steps(states, world.facet_count());
+    let computed = Repetition::of(states, world.facet_count()).computed();
     let (tracer, _) = choice::choose(tracer, world, computed, shadows.disk_samples(), &mapped);
     if tracer == TracerKind::Bvh {
         let cached = shadows.cached_bounds(world);
@@ -228,19 +228,43 @@ pub fn simulate(
 }
 
 /// The most bytes a run spends keeping one period of every facet's direct light when
-/// its geometry repeats ([`computed_steps`]).
+/// its geometry repeats ([`Repetition::computed`]).
 pub const REPEAT_KEEP_MAX_BYTES: f64 = 1024.0 * 1024.0 * 1024.0;
 
-/// The steps (the first ones) whose direct light a run over `states` with `facets`
-/// facets computes: one period of the geometry when it repeats
-/// ([`crate::ephemeris::repeat_period`]) and that period's light for every facet fits in
-/// [`REPEAT_KEEP_MAX_BYTES`]; every step otherwise. The later steps copy it.
-pub fn computed_steps(states: &[EpochState], facets: usize) -> usize {
-    let period = repeat_period(states);
-    let kept_bytes = (period * facets * std::mem::size_of::<f64>()) as f64;
-    match period < states.len() && kept_bytes <= REPEAT_KEEP_MAX_BYTES {
-        true => period,
-        false => states.len(),
+/// How the geometry of a run's steps repeats, and what keeping one period of every
+/// facet's direct light would take.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Repetition {
+    pub steps: usize,
+    /// [`crate::ephemeris::repeat_period`]: `steps` when nothing repeats.
+    pub period: usize,
+    pub kept_bytes: f64,
+}
+
+impl Repetition {
+    /// The repetition of `states` for `facets` facets.
+    pub fn of(states: &[EpochState], facets: usize) -> Repetition {
+        let period = repeat_period(states);
+        Repetition {
+            steps: states.len(),
+            period,
+            kept_bytes: (period * facets * std::mem::size_of::<f64>()) as f64,
+        }
+    }
+
+    /// Whether the geometry repeats within the run.
+    pub fn repeats(&self) -> bool {
+        self.period < self.steps
+    }
+
+    /// The steps (the first ones) whose direct light the run computes: one period when
+    /// the geometry repeats and that period's light fits in [`REPEAT_KEEP_MAX_BYTES`],
+    /// every step otherwise. The later steps take theirs from it.
+    pub fn computed(&self) -> usize {
+        match self.repeats() && self.kept_bytes <= REPEAT_KEEP_MAX_BYTES {
+            true => self.period,
+            false => self.steps,
+        }
     }
 }
 
