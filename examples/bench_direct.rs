@@ -27,7 +27,10 @@
 mod common;
 
 use glam::DVec3;
-use slim::horizon::shadows::{HorizonMode, ShadowMethod, Shadows, SunShape, DEFAULT_AZIMUTHS};
+use slim::ephemeris::sun_return;
+use slim::horizon::shadows::{
+    longest_recall, HorizonMode, ShadowMethod, Shadows, SunShape, DEFAULT_AZIMUTHS,
+};
 use slim::illum::{Direct, StepCounts};
 use slim::trace::TracerKind;
 use std::time::Instant;
@@ -76,9 +79,14 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         "{:<8} {:>12} {:>14} {:>16} {:>10} {:>11}",
         "tracer", "build s", "ms per step", "queries per s", "shadowed", "remembered"
     );
+    // The earlier step whose blockers the rays recall, as `slim run` finds it.
+    let recall = sun_return(&states, longest_recall(&world));
     match options.optional::<String>("--horizon")? {
         Some(mode) => {
-            let shadows = horizon_shadows(&options, &mode)?;
+            let shadows = Shadows {
+                recall,
+                ..horizon_shadows(&options, &mode)?
+            };
             let t0 = Instant::now();
             let direct = common::mapped_direct(&world, &shadows)?;
             let name = format!("map {mode}");
@@ -88,6 +96,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             let shadows = Shadows {
                 sun: sun_shape(&options)?,
                 cache_dir: options.optional("--cache")?,
+                recall,
                 ..Shadows::default()
             };
             for kind in tracers(&options)? {

@@ -18,7 +18,10 @@
 //! no rays), its build (or its read from `--cache DIR`) in `direct_new_s`. The
 //! exports happen after the loop. Steps are computed one at a time, or with `--block K`
 //! in blocks of K (`Direct::compute_steps`, as `slim run` computes them: 16 steps up to
-//! a million facets), each step of a block given the block's time over K.
+//! a million facets), each step of a block given the block's time over K. The rays
+//! recall the blockers of the earlier step `slim run` would pick (over one spin, the step
+//! before: `slim::ephemeris::sun_return`), and under the whole bound remember them where
+//! it would (steps up to 3° apart).
 //!
 //! Out, in DIR: `.npy` files (NumPy format 1.0, little-endian, C order) and `slim.json`.
 //! - `vertices.npy` f64 (V, 3), metres; `triangles.npy` u32 (F, 3), 0-based;
@@ -37,8 +40,9 @@
 mod common;
 
 use glam::DVec3;
+use slim::ephemeris::{sun_return, SunReturn};
 use slim::horizon::bound::BoundDetail;
-use slim::horizon::shadows::{HorizonMode, ShadowMethod, Shadows};
+use slim::horizon::shadows::{longest_recall, HorizonMode, ShadowMethod, Shadows};
 use slim::illum::{Direct, StepCounts};
 use slim::trace::TracerKind;
 use slim::world::World;
@@ -112,12 +116,14 @@ fn vec3_bytes(values: &[DVec3]) -> Vec<u8> {
 fn with_map<'w>(
     world: &'w World,
     mode: HorizonMode,
+    recall: SunReturn,
     options: &common::Options,
 ) -> Result<Direct<'w>, Box<dyn std::error::Error>> {
     let shadows = Shadows {
         method: ShadowMethod::Horizon,
         mode,
         cache_dir: options.optional("--cache")?,
+        recall,
         ..Shadows::default()
     };
     Ok(common::mapped_direct(world, &shadows)?)
@@ -186,9 +192,18 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
     let tracer: String = options.value("--tracer", "sunview".to_string())?;
     let before_build = Memory::now();
     let build_t0 = Instant::now();
+    // The earlier step whose blockers the rays recall, as `slim run` finds it.
+    let recall = sun_return(&states, longest_recall(&world));
     let direct = match tracer.as_str() {
         "sunview" => Direct::new(&world, TracerKind::Sunview),
-        "bvh" => Direct::new(&world, TracerKind::Bvh),
+        "bvh" => {
+            let shadows = Shadows {
+                recall,
+                ..Shadows::default()
+            };
+            let none = world.bodies.iter().map(|_| None).collect();
+            Direct::with_maps(&world, TracerKind::Bvh, none, &shadows)
+        }
         "bvh-sectors" => {
             // The bound a run takes when its steps pay for the sectors (`choice`).
             // Read from `--bound-cache DIR` when it holds this bound (to time the step
@@ -197,13 +212,14 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
             let shadows = Shadows {
                 bound_detail: BoundDetail::Sectors,
                 cache_dir: options.optional("--bound-cache")?,
+                recall,
                 ..Shadows::default()
             };
             let none = world.bodies.iter().map(|_| None).collect();
             Direct::with_maps(&world, TracerKind::Bvh, none, &shadows)
         }
-        "map-exact" => with_map(&world, HorizonMode::Exact, &options)?,
-        "map-approximate" => with_map(&world, HorizonMode::Approximate, &options)?,
+        "map-exact" => with_map(&world, HorizonMode::Exact, recall, &options)?,
+        "map-approximate" => with_map(&world, HorizonMode::Approximate, recall, &options)?,
         t => {
             return Err(format!(
                 "unknown --tracer {t} (sunview, bvh, bvh-sectors, map-exact, \

@@ -13,6 +13,7 @@
 //! compares estimates with measured peaks.
 
 use crate::error::{Error, Result};
+use crate::horizon::shadows::{RECALL_MAX_BYTES, RECALL_MAX_LAG};
 use serde::{Deserialize, Serialize};
 
 /// The memory a run may use, bytes.
@@ -145,6 +146,10 @@ pub struct Demand {
     pub kernel_bytes: f64,
     /// Bytes of the horizon maps the run uses.
     pub horizon_map_bytes: f64,
+    /// Bytes of the blockers that the shadow rays through the BVH tracer's horizon bounds
+    /// remember ([`crate::horizon::Shadows::bound_walk_bytes`]; a map's are counted
+    /// with it).
+    pub remembered_blocker_bytes: f64,
     /// Steps whose direct light is kept for the later steps that repeat them
     /// ([`crate::simulate::Repetition::computed`]; 0 when nothing repeats).
     pub repeat_values: f64,
@@ -308,6 +313,15 @@ impl Demand {
             "horizon maps",
             self.horizon_map_bytes,
             "use fewer azimuth wedges (run.horizon_azimuths) or run.shadows = \"rays\"",
+        );
+        e.push(
+            "remembered blockers",
+            self.remembered_blocker_bytes,
+            &format!(
+                "use a coarser mesh (the rays keep the blockers of up to {RECALL_MAX_LAG} steps \
+                 back, at most {} MiB, and 12 bytes of neighbours per facet)",
+                RECALL_MAX_BYTES / (1024.0 * 1024.0)
+            ),
         );
         e.push(
             "form factors",

@@ -18,7 +18,7 @@
 
 use crate::ephemeris::EpochState;
 use crate::error::{Error, Result};
-use crate::horizon::bound::{BoundDetail, Cone, ConeView, HorizonBound};
+use crate::horizon::bound::{Cone, ConeView, HorizonBound};
 use crate::horizon::disk::SolarDisk;
 use crate::horizon::eclipse::Ellipsoid;
 use crate::horizon::map::HorizonMap;
@@ -89,30 +89,47 @@ pub struct Direct<'w> {
     lit: Vec<bool>,
     /// Where each horizon bound came from, for the bodies that have one.
     bound_records: Vec<BoundRecord>,
-    /// Per body with an exact horizon map or the BVH's horizon bound by sectors under a
-    /// point Sun, the blockers its shadow rays remember from step to step
-    /// ([`Direct::trace_own`]); `None` for other bodies. Only there are the rays traced
-    /// mostly shadowed (those below their wedge's upper bound, or their sector's bound):
-    /// a whole-horizon bound leaves mostly lit rays, on which a remembered blocker
-    /// spares nothing (docs/performance.md).
+    /// Per body whose rays remember their blockers ([`Shadows::remembers_blockers`]),
+    /// the blockers met at earlier steps ([`Direct::trace_own`]); `None` for other bodies.
     last_blockers: Vec<Option<LastBlockers>>,
 }
 
-/// What a body's shadow rays remember of the step before.
+/// What a body's shadow rays remember of earlier steps: the blockers of each of the last
+/// `lag` steps (the run's [`crate::ephemeris::SunReturn`]), so that a step's rays start from those of the
+/// step `lag` before, where the Sun stood nearest.
 struct LastBlockers {
-    /// Per facet, the facet that last blocked its shadow ray (`NO_BLOCKER`: none, or lit
-    /// since); the next step's ray walks the surface from it
-    /// ([`ShadowQuery::blocker_near`]).
+    lag: usize,
+    /// Row `k % lag`, facet by facet, holds the facet that blocked the ray of step `k`
+    /// (`NO_BLOCKER`: none, or lit since); the ray of step `k + lag` walks the surface
+    /// from it ([`ShadowQuery::blocker_near`]) and leaves its own.
     facets: Vec<AtomicU32>,
     /// Per facet, its neighbour across each edge, the walk's paths
     /// ([`edge_neighbours`]).
     neighbours: Vec<[u32; 3]>,
 }
 
+/// The blockers one step's rays read and leave: a row of [`LastBlockers`].
+#[derive(Clone, Copy)]
+struct Row<'a> {
+    facets: &'a [AtomicU32],
+    neighbours: &'a [[u32; 3]],
+}
+
 impl LastBlockers {
-    fn new(body: &Body) -> LastBlockers {
+    /// The row of step `step` (its index in the run).
+    fn row(&self, step: usize) -> Row<'_> {
+        let n = self.facets.len() / self.lag;
+        let r = step % self.lag;
+        Row {
+            facets: &self.facets[r * n..(r + 1) * n],
+            neighbours: &self.neighbours,
+        }
+    }
+
+    fn new(body: &Body, lag: usize) -> LastBlockers {
         LastBlockers {
-            facets: (0..body.mesh.len())
+            lag,
+            facets: (0..body.mesh.len() * lag)
                 .map(|_| AtomicU32::new(NO_BLOCKER))
                 .collect(),
             // The blockers are facets of everything that casts shadows.
@@ -179,11 +196,11 @@ impl<'w> Direct<'w> {
         shadows: &Shadows,
     ) -> Direct<'w> {
         let exact = shadows.mode == HorizonMode::Exact;
-        let point = shadows.sun == SunShape::Point;
         // The last blockers (their edge neighbours) are found before the body's tree is
         // built: the hash maps that find them are freed first, and the tree and the
         // bound reuse their memory instead of adding to it.
-        let remember = |b: &Body, remembers: bool| remembers.then(|| LastBlockers::new(b));
+        let lag = shadows.recall.lag;
+        let remember = |b: &Body, remembers: bool| remembers.then(|| LastBlockers::new(b, lag));
         let mut bound_records = Vec::new();
         let mut last_blockers = Vec::new();
         let (tracers, horizons) = world
@@ -194,15 +211,14 @@ impl<'w> Direct<'w> {
                 // The few rays a map leaves are traced by the BVH, which costs nothing per
                 // step (every tracer classifies each ray identically).
                 (Some(map), _) => {
-                    last_blockers.push(remember(b, exact && point));
+                    last_blockers.push(remember(b, shadows.remembers_blockers(true)));
                     (
                         Box::new(Bvh::build(b.shadow_mesh())) as Box<dyn Tracer + 'w>,
                         OwnHorizon::Map { map, exact },
                     )
                 }
                 (None, TracerKind::Bvh) if !b.convex => {
-                    let sectors = shadows.bound_detail == BoundDetail::Sectors;
-                    last_blockers.push(remember(b, sectors && point));
+                    last_blockers.push(remember(b, shadows.remembers_blockers(false)));
                     let bvh = Arc::new(Bvh::build(b.shadow_mesh()));
                     let (bound, record) = shadows.bound(b, &bvh);
                     bound_records.push(record);
@@ -396,6 +412,7 @@ impl<'w> Direct<'w> {
     fn sky(&self, b: usize, state: &EpochState) -> Result<Sky> {
         let body = &self.world.bodies[b];
         Ok(Sky {
+            step: state.step,
             sun: checked_sun(body, state, b)?,
             flux: state.bodies[b].flux_w_m2,
             radius: match self.sun {
@@ -420,7 +437,9 @@ impl<'w> Direct<'w> {
     /// itself with the facets ([`Direct::light_facing`]), and a disk Sun's by samples
     /// ([`Direct::shade_disk`]).
     fn others_light(&self, b: usize, state: &EpochState, sky: &Sky) -> Sunlight<'_> {
-        let Sky { sun, flux, radius } = *sky;
+        let Sky {
+            sun, flux, radius, ..
+        } = *sky;
         Sunlight {
             sun,
             flux,
@@ -528,6 +547,7 @@ impl<'w> Direct<'w> {
     fn trace_own(
         &self,
         facets: Facets,
+        step: usize,
         own: &dyn ShadowQuery,
         rays: &[OwnRay],
         values: &mut [f64],
@@ -536,7 +556,7 @@ impl<'w> Direct<'w> {
         let last = &self.last_blockers[facets.body];
         for r in rays {
             let shade = match last {
-                Some(last) => shade_remembering(own, r, last),
+                Some(last) => shade_remembering(own, r, last.row(step)),
                 None if own.blocked(r.origin, r.t_min, Some(r.facet)) => Shade::Blocked,
                 None => Shade::Lit,
             };
@@ -727,7 +747,8 @@ impl<'w> Direct<'w> {
                         let (mut counts, rays) = self.light_chunk(facets, sky, values);
                         match own {
                             Some(own) => {
-                                counts += self.trace_own(facets, own.as_ref(), &rays, values);
+                                counts +=
+                                    self.trace_own(facets, sky.step, own.as_ref(), &rays, values);
                                 (counts, Vec::new())
                             }
                             None => (counts, rays),
@@ -1082,6 +1103,8 @@ struct OwnRay {
 /// blocked the Sun needs.
 #[derive(Debug, Clone, Copy)]
 struct Sky {
+    /// The step's index in the run.
+    step: usize,
     /// Unit vector toward the Sun's centre, body frame.
     sun: DVec3,
     /// Flux at the body, W/m².
@@ -1214,11 +1237,11 @@ enum Shade {
 /// and a few exact tests cost far less than a walk through the tree. Either way the
 /// answer is the tracer's own predicate's; the facet found is remembered for the next
 /// step, and forgotten when the ray comes out clear.
-fn shade_remembering(own: &dyn ShadowQuery, ray: &OwnRay, last: &LastBlockers) -> Shade {
+fn shade_remembering(own: &dyn ShadowQuery, ray: &OwnRay, last: Row<'_>) -> Shade {
     let memo = &last.facets[ray.facet as usize];
     let before = memo.load(Ordering::Relaxed);
     if before != NO_BLOCKER {
-        let near = own.blocker_near(ray.origin, ray.t_min, ray.facet, before, &last.neighbours);
+        let near = own.blocker_near(ray.origin, ray.t_min, ray.facet, before, last.neighbours);
         if let Some(id) = near {
             if id != before {
                 memo.store(id, Ordering::Relaxed);

@@ -14,9 +14,9 @@ use crate::ephemeris::fixed::{normalized_direction, FixedGeometry, FixedSun};
 use crate::ephemeris::spice::{parse_aberration, Kernels, SpiceBody, SpiceEphemeris, SpiceMember};
 use crate::ephemeris::spin::{Spin, SpinModel};
 use crate::ephemeris::synthetic::{CircularOrbit, SyntheticMotion};
-use crate::ephemeris::{flux_at, median_sun_turn_deg, Ephemeris, EpochState};
+use crate::ephemeris::{flux_at, sun_return, Ephemeris, EpochState, SunReturn};
 use crate::error::{Error, Result};
-use crate::horizon::shadows::{bound_detail_for_run, RunSteps};
+use crate::horizon::shadows::{bound_detail_for_run, longest_recall, steps_back, RunSteps};
 use crate::horizon::Shadows;
 use crate::mesh::generate::ellipsoid;
 use crate::mesh::inspect::inspect;
@@ -135,6 +135,7 @@ pub fn prepare(scene: &Scene, budget: &Budget, timings: &mut Timings) -> Result<
     let computed = repetition.computed();
     demand.repeat_values = (computed < states.len()) as u8 as f64 * computed as f64;
     let mut shadows = scene.shadows();
+    shadows.recall = sun_return(&states[..computed], longest_recall(world));
     let (horizon_maps, reasons): (Vec<bool>, Vec<String>) = shadows
         .choose(world, computed, scene.run.tracer)
         .into_iter()
@@ -151,8 +152,6 @@ pub fn prepare(scene: &Scene, budget: &Budget, timings: &mut Timings) -> Result<
             reason,
         })
         .collect();
-    let memory = demand.estimate();
-    budget.check(&memory)?;
     let (tracer, mut why) = choice::choose(
         scene.run.tracer,
         world,
@@ -163,13 +162,25 @@ pub fn prepare(scene: &Scene, budget: &Budget, timings: &mut Timings) -> Result<
     if tracer == TracerKind::Bvh {
         let steps = RunSteps {
             count: computed,
-            spacing_deg: median_sun_turn_deg(&states[..computed]),
+            recall: shadows.recall,
         };
         let (detail, reason) =
             bound_detail_for_run(world, &horizon_maps, steps, shadows.disk_samples());
         shadows.bound_detail = detail;
         why = format!("{why}; {reason}");
+        if shadows.remembers_blockers(false) {
+            let SunReturn { lag, turn_deg } = shadows.recall;
+            let back = steps_back(lag);
+            why = format!(
+                "{why}; rays start from the blockers met {back} before, where the Sun stood \
+                 {turn_deg:.1}° away"
+            );
+        }
     }
+    // Counted once the tracer and the bound's detail say whose rays remember blockers.
+    demand.remembered_blocker_bytes = shadows.bound_walk_bytes(world, &horizon_maps, tracer);
+    let memory = demand.estimate();
+    budget.check(&memory)?;
     let mut plan = Plan::new(scene, world, states.len(), (tracer, why), &horizon_maps);
     plan.set_horizon_maps(map_decisions);
     plan.decisions.extend(repeat_decision(&repetition));
@@ -282,6 +293,7 @@ fn scene_demand(scene: &Scene) -> Demand {
         form_factor_entries: 0.0,
         kernel_bytes: kernel_bytes(scene),
         horizon_map_bytes: 0.0,
+        remembered_blocker_bytes: 0.0,
         repeat_values: 0.0,
     }
 }

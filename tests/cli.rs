@@ -170,6 +170,36 @@ fn a_repeating_spin_says_so_in_the_plan_and_in_its_closing_line() {
     );
 }
 
+/// Hourly steps of a spin that does not repeat exactly (4.02 turns in 48 steps): the Sun
+/// comes back within 0.2° every 12 steps, and the plan says that the rays start from the
+/// blockers met there, and counts them in its memory; one turn in 24 steps (15° apart,
+/// nothing nearer) says neither.
+#[test]
+fn the_plan_says_when_rays_recall_the_blockers_of_a_spin_before() {
+    let dir = TempDir::new("recall");
+    let base = std::fs::read_to_string(write_scene(&dir, "ito.toml")).unwrap();
+    let run = "[run]\nsun = \"point\"\ntracer = \"bvh\"\ncache_dir = \"cache\"\n\n";
+    let hourly = base.replace(
+        "steps_per_period = 24\n",
+        "steps_per_period = 12\nperiods = 4.02\n",
+    );
+    for (name, scene, recalls) in [("hourly", hourly, true), ("one", base, false)] {
+        let path = dir.join(&format!("{name}.toml"));
+        std::fs::write(&path, format!("{run}{scene}")).unwrap();
+        let out = slim(&["run", s(&path), "-o", s(&dir.join(name))], &dir.0);
+        let stderr = text(&out.stderr);
+        assert!(out.status.success(), "{stderr}");
+        let says = stderr.contains("rays start from the blockers met 12 steps before")
+            && stderr.contains("remembered blockers");
+        assert_eq!(says, recalls, "{name}: {stderr}");
+        assert_eq!(
+            stderr.contains("rays start from"),
+            recalls,
+            "{name}: {stderr}"
+        );
+    }
+}
+
 /// A body whose own shadows come from a horizon map says so in the plan's self-shadowing
 /// line, with the rays the map leaves, instead of promising a ray per facet.
 #[test]

@@ -14,7 +14,7 @@ use hifitime::Epoch;
 use slim::analytic::SphereLatitude;
 use slim::ephemeris::fixed::{FixedGeometry, FixedSun};
 use slim::ephemeris::spin::{Spin, SpinModel};
-use slim::ephemeris::{median_sun_turn_deg, repeat_period, Ephemeris};
+use slim::ephemeris::{repeat_period, sun_return, Ephemeris, SunReturn};
 use slim::horizon::bound::BoundDetail;
 use slim::horizon::map::{HorizonMap, PointHorizon};
 use slim::horizon::tangent_frame;
@@ -2173,14 +2173,132 @@ fn a_repeating_spin_computes_one_period_and_every_copy_equals_its_own_step() {
 
 /// The Sun's turn from step to step in the body frame, which the horizon bound's detail
 /// weighs: a spin of 36 steps turns the Sun 10° about the spin axis, at sub-solar
-/// latitude δ an arc of 2·asin(cos δ · sin 5°) (the chord of a small circle).
+/// latitude δ an arc of 2·asin(cos δ · sin 5°) (the chord of a small circle). No earlier
+/// step comes closer, so the rays recall the step before.
 #[test]
 fn the_suns_turn_between_steps_is_the_arc_of_its_small_circle() {
     let states = epoch_states(&spins(36, 1.0)).expect("epoch states");
     let expected = 2.0 * (0.5f64.cos() * 5f64.to_radians().sin()).asin();
-    let turn = median_sun_turn_deg(&states);
-    assert!((turn - expected.to_degrees()).abs() < 1e-9, "{turn}");
-    assert_eq!(median_sun_turn_deg(&states[..1]), 0.0);
+    let recall = sun_return(&states, 48);
+    assert_eq!(recall.lag, 1);
+    assert!(
+        (recall.turn_deg - expected.to_degrees()).abs() < 1e-9,
+        "{recall:?}"
+    );
+    assert_eq!(sun_return(&states[..1], 48).turn_deg, 0.0);
+    assert_eq!(sun_return(&states, 1).lag, 1);
+}
+
+/// `suns` Suns 10° above the equator of a body that turns 30° plus `drift_deg` a step:
+/// every 12th step the Sun comes back to within 12 · `drift_deg` of where it stood.
+fn hourly_suns(steps: usize, drift_deg: f64) -> Vec<DVec3> {
+    (0..steps)
+        .map(|k| {
+            let turn = (k as f64 * (30.0 + drift_deg)).to_radians();
+            elevated(turn.cos(), turn.sin(), 10f64.to_radians())
+        })
+        .collect()
+}
+
+/// Hourly steps on a 12-hour spin: consecutive Suns are 30° apart, but the Sun of 12
+/// steps before stands 12 · 0.05° = 0.6° of spin away, an arc of 2·asin(cos 10° · sin
+/// 0.3°) on the Sun's small circle; shorter lags (1 to 11, 30–330° of spin) are farther.
+#[test]
+fn the_sun_returns_a_spin_later_within_the_spins_drift() {
+    let suns = hourly_suns(60, 0.05);
+    let states = epoch_states(&fixed(&suns, 1000.0, vec![Pose::IDENTITY])).expect("states");
+    let recall = sun_return(&states, 48);
+    let expected = 2.0 * (10f64.to_radians().cos() * 0.3f64.to_radians().sin()).asin();
+    assert_eq!(recall.lag, 12, "{recall:?}");
+    assert!(
+        (recall.turn_deg - expected.to_degrees()).abs() < 1e-9,
+        "{recall:?}"
+    );
+    // Looking back no farther than 11 steps, the nearest is a step of 30°.
+    assert_eq!(sun_return(&states, 11).lag, 1);
+    // Where every spin back is within 0.1° (all as good for the walks), the shortest.
+    let close = hourly_suns(60, 0.001);
+    let states = epoch_states(&fixed(&close, 1000.0, vec![Pose::IDENTITY])).expect("states");
+    assert_eq!(sun_return(&states, 48).lag, 12);
+}
+
+/// Rays that start from the blockers the same facets met a spin earlier, 12 steps back,
+/// change no shadow: every facet at every step is lit or dark as the Sun-view tracer's
+/// rays alone find, under a whole horizon bound and one by sectors. And the recall is
+/// what answers the rays: from a spin back, more than three quarters of the shadowed rays
+/// after the first spin are answered on the surface; recalling the step before (30°
+/// away) answers fewer.
+#[test]
+fn rays_recall_the_blockers_of_the_step_where_the_sun_returns() {
+    let mesh = load_km("data/shapes/itokawa/itokawa_16.obj");
+    let world = World {
+        bodies: vec![Body::new("itokawa_16", mesh, false)],
+    };
+    let suns = hourly_suns(48, 0.05);
+    let states = epoch_states(&fixed(&suns, 1000.0, vec![Pose::IDENTITY])).expect("states");
+    let recall = sun_return(&states, 48);
+    assert_eq!(recall.lag, 12);
+    let n = world.facet_count();
+    let run = |direct: Direct| -> (Vec<Vec<f64>>, StepCounts) {
+        let mut after_first_spin = StepCounts::default();
+        let lights = (states.iter())
+            .map(|state| {
+                let mut e = vec![f64::NAN; n];
+                let counts = direct.compute(state, &mut e).expect("compute");
+                if state.step >= 12 {
+                    after_first_spin += counts;
+                }
+                e
+            })
+            .collect();
+        (lights, after_first_spin)
+    };
+    let (by_rays, _) = run(Direct::new(&world, TracerKind::Sunview));
+    let with = |detail, recall| {
+        let shadows = Shadows {
+            bound_detail: detail,
+            recall,
+            ..Shadows::default()
+        };
+        assert!(shadows.remembers_blockers(false));
+        Direct::with_maps(&world, TracerKind::Bvh, vec![None], &shadows)
+    };
+    let step_before = SunReturn {
+        lag: 1,
+        turn_deg: 0.0,
+    };
+    for detail in [BoundDetail::Whole, BoundDetail::Sectors] {
+        let (recalled, spin_back) = run(with(detail, recall));
+        let (_, step_back) = run(with(detail, step_before));
+        for (k, (a, b)) in recalled.iter().zip(&by_rays).enumerate() {
+            for i in 0..n {
+                assert_eq!(
+                    a[i].to_bits(),
+                    b[i].to_bits(),
+                    "{detail:?}: step {k} facet {i}"
+                );
+            }
+        }
+        assert!(spin_back.shadowed > 1000, "{detail:?}: {spin_back:?}");
+        assert!(
+            spin_back.remembered * 4 > spin_back.shadowed * 3,
+            "{detail:?}: {spin_back:?}"
+        );
+        assert!(
+            spin_back.remembered > step_back.remembered,
+            "{detail:?}: a spin back {spin_back:?}, a step back {step_back:?}"
+        );
+    }
+    // A whole bound's rays, mostly lit, recall nothing when the Sun does not come back.
+    let far = Shadows {
+        recall: SunReturn {
+            lag: 1,
+            turn_deg: 30.0,
+        },
+        ..Shadows::default()
+    };
+    assert!(!far.remembers_blockers(false));
+    assert!(!Shadows::default().remembers_blockers(false));
 }
 
 /// A block of no steps lights nothing and counts nothing (it once divided the steps into

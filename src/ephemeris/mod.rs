@@ -86,19 +86,74 @@ pub fn repeat_period(states: &[EpochState]) -> usize {
     }
 }
 
-/// The median angle (degrees) through which the Sun moves from one step to the next in a
-/// body's frame, over every body and pair of consecutive steps; 0 with fewer than two
-/// steps. The median, not the mean, so that a few long gaps (a window's jumps) do not
-/// stand for the run.
-pub fn median_sun_turn_deg(states: &[EpochState]) -> f64 {
-    let mut turns: Vec<f64> = (states.windows(2))
-        .flat_map(|w| {
-            (w[0].bodies.iter().zip(&w[1].bodies)).map(|(a, b)| a.sun_dir.angle_between(b.sun_dir))
+/// The earlier step whose Sun stands nearest a step's own, as a fixed number of steps
+/// back: a spin stepped hourly turns the Sun 30° a step but brings it back within a
+/// fraction of a degree a spin later, and the shadow rays of a step start from the
+/// blockers the rays of that earlier step found ([`crate::illum`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SunReturn {
+    /// Steps back, at least 1.
+    pub lag: usize,
+    /// The median angle, degrees, between a step's Sun and the Sun `lag` steps before in
+    /// a body's frame, over every body and step: the median, not the mean, so that a few
+    /// long gaps (a window's jumps) do not stand for the run. 0 with fewer than two steps.
+    pub turn_deg: f64,
+}
+
+impl SunReturn {
+    /// The step before, the Sun's turn unknown: what a run assumes that has not looked
+    /// at its steps.
+    pub const UNKNOWN: SunReturn = SunReturn {
+        lag: 1,
+        turn_deg: f64::INFINITY,
+    };
+}
+
+/// Turns this small count as none: from 0.1° to 1° the walks from a remembered blocker
+/// answer as many rays (docs/performance.md), so a longer lag buys nothing below it.
+const NEGLIGIBLE_TURN_DEG: f64 = 0.1;
+
+/// A lag counts as good as the best when its turn is within this factor of the best
+/// one's; the shortest such lag is taken: it keeps fewer steps' blockers.
+const NEARLY_AS_NEAR: f64 = 1.25;
+
+/// Pairs of steps whose angle is measured per lag, spread evenly over the run: enough
+/// for a median, and a run of millions of steps is weighed in milliseconds.
+const SAMPLED_PAIRS: usize = 20_000;
+
+/// Where the Sun returns ([`SunReturn`]), looking at most `max_lag` steps back.
+pub fn sun_return(states: &[EpochState], max_lag: usize) -> SunReturn {
+    let longest = max_lag.max(1).min(states.len().saturating_sub(1));
+    let turns: Vec<(usize, f64)> = (1..=longest)
+        .map(|lag| (lag, median_turn_deg(states, lag)))
+        .collect();
+    let counted = |turn: f64| turn.max(NEGLIGIBLE_TURN_DEG);
+    let Some(best) = turns.iter().map(|t| counted(t.1)).min_by(f64::total_cmp) else {
+        return SunReturn {
+            lag: 1,
+            turn_deg: 0.0,
+        };
+    };
+    let (lag, turn_deg) = (turns.into_iter())
+        .find(|t| counted(t.1) <= NEARLY_AS_NEAR * best)
+        .expect("the best lag is nearly as near as itself");
+    SunReturn { lag, turn_deg }
+}
+
+/// The median angle (degrees) between the Sun of a step and that of the step `lag`
+/// before, in every body's frame (`lag < states.len()`); infinite when no angle is finite.
+fn median_turn_deg(states: &[EpochState], lag: usize) -> f64 {
+    let stride = (states.len() - lag).div_ceil(SAMPLED_PAIRS).max(1);
+    let mut turns: Vec<f64> = (lag..states.len())
+        .step_by(stride)
+        .flat_map(|k| {
+            let (then, now) = (&states[k - lag], &states[k]);
+            (then.bodies.iter().zip(&now.bodies)).map(|(a, b)| a.sun_dir.angle_between(b.sun_dir))
         })
         .filter(|t| t.is_finite())
         .collect();
     if turns.is_empty() {
-        return 0.0;
+        return f64::INFINITY;
     }
     let mid = turns.len() / 2;
     turns.select_nth_unstable_by(mid, f64::total_cmp);

@@ -16,6 +16,7 @@ use super::cache;
 use super::disk::SolarDisk;
 use super::map::{HorizonMap, MapParts, AZIMUTHS_MAX, AZIMUTHS_MIN, CEILING_BYTES, MAP_PART};
 use crate::cache::Lookup;
+use crate::ephemeris::SunReturn;
 use crate::error::{Error, Result};
 use crate::journal::Journal;
 use crate::progress::Progress;
@@ -81,6 +82,10 @@ pub struct Shadows {
     /// How finely the BVH tracer's horizon bounds follow the horizon (the run's length
     /// decides: [`bound_detail_for_run`]).
     pub bound_detail: BoundDetail,
+    /// The earlier step whose blockers a step's shadow rays start from, where they
+    /// remember any ([`Shadows::remembers_blockers`]; the run's steps decide:
+    /// [`crate::ephemeris::sun_return`]).
+    pub recall: SunReturn,
 }
 
 impl Default for Shadows {
@@ -96,6 +101,7 @@ impl Default for Shadows {
             sun_samples: DEFAULT_SUN_SAMPLES,
             cache_dir: None,
             bound_detail: BoundDetail::Whole,
+            recall: SunReturn::UNKNOWN,
         }
     }
 }
@@ -106,6 +112,32 @@ pub const DEFAULT_AZIMUTHS: u32 = 128;
 /// Disk samples toward other bodies' meshes unless the scene says otherwise: the hidden
 /// share then comes in steps of 1/32 (see docs/accuracy.md).
 pub const DEFAULT_SUN_SAMPLES: u32 = 32;
+
+/// Under a whole horizon bound, rays remember their blockers when the Sun stands within
+/// this many degrees of where it stood at the step they recall. Measured on Itokawa 49k
+/// (`bench_peer --tracer bvh`, one thread, 2026-11-28), the walks changed the step by
+/// −22 % at 0.2°, −18 % at 1°, −13 % at 2°, 0 at 5°, +12 % at 10° and +17 % at 30°.
+pub const WHOLE_BOUND_RECALL_DEG: f64 = 3.0;
+
+/// The most steps back that shadow rays look for a Sun near their own: an hourly Phobos
+/// needs 23 (three of its 7.65 h spins), an hourly 12 h spin 12.
+pub const RECALL_MAX_LAG: usize = 48;
+
+/// The most memory the remembered blockers may take: 4 bytes per facet and step back.
+pub const RECALL_MAX_BYTES: f64 = 64.0 * 1024.0 * 1024.0;
+
+/// The most steps back a run's shadow rays may recall ([`crate::ephemeris::sun_return`]):
+/// [`RECALL_MAX_LAG`], fewer where the facets of the bodies that can shadow themselves
+/// would hold more than [`RECALL_MAX_BYTES`] of blockers (21 at 786,432 facets, 5 at
+/// 3.1 million).
+pub fn longest_recall(world: &World) -> usize {
+    let facets: usize = (world.bodies.iter())
+        .filter(|b| !b.convex)
+        .map(|b| b.mesh.len())
+        .sum();
+    let fits = (RECALL_MAX_BYTES / (4.0 * facets.max(1) as f64)) as usize;
+    fits.clamp(1, RECALL_MAX_LAG)
+}
 
 /// The most disk samples a scene may ask for.
 pub const SUN_SAMPLES_MAX: u32 = 1024;
@@ -328,22 +360,59 @@ impl Shadows {
     }
 
     /// Memory the maps of the bodies in `uses` hold, bytes, with what the step loop keeps
-    /// beside an exact map for a point Sun: each facet's last blocker (4 bytes) and, for
-    /// every facet that casts shadows (the surroundings too), its neighbours across its
-    /// edges, where the walk from a blocker goes (12 bytes).
+    /// beside an exact map for a point Sun: its rays' remembered blockers and the edge
+    /// neighbours their walks follow.
     pub fn map_bytes(&self, world: &World, uses: &[bool]) -> f64 {
-        let remembers = self.mode == HorizonMode::Exact && self.sun == SunShape::Point;
         (world.bodies.iter().zip(uses))
             .filter(|(_, &u)| u)
             .map(|(b, _)| {
-                let map = b.mesh.len() as f64 * self.map_bytes_per_facet();
-                let walk = match remembers {
-                    true => b.mesh.len() as f64 * 4.0 + b.shadow_mesh().len() as f64 * 12.0,
-                    false => 0.0,
-                };
-                map + walk
+                b.mesh.len() as f64 * self.map_bytes_per_facet() + self.walk_bytes(b, true)
             })
             .sum()
+    }
+
+    /// Memory the blockers remembered by the shadow rays of the bodies that trace through
+    /// the BVH tracer's horizon bound (`tracer`; the bodies without a map in `maps`),
+    /// bytes: 4 per facet and step back, 12 per facet that casts shadows.
+    pub fn bound_walk_bytes(&self, world: &World, maps: &[bool], tracer: TracerKind) -> f64 {
+        if tracer != TracerKind::Bvh {
+            return 0.0;
+        }
+        (choice::bounded(world, maps).iter())
+            .map(|b| self.walk_bytes(b, false))
+            .sum()
+    }
+
+    /// What the walks from remembered blockers keep for `body` (`map`: it has a horizon
+    /// map), bytes, when its rays remember any: per facet the blocker of each of the
+    /// [`SunReturn::lag`] steps back (4 bytes each) and, for every facet that casts
+    /// shadows (the surroundings too), its neighbours across its edges, where the walk
+    /// goes (12 bytes).
+    fn walk_bytes(&self, body: &Body, map: bool) -> f64 {
+        match self.remembers_blockers(map) {
+            true => {
+                let rows = self.recall.lag as f64;
+                (body.mesh.len() as f64 * 4.0 * rows) + body.shadow_mesh().len() as f64 * 12.0
+            }
+            false => 0.0,
+        }
+    }
+
+    /// Whether a body's own shadow rays toward a point Sun start from the blockers the
+    /// same facets' rays met at an earlier step ([`SunReturn`]), walking the surface from
+    /// there before the tracer (`map`: the body has a horizon map; else it has the BVH
+    /// tracer's bound). Where the rays traced are mostly shadowed, always: an exact map's
+    /// and a bound's by sectors. Under a whole bound most are lit, and a walk that finds
+    /// nothing costs more than the hits spare unless the Sun comes back close to where it
+    /// stood ([`WHOLE_BOUND_RECALL_DEG`]).
+    pub fn remembers_blockers(&self, map: bool) -> bool {
+        let point = self.sun == SunShape::Point;
+        let mostly_shadowed = match map {
+            true => self.mode == HorizonMode::Exact,
+            false => self.bound_detail == BoundDetail::Sectors,
+        };
+        let close = !map && self.recall.turn_deg <= WHOLE_BOUND_RECALL_DEG;
+        point && (mostly_shadowed || close)
     }
 
     /// A map's bytes per facet: its cells (4 per wedge) and its ceilings.
@@ -724,16 +793,16 @@ fn sectors_extra_s_per_facet(casters: usize) -> f64 {
 /// 1.66); 0.035–0.037 µs at 0.1° and 0.5° as well ([`sectors_saving_share`]).
 const SECTORS_SAVED_S_PER_FACET_STEP: f64 = 0.037e-6;
 
-/// The share of [`SECTORS_SAVED_S_PER_FACET_STEP`] that steps `spacing_deg` apart keep:
-/// farther apart, the last blocker is seldom still in the way, and what remains is the
-/// rays the sectors spare. Measured on 2026-11-28 (`bench_peer MESH --tracer bvh|bvh-sectors
+/// The share of [`SECTORS_SAVED_S_PER_FACET_STEP`] kept where the Sun stands `turn_deg`
+/// from where it stood at the step whose blockers the rays recall: farther, the blocker
+/// is seldom still in the way, and what remains is the rays the sectors spare. Measured on 2026-11-28 (`bench_peer MESH --tracer bvh|bvh-sectors
 /// --steps N --threads 1 --block 16`, pinned, two rounds; Itokawa 49k and m1phobos 32k):
 /// the same saving at 0.1°, 0.5° and 1°, then 0.74 and 0.85 of it at 5°, 0.50 and 0.60 at
 /// 15°, 0.51 and 0.42 at 30° (three rounds); taken between those points linearly in the
 /// spacing's logarithm, and 0.45 beyond 30°.
-fn sectors_saving_share(spacing_deg: f64) -> f64 {
+fn sectors_saving_share(turn_deg: f64) -> f64 {
     const MEASURED: [(f64, f64); 4] = [(1.0, 1.0), (5.0, 0.8), (15.0, 0.55), (30.0, 0.45)];
-    let x = spacing_deg.clamp(1.0, 30.0).ln();
+    let x = turn_deg.clamp(1.0, 30.0).ln();
     MEASURED
         .windows(2)
         .find(|w| x <= w[1].0.ln())
@@ -753,13 +822,13 @@ pub fn sectors_extra_seconds(world: &World, maps: &[bool], cached: &[bool]) -> f
         .sum()
 }
 
-/// A run's steps as the bound's detail weighs them: how many are computed and the
-/// median angle between consecutive Sun directions in a body's frame
-/// ([`crate::ephemeris::median_sun_turn_deg`]).
+/// A run's steps as the bound's detail weighs them: how many are computed, and how near
+/// the Sun of each stands to that of the step whose blockers its rays recall
+/// ([`crate::ephemeris::sun_return`]).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct RunSteps {
     pub count: usize,
-    pub spacing_deg: f64,
+    pub recall: SunReturn,
 }
 
 /// The detail of the BVH tracer's horizon bounds for a run of `steps`, and why: by
@@ -784,15 +853,17 @@ pub fn bound_detail_for_run(
         return (BoundDetail::Whole, "no horizon bound".into());
     }
     let extra_s = sectors_extra_seconds(world, maps, &vec![false; maps.len()]);
-    let RunSteps { count, spacing_deg } = steps;
-    let share = sectors_saving_share(spacing_deg);
+    let RunSteps { count, recall } = steps;
+    let share = sectors_saving_share(recall.turn_deg);
     let per_step = facets as f64 * SECTORS_SAVED_S_PER_FACET_STEP * share;
     let break_even = (extra_s / per_step).ceil() as usize;
     let cost = choice::about_seconds(extra_s);
     let apart = match share < 1.0 {
         true => format!(
-            "; steps {spacing_deg:.1}° apart, where sectors spare {:.0} % of what they spare \
-             at 1°",
+            "; where the Sun stands {:.1}° from its place {} before, sectors spare {:.0} % \
+             of what they spare at 1°",
+            recall.turn_deg,
+            steps_back(recall.lag),
             100.0 * share
         ),
         false => String::new(),
@@ -809,6 +880,14 @@ pub fn bound_detail_for_run(
              sectors ({cost} more on one core{apart})"
         );
         (BoundDetail::Whole, why)
+    }
+}
+
+/// "the step" for a lag of one, "N steps" for more.
+pub fn steps_back(lag: usize) -> String {
+    match lag {
+        1 => "the step".into(),
+        n => format!("{n} steps"),
     }
 }
 
@@ -868,7 +947,10 @@ mod tests {
         let even =
             (sectors_extra_s_per_facet(casters) / SECTORS_SAVED_S_PER_FACET_STEP).ceil() as usize;
         assert!(even > 100, "{even}");
-        let at = |count, spacing_deg| RunSteps { count, spacing_deg };
+        let at = |count, turn_deg| RunSteps {
+            count,
+            recall: SunReturn { lag: 1, turn_deg },
+        };
         let pick = |steps, sun| bound_detail_for_run(&w, &[false], steps, sun);
         assert_eq!(pick(at(even, 1.0), None).0, BoundDetail::Sectors);
         let (detail, why) = pick(at(even - 1, 1.0), None);
@@ -887,7 +969,10 @@ mod tests {
         assert_eq!(pick(at(far, 30.0), None).0, BoundDetail::Sectors);
         let (detail, why) = pick(at(far - 1, 30.0), None);
         assert_eq!(detail, BoundDetail::Whole);
-        assert!(why.contains("30.0° apart"), "{why}");
+        assert!(
+            why.contains("30.0° from its place the step before"),
+            "{why}"
+        );
         assert!(sectors_extra_seconds(&w, &[false], &[false]) > 0.0);
         assert_eq!(sectors_extra_seconds(&w, &[false], &[true]), 0.0);
     }

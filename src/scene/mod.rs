@@ -20,6 +20,7 @@ mod validate;
 pub use schema::*;
 pub use validate::{camera_size_problem, MAX_BODIES, MAX_SPAN_S, MAX_STEPS};
 
+use crate::ephemeris::SunReturn;
 use crate::error::{printable, Error, Result};
 use crate::horizon::bound::BoundDetail;
 use crate::horizon::disk::SolarDisk;
@@ -112,8 +113,9 @@ impl Scene {
             },
             sun_samples: self.run.sun_samples,
             cache_dir: self.cache_dir(),
-            // The plan decides, from the run's length (`crate::prepare`).
+            // The plan decides these, from the run's steps (`crate::prepare`).
             bound_detail: BoundDetail::Whole,
+            recall: SunReturn::UNKNOWN,
         }
     }
 
