@@ -80,7 +80,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         "tracer", "build s", "ms per step", "queries per s", "shadowed", "remembered"
     );
     // The earlier step whose blockers the rays recall, as `slim run` finds it.
-    let recall = sun_return(&states, longest_recall(&world));
+    let recall = sun_return(&states, &[0], longest_recall(&world));
     match options.optional::<String>("--horizon")? {
         Some(mode) => {
             let shadows = Shadows {

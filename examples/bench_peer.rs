@@ -193,7 +193,7 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
     let before_build = Memory::now();
     let build_t0 = Instant::now();
     // The earlier step whose blockers the rays recall, as `slim run` finds it.
-    let recall = sun_return(&states, longest_recall(&world));
+    let recall = sun_return(&states, &[0], longest_recall(&world));
     let direct = match tracer.as_str() {
         "sunview" => Direct::new(&world, TracerKind::Sunview),
         "bvh" => {

@@ -135,7 +135,11 @@ pub fn prepare(scene: &Scene, budget: &Budget, timings: &mut Timings) -> Result<
     let computed = repetition.computed();
     demand.repeat_values = (computed < states.len()) as u8 as f64 * computed as f64;
     let mut shadows = scene.shadows();
-    shadows.recall = sun_return(&states[..computed], longest_recall(world));
+    let shadowing: Vec<usize> = (world.bodies.iter().enumerate())
+        .filter(|(_, b)| !b.convex)
+        .map(|(i, _)| i)
+        .collect();
+    shadows.recall = sun_return(&states[..computed], &shadowing, longest_recall(world));
     let (horizon_maps, reasons): (Vec<bool>, Vec<String>) = shadows
         .choose(world, computed, scene.run.tracer)
         .into_iter()

@@ -2179,14 +2179,14 @@ fn a_repeating_spin_computes_one_period_and_every_copy_equals_its_own_step() {
 fn the_suns_turn_between_steps_is_the_arc_of_its_small_circle() {
     let states = epoch_states(&spins(36, 1.0)).expect("epoch states");
     let expected = 2.0 * (0.5f64.cos() * 5f64.to_radians().sin()).asin();
-    let recall = sun_return(&states, 48);
+    let recall = sun_return(&states, &[0], 48);
     assert_eq!(recall.lag, 1);
     assert!(
         (recall.turn_deg - expected.to_degrees()).abs() < 1e-9,
         "{recall:?}"
     );
-    assert_eq!(sun_return(&states[..1], 48).turn_deg, 0.0);
-    assert_eq!(sun_return(&states, 1).lag, 1);
+    assert_eq!(sun_return(&states[..1], &[0], 48).turn_deg, 0.0);
+    assert_eq!(sun_return(&states, &[0], 1).lag, 1);
 }
 
 /// `suns` Suns 10° above the equator of a body that turns 30° plus `drift_deg` a step:
@@ -2207,7 +2207,7 @@ fn hourly_suns(steps: usize, drift_deg: f64) -> Vec<DVec3> {
 fn the_sun_returns_a_spin_later_within_the_spins_drift() {
     let suns = hourly_suns(60, 0.05);
     let states = epoch_states(&fixed(&suns, 1000.0, vec![Pose::IDENTITY])).expect("states");
-    let recall = sun_return(&states, 48);
+    let recall = sun_return(&states, &[0], 48);
     let expected = 2.0 * (10f64.to_radians().cos() * 0.3f64.to_radians().sin()).asin();
     assert_eq!(recall.lag, 12, "{recall:?}");
     assert!(
@@ -2215,11 +2215,35 @@ fn the_sun_returns_a_spin_later_within_the_spins_drift() {
         "{recall:?}"
     );
     // Looking back no farther than 11 steps, the nearest is a step of 30°.
-    assert_eq!(sun_return(&states, 11).lag, 1);
+    assert_eq!(sun_return(&states, &[0], 11).lag, 1);
     // Where every spin back is within 0.1° (all as good for the walks), the shortest.
     let close = hourly_suns(60, 0.001);
     let states = epoch_states(&fixed(&close, 1000.0, vec![Pose::IDENTITY])).expect("states");
-    assert_eq!(sun_return(&states, 48).lag, 12);
+    assert_eq!(sun_return(&states, &[0], 48).lag, 12);
+}
+
+/// The Sun's return is weighed in the frames of the bodies whose rays recall blockers
+/// only: an occluder turning 1.4 times as fast returns at other lags, and weighed with the
+/// first body it pulls the median away from the first's 12-step return.
+#[test]
+fn the_suns_return_is_weighed_in_the_frames_of_the_bodies_asked() {
+    let mut model = spin_model(240, 0.2);
+    // 20.04 turns of body 0 in 240 steps: 12 steps back is 0.72° of its spin.
+    model.duration_s = 3600.0 * 20.04;
+    model.bodies.push(Spin {
+        period_s: Some(3600.0 / 1.4),
+        initial_angle_rad: 0.0,
+        position_m: DVec3::new(1e7, 0.0, 0.0),
+    });
+    let states = epoch_states(&model).expect("epoch states");
+    let first = sun_return(&states, &[0], 48);
+    assert_eq!(first.lag, 12, "{first:?}");
+    assert!(first.turn_deg < 1.0, "{first:?}");
+    // The other frame returns elsewhere (12 steps are 16.8 of its turns), and both frames
+    // together stand farther at the first body's lag than it alone.
+    let both = sun_return(&states, &[0, 1], 48);
+    assert!(both.turn_deg > first.turn_deg, "{both:?} against {first:?}");
+    assert_eq!(sun_return(&states, &[], 48).turn_deg, f64::INFINITY);
 }
 
 /// Rays that start from the blockers the same facets met a spin earlier, 12 steps back,
@@ -2236,7 +2260,7 @@ fn rays_recall_the_blockers_of_the_step_where_the_sun_returns() {
     };
     let suns = hourly_suns(48, 0.05);
     let states = epoch_states(&fixed(&suns, 1000.0, vec![Pose::IDENTITY])).expect("states");
-    let recall = sun_return(&states, 48);
+    let recall = sun_return(&states, &[0], 48);
     assert_eq!(recall.lag, 12);
     let n = world.facet_count();
     let run = |direct: Direct| -> (Vec<Vec<f64>>, StepCounts) {

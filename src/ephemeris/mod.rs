@@ -95,8 +95,9 @@ pub struct SunReturn {
     /// Steps back, at least 1.
     pub lag: usize,
     /// The median angle, degrees, between a step's Sun and the Sun `lag` steps before in
-    /// a body's frame, over every body and step: the median, not the mean, so that a few
-    /// long gaps (a window's jumps) do not stand for the run. 0 with fewer than two steps.
+    /// a body's frame, over the bodies weighed and every step: the median, not the mean,
+    /// so that a few long gaps (a window's jumps) do not stand for the run. 0 with fewer
+    /// than two steps, infinite with no body weighed.
     pub turn_deg: f64,
 }
 
@@ -121,11 +122,13 @@ const NEARLY_AS_NEAR: f64 = 1.25;
 /// for a median, and a run of millions of steps is weighed in milliseconds.
 const SAMPLED_PAIRS: usize = 20_000;
 
-/// Where the Sun returns ([`SunReturn`]), looking at most `max_lag` steps back.
-pub fn sun_return(states: &[EpochState], max_lag: usize) -> SunReturn {
+/// Where the Sun returns ([`SunReturn`]) in the frames of the bodies numbered in `bodies`
+/// (those whose rays recall blockers: another body's frame may turn at another pace),
+/// looking at most `max_lag` steps back.
+pub fn sun_return(states: &[EpochState], bodies: &[usize], max_lag: usize) -> SunReturn {
     let longest = max_lag.max(1).min(states.len().saturating_sub(1));
     let turns: Vec<(usize, f64)> = (1..=longest)
-        .map(|lag| (lag, median_turn_deg(states, lag)))
+        .map(|lag| (lag, median_turn_deg(states, bodies, lag)))
         .collect();
     let counted = |turn: f64| turn.max(NEGLIGIBLE_TURN_DEG);
     let Some(best) = turns.iter().map(|t| counted(t.1)).min_by(f64::total_cmp) else {
@@ -141,14 +144,18 @@ pub fn sun_return(states: &[EpochState], max_lag: usize) -> SunReturn {
 }
 
 /// The median angle (degrees) between the Sun of a step and that of the step `lag`
-/// before, in every body's frame (`lag < states.len()`); infinite when no angle is finite.
-fn median_turn_deg(states: &[EpochState], lag: usize) -> f64 {
+/// before, in the frame of each body of `bodies` (`lag < states.len()`); infinite when
+/// no angle is finite.
+fn median_turn_deg(states: &[EpochState], bodies: &[usize], lag: usize) -> f64 {
     let stride = (states.len() - lag).div_ceil(SAMPLED_PAIRS).max(1);
     let mut turns: Vec<f64> = (lag..states.len())
         .step_by(stride)
         .flat_map(|k| {
             let (then, now) = (&states[k - lag], &states[k]);
-            (then.bodies.iter().zip(&now.bodies)).map(|(a, b)| a.sun_dir.angle_between(b.sun_dir))
+            let sun = |state: &EpochState, b: usize| state.bodies.get(b).map(|s| s.sun_dir);
+            bodies
+                .iter()
+                .filter_map(move |&b| Some(sun(then, b)?.angle_between(sun(now, b)?)))
         })
         .filter(|t| t.is_finite())
         .collect();
