@@ -27,9 +27,8 @@
 mod common;
 
 use glam::DVec3;
-use slim::ephemeris::sun_return;
 use slim::horizon::shadows::{
-    longest_recall, HorizonMode, ShadowMethod, Shadows, SunShape, DEFAULT_AZIMUTHS,
+    recall_for_run, HorizonMode, ShadowMethod, Shadows, SunShape, DEFAULT_AZIMUTHS,
 };
 use slim::illum::{Direct, StepCounts};
 use slim::trace::TracerKind;
@@ -80,7 +79,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         "tracer", "build s", "ms per step", "queries per s", "shadowed", "remembered"
     );
     // The earlier step whose blockers the rays recall, as `slim run` finds it.
-    let recall = sun_return(&states, &[0], longest_recall(&world));
+    let recall = recall_for_run(&world, &states);
     match options.optional::<String>("--horizon")? {
         Some(mode) => {
             let shadows = Shadows {

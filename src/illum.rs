@@ -95,8 +95,8 @@ pub struct Direct<'w> {
 }
 
 /// What a body's shadow rays remember of earlier steps: the blockers of each of the last
-/// `lag` steps (the run's [`crate::ephemeris::SunReturn`]), so that a step's rays start from those of the
-/// step `lag` before, where the Sun stood nearest.
+/// `lag` steps (the run's [`crate::ephemeris::SunReturn`]), so that a step's rays start
+/// from those of the step `lag` before, where the Sun stood nearest.
 struct LastBlockers {
     lag: usize,
     /// Row `k % lag`, facet by facet, holds the facet that blocked the ray of step `k`

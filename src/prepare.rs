@@ -14,9 +14,9 @@ use crate::ephemeris::fixed::{normalized_direction, FixedGeometry, FixedSun};
 use crate::ephemeris::spice::{parse_aberration, Kernels, SpiceBody, SpiceEphemeris, SpiceMember};
 use crate::ephemeris::spin::{Spin, SpinModel};
 use crate::ephemeris::synthetic::{CircularOrbit, SyntheticMotion};
-use crate::ephemeris::{flux_at, sun_return, Ephemeris, EpochState, SunReturn};
+use crate::ephemeris::{flux_at, Ephemeris, EpochState, SunReturn};
 use crate::error::{Error, Result};
-use crate::horizon::shadows::{bound_detail_for_run, longest_recall, steps_back, RunSteps};
+use crate::horizon::shadows::{bound_detail_for_run, recall_for_run, steps_back, RunSteps};
 use crate::horizon::Shadows;
 use crate::mesh::generate::ellipsoid;
 use crate::mesh::inspect::inspect;
@@ -135,11 +135,7 @@ pub fn prepare(scene: &Scene, budget: &Budget, timings: &mut Timings) -> Result<
     let computed = repetition.computed();
     demand.repeat_values = (computed < states.len()) as u8 as f64 * computed as f64;
     let mut shadows = scene.shadows();
-    let shadowing: Vec<usize> = (world.bodies.iter().enumerate())
-        .filter(|(_, b)| !b.convex)
-        .map(|(i, _)| i)
-        .collect();
-    shadows.recall = sun_return(&states[..computed], &shadowing, longest_recall(world));
+    shadows.recall = recall_for_run(world, &states[..computed]);
     let (horizon_maps, reasons): (Vec<bool>, Vec<String>) = shadows
         .choose(world, computed, scene.run.tracer)
         .into_iter()

@@ -16,7 +16,7 @@ use super::cache;
 use super::disk::SolarDisk;
 use super::map::{HorizonMap, MapParts, AZIMUTHS_MAX, AZIMUTHS_MIN, CEILING_BYTES, MAP_PART};
 use crate::cache::Lookup;
-use crate::ephemeris::SunReturn;
+use crate::ephemeris::{sun_return, EpochState, SunReturn};
 use crate::error::{Error, Result};
 use crate::journal::Journal;
 use crate::progress::Progress;
@@ -130,13 +130,25 @@ pub const RECALL_MAX_BYTES: f64 = 64.0 * 1024.0 * 1024.0;
 /// [`RECALL_MAX_LAG`], fewer where the facets of the bodies that can shadow themselves
 /// would hold more than [`RECALL_MAX_BYTES`] of blockers (21 at 786,432 facets, 5 at
 /// 3.1 million).
-pub fn longest_recall(world: &World) -> usize {
+fn longest_recall(world: &World) -> usize {
     let facets: usize = (world.bodies.iter())
         .filter(|b| !b.convex)
         .map(|b| b.mesh.len())
         .sum();
     let fits = (RECALL_MAX_BYTES / (4.0 * facets.max(1) as f64)) as usize;
     fits.clamp(1, RECALL_MAX_LAG)
+}
+
+/// The earlier step whose blockers the rays of a run over `states` recall: where the Sun
+/// returns in the frames of the bodies that can shadow themselves (an occluder turns at
+/// its own pace), at most [`RECALL_MAX_LAG`] steps back and fewer where their blockers
+/// would pass [`RECALL_MAX_BYTES`].
+pub fn recall_for_run(world: &World, states: &[EpochState]) -> SunReturn {
+    let shadowing: Vec<usize> = (world.bodies.iter().enumerate())
+        .filter(|(_, b)| !b.convex)
+        .map(|(i, _)| i)
+        .collect();
+    sun_return(states, &shadowing, longest_recall(world))
 }
 
 /// The most disk samples a scene may ask for.
@@ -795,11 +807,12 @@ const SECTORS_SAVED_S_PER_FACET_STEP: f64 = 0.037e-6;
 
 /// The share of [`SECTORS_SAVED_S_PER_FACET_STEP`] kept where the Sun stands `turn_deg`
 /// from where it stood at the step whose blockers the rays recall: farther, the blocker
-/// is seldom still in the way, and what remains is the rays the sectors spare. Measured on 2026-11-28 (`bench_peer MESH --tracer bvh|bvh-sectors
-/// --steps N --threads 1 --block 16`, pinned, two rounds; Itokawa 49k and m1phobos 32k):
-/// the same saving at 0.1°, 0.5° and 1°, then 0.74 and 0.85 of it at 5°, 0.50 and 0.60 at
-/// 15°, 0.51 and 0.42 at 30° (three rounds); taken between those points linearly in the
-/// spacing's logarithm, and 0.45 beyond 30°.
+/// is seldom still in the way, and what remains is the rays the sectors spare. Measured
+/// on 2026-11-28 with the step before recalled (`bench_peer MESH --tracer
+/// bvh|bvh-sectors --steps N --threads 1 --block 16`, pinned, two rounds; Itokawa 49k and
+/// m1phobos 32k): the same saving at 0.1°, 0.5° and 1°, then 0.74 and 0.85 of it at 5°,
+/// 0.50 and 0.60 at 15°, 0.51 and 0.42 at 30° (three rounds); taken between those points
+/// linearly in the angle's logarithm, and 0.45 beyond 30°.
 fn sectors_saving_share(turn_deg: f64) -> f64 {
     const MEASURED: [(f64, f64); 4] = [(1.0, 1.0), (5.0, 0.8), (15.0, 0.55), (30.0, 0.45)];
     let x = turn_deg.clamp(1.0, 30.0).ln();
