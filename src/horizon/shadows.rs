@@ -135,6 +135,12 @@ fn longest_recall(world: &World) -> usize {
         .filter(|b| !b.convex)
         .map(|b| b.mesh.len())
         .sum();
+    recall_rows_within_memory(facets)
+}
+
+/// The most steps back whose blockers `facets` facets may keep: [`RECALL_MAX_LAG`], or
+/// as many rows of 4 bytes per facet as [`RECALL_MAX_BYTES`] holds, at least one.
+fn recall_rows_within_memory(facets: usize) -> usize {
     let fits = (RECALL_MAX_BYTES / (4.0 * facets.max(1) as f64)) as usize;
     fits.clamp(1, RECALL_MAX_LAG)
 }
@@ -988,6 +994,19 @@ mod tests {
         );
         assert!(sectors_extra_seconds(&w, &[false], &[false]) > 0.0);
         assert_eq!(sectors_extra_seconds(&w, &[false], &[true]), 0.0);
+    }
+
+    /// The rows of recalled blockers stay within 64 MiB: 21 steps back at 786,432 facets
+    /// (21 · 4 B · 786,432 = 66.1 MB ≤ 67.1 MB, 22 would pass it), 5 at 3,145,728, all 48
+    /// up to 349,525 facets, and always at least the step before.
+    #[test]
+    fn the_recalled_steps_are_held_to_their_memory() {
+        assert_eq!(recall_rows_within_memory(786_432), 21);
+        assert_eq!(recall_rows_within_memory(3_145_728), 5);
+        assert_eq!(recall_rows_within_memory(349_525), 48);
+        assert_eq!(recall_rows_within_memory(349_526), 47);
+        assert_eq!(recall_rows_within_memory(100_000_000), 1);
+        assert_eq!(recall_rows_within_memory(0), 48);
     }
 
     /// The share follows the measured points (1°, 5°, 15°, 30°) and lies between them.
