@@ -2239,7 +2239,7 @@ fn the_suns_return_is_weighed_in_the_frames_of_the_bodies_asked() {
     let first = sun_return(&states, &[0], 48);
     assert_eq!(first.lag, 12, "{first:?}");
     assert!(first.turn_deg < 1.0, "{first:?}");
-    // The other frame returns elsewhere (12 steps are 16.8 of its turns), and both frames
+    // The other frame returns elsewhere (12 steps are 1.4 of its turns), and both frames
     // together stand farther at the first body's lag than it alone.
     let both = sun_return(&states, &[0, 1], 48);
     assert!(both.turn_deg > first.turn_deg, "{both:?} against {first:?}");
