@@ -49,3 +49,34 @@ units = "km"
 spin_period_h = 12.13
 TOML
 }
+
+# hourly_scene NAME MESH STEPS [RUN_LINE]: the body of spin_scene (Parquet only) under a
+# fixed geometry that lists the Sun of STEPS true hours of its 12.13 h spin, in the
+# body's frame (the spin turns the Sun by -2π·t/P about the z axis).
+hourly_scene() {
+  cat <<TOML
+[run]
+name = "$1"
+sun = "point"
+${4:-}
+[output]
+csv = false
+[ephemeris]
+mode = "fixed"
+step_s = 3600.0
+TOML
+  python3 - "$3" <<'PY'
+import math, sys
+lat, period_h = math.radians(15.0), 12.13
+for k in range(int(sys.argv[1])):
+    turn = -2.0 * math.pi * k / period_h
+    x, y, z = math.cos(lat) * math.cos(turn), math.cos(lat) * math.sin(turn), math.sin(lat)
+    print(f"[[ephemeris.sun]]\ndirection = [{x:.15f}, {y:.15f}, {z:.15f}]\ndistance_au = 1.1")
+PY
+  cat <<TOML
+[[body]]
+name = "itokawa"
+mesh = "$2"
+units = "km"
+TOML
+}

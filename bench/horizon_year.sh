@@ -11,11 +11,16 @@
 # PERIODS=730 each spin repeats the first bit for bit, and the run computes the light of
 # one spin and hands it on (docs/scene.md, "Repeated steps").
 #
+# HOURS=1 lists instead the Sun of every true hour of the 12.13 h spin (8,760 Suns of a
+# fixed geometry, the same 1.1 AU and 15° sub-solar latitude): the spin then fits no
+# whole number of steps, and 12 steps back the Sun stands 3.7° from where it stood, not
+# 0.02° as in the spin scene, as on a real orbit.
+#
 # The map is kept in bench/results/horizon-year-cache between invocations (its key
 # follows the mesh, the settings and the map's source), so the first run of a fresh
 # clone builds it: about 24 minutes on 2 cores at 786k facets; later runs read it.
 #
-#   [PERIODS=P] bench/horizon_year.sh [LEVELS] [REPEAT] [MODE] [OUT]    (from the repository root)
+#   [PERIODS=P | HOURS=1] bench/horizon_year.sh [LEVELS] [REPEAT] [MODE] [OUT]    (from the repository root)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 source bench/common.sh
@@ -28,8 +33,12 @@ PERIODS=${PERIODS:-730.04}
 run_line="shadows = \"horizon\"
 horizon_mode = \"$MODE\""
 [[ $MODE == auto ]] && run_line=""
-spin_scene "itokawa-year-x4-$LEVELS" "$mesh" 12 false "$run_line" |
-  sed "s/^steps_per_period = 12\$/steps_per_period = 12\nperiods = $PERIODS/" >"$OUT/scene.toml"
+if [[ ${HOURS:-0} == 1 ]]; then
+  hourly_scene "itokawa-hours-x4-$LEVELS" "$mesh" 8760 "$run_line" >"$OUT/scene.toml"
+else
+  spin_scene "itokawa-year-x4-$LEVELS" "$mesh" 12 false "$run_line" |
+    sed "s/^steps_per_period = 12\$/steps_per_period = 12\nperiods = $PERIODS/" >"$OUT/scene.toml"
+fi
 for r in $(seq 1 "$REPEAT"); do
   if ! /usr/bin/time -v "$B" run "$OUT/scene.toml" -o "$OUT/run-$r" --quiet 2>"$OUT/time-$r.txt"; then
     cat "$OUT/time-$r.txt" >&2

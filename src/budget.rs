@@ -319,7 +319,8 @@ impl Demand {
             self.remembered_blocker_bytes,
             &format!(
                 "use a coarser mesh (the rays keep the blockers of up to {RECALL_MAX_LAG} steps \
-                 back, at most {} MiB, and 12 bytes of neighbours per facet)",
+                 back, at most {} MiB and an eighth of the memory limit, and 12 bytes of \
+                 neighbours per facet)",
                 RECALL_MAX_BYTES / (1024.0 * 1024.0)
             ),
         );

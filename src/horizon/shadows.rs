@@ -15,6 +15,7 @@ use super::bound::{BoundDetail, HorizonBound};
 use super::cache;
 use super::disk::SolarDisk;
 use super::map::{HorizonMap, MapParts, AZIMUTHS_MAX, AZIMUTHS_MIN, CEILING_BYTES, MAP_PART};
+use crate::budget::Budget;
 use crate::cache::Lookup;
 use crate::ephemeris::{sun_return, EpochState, SunReturn};
 use crate::error::{Error, Result};
@@ -120,41 +121,53 @@ pub const DEFAULT_SUN_SAMPLES: u32 = 32;
 pub const WHOLE_BOUND_RECALL_DEG: f64 = 3.0;
 
 /// The most steps back that shadow rays look for a Sun near their own: an hourly Phobos
-/// needs 23 (three of its 7.65 h spins), an hourly 12 h spin 12.
-pub const RECALL_MAX_LAG: usize = 48;
+/// needs 23 (three of its 7.65 h spins), an hourly 12 h spin 12, Itokawa's 12.13 h spin
+/// in hourly steps 97 (eight spins, where the Sun stands 1.2° from its place; one spin
+/// back it stands 3.7° away, where the walks of a whole bound's rays no longer pay).
+pub const RECALL_MAX_LAG: usize = 128;
 
-/// The most memory the remembered blockers may take: 4 bytes per facet and step back.
-pub const RECALL_MAX_BYTES: f64 = 64.0 * 1024.0 * 1024.0;
+/// The most memory the remembered blockers may take (4 bytes per facet and step back),
+/// and never more than [`RECALL_BUDGET_SHARE`] of the run's memory budget: 97 steps
+/// back at 786,432 facets take 305 MB.
+pub const RECALL_MAX_BYTES: f64 = 512.0 * 1024.0 * 1024.0;
+
+/// The share of the run's memory budget (`--max-memory`) the remembered blockers may
+/// take at most: they only save time, so they shrink before a run is refused.
+pub const RECALL_BUDGET_SHARE: f64 = 0.125;
+
+/// The most memory the remembered blockers of a run under `budget` may take, bytes.
+pub fn recall_bytes_within(budget: &Budget) -> f64 {
+    RECALL_MAX_BYTES.min(budget.max_bytes as f64 * RECALL_BUDGET_SHARE)
+}
 
 /// The most steps back a run's shadow rays may recall ([`crate::ephemeris::sun_return`]):
 /// [`RECALL_MAX_LAG`], fewer where the facets of the bodies that can shadow themselves
-/// would hold more than [`RECALL_MAX_BYTES`] of blockers (21 at 786,432 facets, 5 at
-/// 3.1 million).
-fn longest_recall(world: &World) -> usize {
+/// would hold more than `max_bytes` of blockers.
+fn longest_recall(world: &World, max_bytes: f64) -> usize {
     let facets: usize = (world.bodies.iter())
         .filter(|b| !b.convex)
         .map(|b| b.mesh.len())
         .sum();
-    recall_rows_within_memory(facets)
+    recall_rows_within_memory(facets, max_bytes)
 }
 
 /// The most steps back whose blockers `facets` facets may keep: [`RECALL_MAX_LAG`], or
-/// as many rows of 4 bytes per facet as [`RECALL_MAX_BYTES`] holds, at least one.
-fn recall_rows_within_memory(facets: usize) -> usize {
-    let fits = (RECALL_MAX_BYTES / (4.0 * facets.max(1) as f64)) as usize;
+/// as many rows of 4 bytes per facet as `max_bytes` holds, at least one.
+fn recall_rows_within_memory(facets: usize, max_bytes: f64) -> usize {
+    let fits = (max_bytes / (4.0 * facets.max(1) as f64)) as usize;
     fits.clamp(1, RECALL_MAX_LAG)
 }
 
 /// The earlier step whose blockers the rays of a run over `states` recall: where the Sun
 /// returns in the frames of the bodies that can shadow themselves (an occluder turns at
 /// its own pace), at most [`RECALL_MAX_LAG`] steps back and fewer where their blockers
-/// would pass [`RECALL_MAX_BYTES`].
-pub fn recall_for_run(world: &World, states: &[EpochState]) -> SunReturn {
+/// would pass `max_bytes` ([`recall_bytes_within`] a run's budget).
+pub fn recall_for_run(world: &World, states: &[EpochState], max_bytes: f64) -> SunReturn {
     let shadowing: Vec<usize> = (world.bodies.iter().enumerate())
         .filter(|(_, b)| !b.convex)
         .map(|(i, _)| i)
         .collect();
-    sun_return(states, &shadowing, longest_recall(world))
+    sun_return(states, &shadowing, longest_recall(world, max_bytes))
 }
 
 /// The most disk samples a scene may ask for.
@@ -996,17 +1009,29 @@ mod tests {
         assert_eq!(sectors_extra_seconds(&w, &[false], &[true]), 0.0);
     }
 
-    /// The rows of recalled blockers stay within 64 MiB: 21 steps back at 786,432 facets
-    /// (21 · 4 B · 786,432 = 66.1 MB ≤ 67.1 MB, 22 would pass it), 5 at 3,145,728, all 48
-    /// up to 349,525 facets, and always at least the step before.
+    /// The rows of recalled blockers stay within the memory given: at 512 MiB, 170 steps
+    /// back would fit at 786,432 facets (170 · 4 B · 786,432 = 534.8 MB ≤ 536.9 MB), so
+    /// all 128; 42 at 3,145,728 (528.5 MB, 43 would pass it); all 128 up to 1,048,576
+    /// facets and 127 beyond; always at least the step before. A budget of 2 GiB leaves
+    /// the blockers an eighth of it, 256 MiB: 85 rows at 786,432 facets.
     #[test]
     fn the_recalled_steps_are_held_to_their_memory() {
-        assert_eq!(recall_rows_within_memory(786_432), 21);
-        assert_eq!(recall_rows_within_memory(3_145_728), 5);
-        assert_eq!(recall_rows_within_memory(349_525), 48);
-        assert_eq!(recall_rows_within_memory(349_526), 47);
-        assert_eq!(recall_rows_within_memory(100_000_000), 1);
-        assert_eq!(recall_rows_within_memory(0), 48);
+        let most = RECALL_MAX_BYTES;
+        assert_eq!(recall_rows_within_memory(786_432, most), 128);
+        assert_eq!(recall_rows_within_memory(3_145_728, most), 42);
+        assert_eq!(recall_rows_within_memory(1_048_576, most), 128);
+        assert_eq!(recall_rows_within_memory(1_048_577, most), 127);
+        assert_eq!(recall_rows_within_memory(100_000_000, most), 1);
+        assert_eq!(recall_rows_within_memory(0, most), 128);
+        let two_gib = Budget {
+            max_bytes: 2 << 30,
+            source: "a test",
+        };
+        assert_eq!(recall_bytes_within(&two_gib), 256.0 * 1024.0 * 1024.0);
+        assert_eq!(
+            recall_rows_within_memory(786_432, recall_bytes_within(&two_gib)),
+            85
+        );
     }
 
     /// The share follows the measured points (1°, 5°, 15°, 30°) and lies between them.
