@@ -29,8 +29,7 @@ mod common;
 use glam::DVec3;
 use slim::budget::Budget;
 use slim::horizon::shadows::{
-    recall_bytes_within, recall_for_run, HorizonMode, ShadowMethod, Shadows, SunShape,
-    DEFAULT_AZIMUTHS,
+    recall_for_run, HorizonMode, ShadowMethod, Shadows, SunShape, DEFAULT_AZIMUTHS,
 };
 use slim::illum::{Direct, StepCounts};
 use slim::trace::TracerKind;
@@ -81,7 +80,11 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         "tracer", "build s", "ms per step", "queries per s", "shadowed", "remembered"
     );
     // The earlier step whose blockers the rays recall, as `slim run` finds it.
-    let recall = recall_for_run(&world, &states, recall_bytes_within(&Budget::machine()));
+    let recall = recall_for_run(
+        &world,
+        &states,
+        Budget::machine().remembered_blocker_bytes(),
+    );
     match options.optional::<String>("--horizon")? {
         Some(mode) => {
             let shadows = Shadows {

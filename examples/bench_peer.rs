@@ -43,9 +43,7 @@ use glam::DVec3;
 use slim::budget::Budget;
 use slim::ephemeris::SunReturn;
 use slim::horizon::bound::BoundDetail;
-use slim::horizon::shadows::{
-    recall_bytes_within, recall_for_run, HorizonMode, ShadowMethod, Shadows,
-};
+use slim::horizon::shadows::{recall_for_run, HorizonMode, ShadowMethod, Shadows};
 use slim::illum::{Direct, StepCounts};
 use slim::trace::TracerKind;
 use slim::world::World;
@@ -196,7 +194,11 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
     let before_build = Memory::now();
     let build_t0 = Instant::now();
     // The earlier step whose blockers the rays recall, as `slim run` finds it.
-    let recall = recall_for_run(&world, &states, recall_bytes_within(&Budget::machine()));
+    let recall = recall_for_run(
+        &world,
+        &states,
+        Budget::machine().remembered_blocker_bytes(),
+    );
     let direct = match tracer.as_str() {
         "sunview" => Direct::new(&world, TracerKind::Sunview),
         "bvh" => {

@@ -30,6 +30,10 @@ const MACHINE_SHARE: f64 = 0.75;
 /// The default when the machine's memory cannot be read (not Linux): 8 GiB.
 const FALLBACK_BYTES: u64 = 8 << 30;
 
+/// The share of a run's memory budget the remembered blockers may take at most: they
+/// only save time, so they shrink before a run is refused.
+const REMEMBERED_BLOCKER_SHARE: f64 = 0.125;
+
 impl Budget {
     /// Three quarters of the machine's memory (`MemTotal` in `/proc/meminfo`), or 8 GiB
     /// where that cannot be read.
@@ -65,6 +69,12 @@ impl Budget {
             human_bytes(largest.bytes),
             largest.shrink
         )))
+    }
+
+    /// The most memory the shadow rays' remembered blockers may take in a run under this
+    /// budget, bytes: [`RECALL_MAX_BYTES`], and an eighth of the budget at most.
+    pub fn remembered_blocker_bytes(&self) -> f64 {
+        RECALL_MAX_BYTES.min(self.max_bytes as f64 * REMEMBERED_BLOCKER_SHARE)
     }
 }
 
@@ -337,6 +347,23 @@ impl Demand {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The blockers take 512 MiB at most, and an eighth of a smaller budget.
+    #[test]
+    fn remembered_blockers_take_an_eighth_of_a_budget_at_most() {
+        let budget = |max_bytes| Budget {
+            max_bytes,
+            source: "a test",
+        };
+        assert_eq!(
+            budget(2 << 30).remembered_blocker_bytes(),
+            (256 << 20) as f64
+        );
+        assert_eq!(
+            budget(64 << 30).remembered_blocker_bytes(),
+            RECALL_MAX_BYTES
+        );
+    }
 
     #[test]
     fn sizes_parse_in_powers_of_1024() {

@@ -16,9 +16,7 @@ use crate::ephemeris::spin::{Spin, SpinModel};
 use crate::ephemeris::synthetic::{CircularOrbit, SyntheticMotion};
 use crate::ephemeris::{flux_at, Ephemeris, EpochState, SunReturn};
 use crate::error::{Error, Result};
-use crate::horizon::shadows::{
-    bound_detail_for_run, recall_bytes_within, recall_for_run, steps_back, RunSteps,
-};
+use crate::horizon::shadows::{bound_detail_for_run, recall_for_run, steps_back, RunSteps};
 use crate::horizon::Shadows;
 use crate::mesh::generate::ellipsoid;
 use crate::mesh::inspect::inspect;
@@ -137,7 +135,11 @@ pub fn prepare(scene: &Scene, budget: &Budget, timings: &mut Timings) -> Result<
     let computed = repetition.computed();
     demand.repeat_values = (computed < states.len()) as u8 as f64 * computed as f64;
     let mut shadows = scene.shadows();
-    shadows.recall = recall_for_run(world, &states[..computed], recall_bytes_within(budget));
+    shadows.recall = recall_for_run(
+        world,
+        &states[..computed],
+        budget.remembered_blocker_bytes(),
+    );
     let (horizon_maps, reasons): (Vec<bool>, Vec<String>) = shadows
         .choose(world, computed, scene.run.tracer)
         .into_iter()

@@ -15,7 +15,6 @@ use super::bound::{BoundDetail, HorizonBound};
 use super::cache;
 use super::disk::SolarDisk;
 use super::map::{HorizonMap, MapParts, AZIMUTHS_MAX, AZIMUTHS_MIN, CEILING_BYTES, MAP_PART};
-use crate::budget::Budget;
 use crate::cache::Lookup;
 use crate::ephemeris::{sun_return, EpochState, SunReturn};
 use crate::error::{Error, Result};
@@ -127,18 +126,10 @@ pub const WHOLE_BOUND_RECALL_DEG: f64 = 3.0;
 pub const RECALL_MAX_LAG: usize = 128;
 
 /// The most memory the remembered blockers may take (4 bytes per facet and step back),
-/// and never more than [`RECALL_BUDGET_SHARE`] of the run's memory budget: 97 steps
-/// back at 786,432 facets take 305 MB.
+/// and never more than an eighth of the run's memory budget
+/// ([`crate::budget::Budget::remembered_blocker_bytes`]): 97 steps back at 786,432
+/// facets take 305 MB.
 pub const RECALL_MAX_BYTES: f64 = 512.0 * 1024.0 * 1024.0;
-
-/// The share of the run's memory budget (`--max-memory`) the remembered blockers may
-/// take at most: they only save time, so they shrink before a run is refused.
-pub const RECALL_BUDGET_SHARE: f64 = 0.125;
-
-/// The most memory the remembered blockers of a run under `budget` may take, bytes.
-pub fn recall_bytes_within(budget: &Budget) -> f64 {
-    RECALL_MAX_BYTES.min(budget.max_bytes as f64 * RECALL_BUDGET_SHARE)
-}
 
 /// The most steps back a run's shadow rays may recall ([`crate::ephemeris::sun_return`]):
 /// [`RECALL_MAX_LAG`], fewer where the facets of the bodies that can shadow themselves
@@ -161,7 +152,7 @@ fn recall_rows_within_memory(facets: usize, max_bytes: f64) -> usize {
 /// The earlier step whose blockers the rays of a run over `states` recall: where the Sun
 /// returns in the frames of the bodies that can shadow themselves (an occluder turns at
 /// its own pace), at most [`RECALL_MAX_LAG`] steps back and fewer where their blockers
-/// would pass `max_bytes` ([`recall_bytes_within`] a run's budget).
+/// would pass `max_bytes` ([`crate::budget::Budget::remembered_blocker_bytes`]).
 pub fn recall_for_run(world: &World, states: &[EpochState], max_bytes: f64) -> SunReturn {
     let shadowing: Vec<usize> = (world.bodies.iter().enumerate())
         .filter(|(_, b)| !b.convex)
@@ -1012,8 +1003,7 @@ mod tests {
     /// The rows of recalled blockers stay within the memory given: at 512 MiB, 170 steps
     /// back would fit at 786,432 facets (170 · 4 B · 786,432 = 534.8 MB ≤ 536.9 MB), so
     /// all 128; 42 at 3,145,728 (528.5 MB, 43 would pass it); all 128 up to 1,048,576
-    /// facets and 127 beyond; always at least the step before. A budget of 2 GiB leaves
-    /// the blockers an eighth of it, 256 MiB: 85 rows at 786,432 facets.
+    /// facets and 127 beyond; always at least the step before.
     #[test]
     fn the_recalled_steps_are_held_to_their_memory() {
         let most = RECALL_MAX_BYTES;
@@ -1023,15 +1013,9 @@ mod tests {
         assert_eq!(recall_rows_within_memory(1_048_577, most), 127);
         assert_eq!(recall_rows_within_memory(100_000_000, most), 1);
         assert_eq!(recall_rows_within_memory(0, most), 128);
-        let two_gib = Budget {
-            max_bytes: 2 << 30,
-            source: "a test",
-        };
-        assert_eq!(recall_bytes_within(&two_gib), 256.0 * 1024.0 * 1024.0);
-        assert_eq!(
-            recall_rows_within_memory(786_432, recall_bytes_within(&two_gib)),
-            85
-        );
+        // A budget of 2 GiB leaves the blockers an eighth of it, 256 MiB: 85 rows.
+        let quarter_gib = 256.0 * 1024.0 * 1024.0;
+        assert_eq!(recall_rows_within_memory(786_432, quarter_gib), 85);
     }
 
     /// The share follows the measured points (1°, 5°, 15°, 30°) and lies between them.
