@@ -38,7 +38,8 @@
 //! per facet, [`SECTORS`] bytes by sectors (each sine rounded up to a 255th).
 
 use super::geometry::{
-    distance_to_triangle, pseudo_angle, rounding_widening, tangent_frame, triangle_bound,
+    distance_to_triangle, may_rise_above, pseudo_angle, rounding_widening, tangent_frame,
+    triangle_bound,
 };
 use super::map::{in_seeded_runs, ZenithLine};
 use super::outline::{turned_outward, Outline};
@@ -502,7 +503,10 @@ fn facet_bound(
         BoundDetail::Sectors => sectors_reached(&zenith, tangents, (lo, hi), widening),
     };
     let take = |id: u32, tri: &[DVec3; 3]| {
-        if id as usize == i {
+        // Below every sector's sine (and its slack) by its cheap bound, the triangle
+        // raises none: the sectors it reaches, which cost more, are not asked.
+        let lowest = found.borrow().lowest();
+        if id as usize == i || !may_rise_above(c, n, tri, widening, lowest + slack) {
             return;
         }
         let (lo, hi) = (

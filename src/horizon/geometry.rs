@@ -90,7 +90,13 @@ pub(crate) fn touches(gap: f64, widening: f64) -> bool {
 /// distance to its widened box is no higher. Tighter than the box's own bound, and without
 /// a root or a division.
 #[inline]
-fn may_rise_above(c: DVec3, n: DVec3, tri: &[DVec3; 3], widening: f64, threshold: f64) -> bool {
+pub(crate) fn may_rise_above(
+    c: DVec3,
+    n: DVec3,
+    tri: &[DVec3; 3],
+    widening: f64,
+    threshold: f64,
+) -> bool {
     let rise = tri
         .iter()
         .map(|p| n.dot(*p - c))
