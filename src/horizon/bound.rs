@@ -33,7 +33,10 @@
 //!
 //! Cost: a tree search per facet, parallel over facets, each seeded with the triangles
 //! that set its neighbour's sectors; by sectors 5–8× a whole bound's (every
-//! sector's horizon proved, not only the highest; docs/performance.md); kept on disk
+//! sector's horizon proved, not only the highest; docs/performance.md), most of it
+//! finding the sectors boxes and triangles reach, which each box hands on to the boxes
+//! below it (theirs lie within its own) so that they are asked only where that decides
+//! something; kept on disk
 //! beside the horizon maps and read back by later runs (`super::cache`). Memory: a byte
 //! per facet, [`SECTORS`] bytes by sectors (each sine rounded up to a 255th).
 
@@ -502,20 +505,25 @@ fn facet_bound(
         BoundDetail::Whole => 1,
         BoundDetail::Sectors => sectors_reached(&zenith, tangents, (lo, hi), widening),
     };
-    let take = |id: u32, tri: &[DVec3; 3]| {
+    // The search hands each box's sectors on to its children, whose sectors lie within
+    // them: from the root, every sector, until a box's own are asked.
+    let take = |id: u32, tri: &[DVec3; 3], around: u32| {
         // Below every sector's sine (and its slack) by its cheap bound, the triangle
         // raises none: the sectors it reaches, which cost more, are not asked.
         let lowest = found.borrow().lowest();
         if id as usize == i || !may_rise_above(c, n, tri, widening, lowest + slack) {
             return;
         }
-        let (lo, hi) = (
-            tri[0].min(tri[1]).min(tri[2]),
-            tri[0].max(tri[1]).max(tri[2]),
-        );
         // The sectors first (additions and a division per corner): the lowest of those
-        // the triangle reaches rules most triangles out before their exact bound.
-        let sectors = reached(lo, hi);
+        // the triangle reaches rules most triangles out before their exact bound. Under a
+        // box that reaches one sector, the triangle lies in it.
+        let sectors = match around.count_ones() {
+            1 => around,
+            _ => reached(
+                tri[0].min(tri[1]).min(tri[2]),
+                tri[0].max(tri[1]).max(tri[2]),
+            ),
+        };
         let lowest = found.borrow().lowest_of(sectors);
         let value = triangle_bound(c, n, tri, widening, lowest + slack);
         if value > lowest {
@@ -529,23 +537,32 @@ fn facet_bound(
         }
     };
     for id in seeds.distinct() {
-        take(id, &mesh.corners(id as usize));
+        take(id, &mesh.corners(id as usize), ALL_SECTORS);
     }
     bvh.search(
         &bvh.viewpoint(c, n, widening),
-        |child| {
+        ALL_SECTORS,
+        |child, around| {
             let found = found.borrow();
             let bound = child.bound;
             if bound <= found.lowest() + slack {
                 return None;
             }
             if bound > found.highest + slack {
-                return Some(bound);
+                return Some((bound, around));
+            }
+            // Where the parent's sectors are all below the bound, or none is, the box's
+            // own (a part of them) need not be asked.
+            let below = found.below(bound - slack);
+            if around & below == 0 {
+                return None;
+            }
+            if around & !below == 0 {
+                return Some((bound, around));
             }
             let (lo, hi) = child.corners();
-            found
-                .any_below(reached(lo, hi), bound - slack)
-                .then_some(bound)
+            let sectors = reached(lo, hi);
+            (sectors & below != 0).then_some((bound, sectors))
         },
         take,
     );
@@ -684,9 +701,9 @@ impl SectorSines {
         bits(sectors).fold(f64::INFINITY, |low, k| low.min(self.sines[k]))
     }
 
-    /// Whether any of the `sectors` (bits) stands below the sine `sin`.
-    fn any_below(&self, sectors: u32, sin: f64) -> bool {
-        bits(sectors).any(|k| self.sines[k] < sin)
+    /// The sectors kept (as bits) whose sine stands below `sin`.
+    fn below(&self, sin: f64) -> u32 {
+        (0..self.kept).fold(0, |bits, k| bits | u32::from(self.sines[k] < sin) << k)
     }
 
     /// Raises the `sectors` (bits) to the elevation sine `value` of triangle `id`.

@@ -552,8 +552,9 @@ fn search_sky<'a>(
     };
     bvh.search(
         &view,
-        |child| sky.borrow().box_priority(child),
-        |id, tri| {
+        (),
+        |child, ()| sky.borrow().box_priority(child).map(|p| (p, ())),
+        |id, tri, ()| {
             if Some(id) != skip {
                 sky.borrow_mut().add_triangle(id, tri);
             }

@@ -616,24 +616,28 @@ impl<'b> BvhRays<'b> {
 impl Bvh<'_> {
     /// Branch and bound over the tree, seen from a point above a plane: `open` of a
     /// child's box (a [`SearchBox`], with an upper bound of the elevation sine of its
-    /// points above the plane of `view`) says whether to descend and with which priority
-    /// (higher first); `visit(facet id, corners)` sees every facet of every leaf opened.
-    pub(crate) fn search(
+    /// points above the plane of `view`) and of what its parent's `open` handed on (`root`
+    /// for the root's children) says whether to descend, with which priority (higher
+    /// first) and what to hand on to its own children; `visit(facet id, corners, what its
+    /// leaf's open handed on)` sees every facet of every leaf opened.
+    pub(crate) fn search<C: Copy>(
         &self,
         view: &Viewpoint,
-        mut open: impl FnMut(&SearchBox) -> Option<f64>,
-        mut visit: impl FnMut(u32, &[DVec3; 3]),
+        root: C,
+        mut open: impl FnMut(&SearchBox, C) -> Option<(f64, C)>,
+        mut visit: impl FnMut(u32, &[DVec3; 3], C),
     ) {
         if self.quads.is_empty() {
             return;
         }
-        let mut stack = [0u32; STACK];
+        let mut stack = [(0u32, root); STACK];
         let mut top = 1;
         while top > 0 {
             top -= 1;
-            let quad = &self.quads[stack[top] as usize];
+            let (q, handed) = stack[top];
+            let quad = &self.quads[q as usize];
             let bounds = quad.elevation_bounds(view);
-            let mut lanes: [(f64, usize); 4] = [(f64::NEG_INFINITY, 4); 4];
+            let mut lanes: [(f64, usize, C); 4] = [(f64::NEG_INFINITY, 4, handed); 4];
             for (lane, slot) in lanes.iter_mut().enumerate() {
                 if quad.lo[0][lane] != f32::INFINITY {
                     let child = SearchBox {
@@ -642,23 +646,23 @@ impl Bvh<'_> {
                         centre: self.centre,
                         bound: bounds[lane] as f64,
                     };
-                    if let Some(priority) = open(&child) {
-                        *slot = (priority, lane);
+                    if let Some((priority, on)) = open(&child, handed) {
+                        *slot = (priority, lane, on);
                     }
                 }
             }
             // Highest priority pushed last, so that it is taken first.
             lanes.sort_unstable_by(|a, b| a.0.total_cmp(&b.0));
-            for &(_, lane) in lanes.iter().filter(|(_, lane)| *lane < 4) {
+            for &(_, lane, on) in lanes.iter().filter(|(_, lane, _)| *lane < 4) {
                 match quad.child(lane) {
                     Child::Node(q) => {
-                        stack[top] = q;
+                        stack[top] = (q, on);
                         top += 1;
                     }
                     Child::Leaf(l) => {
                         for &id in self.leaves[l as usize].ids.iter() {
                             if id != u32::MAX {
-                                visit(id, &self.mesh.corners(id as usize));
+                                visit(id, &self.mesh.corners(id as usize), on);
                             }
                         }
                     }
