@@ -798,13 +798,14 @@ fn minutes_and_seconds(s: f64) -> String {
 
 /// CPU seconds per facet that a bound by sectors costs beyond a whole one over `casters`
 /// facets (proving each sector's horizon, each triangle's part in it, not only the
-/// highest): growing as √N, fitted from above to the builds measured on 2026-11-28 with
-/// the sectors refined by the triangles' outlines (`bench_peer MESH --tracer
-/// bvh-sectors`, then `--tracer bvh`, `--threads 1`, the difference of their setups, two
-/// rounds alike within 3 %): 82 µs on m1phobos (32k facets), 100 µs on Itokawa (49k); the
-/// model gives 82 and 102.
+/// highest): growing as √N, fitted from above to the builds measured on 2026-11-28,
+/// evening, with each box's sectors handed on to the boxes below it (`bench_peer MESH
+/// --tracer bvh-sectors`, then `--tracer bvh`, `--threads 1 --steps 2`, pinned, the
+/// difference of their setups, two rounds alike within 2 %): 68.1 µs on m1phobos (32k
+/// facets), 84.0 µs on Itokawa (49k); the model gives 68.2 and 84.5 (and 169 µs at
+/// 196k facets, where the build took about 133).
 fn sectors_extra_s_per_facet(casters: usize) -> f64 {
-    0.46e-6 * (casters as f64).sqrt()
+    0.381e-6 * (casters as f64).sqrt()
 }
 
 /// CPU seconds a bound by sectors spares over a whole one per facet and step of a point
