@@ -32,13 +32,13 @@
 //! simply traced.
 //!
 //! Cost: a tree search per facet, parallel over facets, each seeded with the triangles
-//! that set its neighbour's sectors; by sectors 5–8× a whole bound's (every
-//! sector's horizon proved, not only the highest; docs/performance.md), most of it
-//! finding the sectors boxes and triangles reach, which each box hands on to the boxes
-//! below it (theirs lie within its own) so that they are asked only where that decides
-//! something; kept on disk
-//! beside the horizon maps and read back by later runs (`super::cache`). Memory: a byte
-//! per facet, [`SECTORS`] bytes by sectors (each sine rounded up to a 255th).
+//! that set its neighbour's sectors; by sectors 5–8× a whole bound's (every sector's
+//! horizon proved, not only the highest; docs/performance.md), most of it finding the
+//! sectors that boxes and triangles reach, which each box hands on to the boxes below
+//! it (theirs lie within its own), so that they are asked only where that decides
+//! something. Kept on disk beside the horizon maps and read back by later runs
+//! (`super::cache`). Memory: a byte per facet, [`SECTORS`] bytes by sectors (each sine
+//! rounded up to a 255th).
 
 use super::geometry::{
     distance_to_triangle, may_rise_above, pseudo_angle, rounding_widening, tangent_frame,
