@@ -802,8 +802,9 @@ fn minutes_and_seconds(s: f64) -> String {
 /// evening, with each box's sectors handed on to the boxes below it (`bench_peer MESH
 /// --tracer bvh-sectors`, then `--tracer bvh`, `--threads 1 --steps 2`, pinned, the
 /// difference of their setups, two rounds alike within 2 %): 68.1 µs on m1phobos (32k
-/// facets), 84.0 µs on Itokawa (49k); the model gives 68.2 and 84.5 (and 169 µs at
-/// 196k facets, where the build took about 133).
+/// facets), 84.0 µs on Itokawa (49k); the model gives 68.2 and 84.5. At 196k facets it
+/// gives 169 µs, more than the whole setup by sectors took there (29.2 s, 149 µs per
+/// facet, the tree's build included).
 fn sectors_extra_s_per_facet(casters: usize) -> f64 {
     0.381e-6 * (casters as f64).sqrt()
 }
