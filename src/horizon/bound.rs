@@ -545,14 +545,12 @@ fn facet_bound(
         |child, around| {
             let found = found.borrow();
             let bound = child.bound;
-            if bound <= found.lowest() + slack {
-                return None;
-            }
             if bound > found.highest + slack {
                 return Some((bound, around));
             }
-            // Where the parent's sectors are all below the bound, or none is, the box's
-            // own (a part of them) need not be asked.
+            // Where the parent's sectors are all below the bound, or none is (the bound
+            // is no higher than every sector's sine and slack), the box's own (a part of
+            // them) need not be asked.
             let below = found.below(bound - slack);
             if around & below == 0 {
                 return None;

@@ -131,17 +131,6 @@ pub const RECALL_MAX_LAG: usize = 128;
 /// facets take 305 MB.
 pub const RECALL_MAX_BYTES: f64 = 512.0 * 1024.0 * 1024.0;
 
-/// The most steps back a run's shadow rays may recall ([`crate::ephemeris::sun_return`]):
-/// [`RECALL_MAX_LAG`], fewer where the facets of the bodies that can shadow themselves
-/// would hold more than `max_bytes` of blockers.
-fn longest_recall(world: &World, max_bytes: f64) -> usize {
-    let facets: usize = (world.bodies.iter())
-        .filter(|b| !b.convex)
-        .map(|b| b.mesh.len())
-        .sum();
-    recall_rows_within_memory(facets, max_bytes)
-}
-
 /// The most steps back whose blockers `facets` facets may keep: [`RECALL_MAX_LAG`], or
 /// as many rows of 4 bytes per facet as `max_bytes` holds, at least one.
 fn recall_rows_within_memory(facets: usize, max_bytes: f64) -> usize {
@@ -158,7 +147,12 @@ pub fn recall_for_run(world: &World, states: &[EpochState], max_bytes: f64) -> S
         .filter(|(_, b)| !b.convex)
         .map(|(i, _)| i)
         .collect();
-    sun_return(states, &shadowing, longest_recall(world, max_bytes))
+    let facets = shadowing.iter().map(|&b| world.bodies[b].mesh.len()).sum();
+    sun_return(
+        states,
+        &shadowing,
+        recall_rows_within_memory(facets, max_bytes),
+    )
 }
 
 /// The most disk samples a scene may ask for.
