@@ -27,7 +27,7 @@ use crate::horizon::sky::{LocalHorizon, SkyPosition};
 use crate::horizon::{HorizonMode, Shadows, SunShape};
 use crate::mesh::inspect::edge_neighbours;
 use crate::trace::bvh::{Bvh, BvhRays};
-use crate::trace::{self, Blocker, ShadowQuery, Tracer, TracerKind};
+use crate::trace::{self, Blocker, ShadowQuery, ShadowRay, Tracer, TracerKind};
 use crate::world::{Body, FrameTransform, World};
 use glam::DVec3;
 use rayon::prelude::*;
@@ -527,7 +527,7 @@ impl<'w> Direct<'w> {
         &self,
         b: usize,
         light: &Sunlight<'_>,
-        rays: &[OwnRay],
+        rays: &[ShadowRay],
         out: &mut [f64],
     ) -> StepCounts {
         let mut counts = StepCounts::default();
@@ -543,28 +543,41 @@ impl<'w> Direct<'w> {
     /// Darkens the facets of a chunk (numbered from `first`, values in `values`) whose
     /// shadow `rays` through their own body `own` (toward a point Sun) are blocked. Traced
     /// in the chunk's own task: one parallel pass per step, not one for the facets and
-    /// one for the rays.
+    /// one for the rays. Rays the surface around their remembered blocker answers are
+    /// taken first; the rest go through the tracer together ([`ShadowQuery::blockers`]).
     fn trace_own(
         &self,
         facets: Facets,
         step: usize,
         own: &dyn ShadowQuery,
-        rays: &[OwnRay],
+        rays: &[ShadowRay],
         values: &mut [f64],
     ) -> StepCounts {
-        let mut counts = StepCounts::default();
-        let last = &self.last_blockers[facets.body];
+        let last = self.last_blockers[facets.body]
+            .as_ref()
+            .map(|l| l.row(step));
+        let mut shade = |r: &ShadowRay| values[r.facet as usize - facets.first] = 0.0;
+        let mut counts = StepCounts {
+            rays: rays.len() as u64,
+            ..StepCounts::default()
+        };
+        let mut traced = Vec::with_capacity(rays.len());
         for r in rays {
-            let shade = match last {
-                Some(last) => shade_remembering(own, r, last.row(step)),
-                None if own.blocked(r.origin, r.t_min, Some(r.facet)) => Shade::Blocked,
-                None => Shade::Lit,
-            };
-            counts.rays += 1;
-            counts.remembered += u64::from(shade == Shade::Remembered);
-            if shade != Shade::Lit {
-                values[r.facet as usize - facets.first] = 0.0;
+            if last.is_some_and(|row| blocked_as_remembered(own, r, row)) {
+                counts.remembered += 1;
                 counts.shadowed += 1;
+                shade(r);
+            } else {
+                traced.push(*r);
+            }
+        }
+        for (r, blocker) in traced.iter().zip(own.blockers(&traced)) {
+            if let Some(row) = last {
+                remember(row, r, blocker);
+            }
+            if blocker != Blocker::Clear {
+                counts.shadowed += 1;
+                shade(r);
             }
         }
         counts
@@ -576,7 +589,7 @@ impl<'w> Direct<'w> {
         &self,
         b: usize,
         light: &Sunlight<'_>,
-        rays: &[OwnRay],
+        rays: &[ShadowRay],
         out: &mut [f64],
     ) -> StepCounts {
         let (shares, mut counts) = self.own_disk_shares(b, light, rays);
@@ -598,7 +611,7 @@ impl<'w> Direct<'w> {
         &self,
         b: usize,
         light: &Sunlight<'_>,
-        rays: &[OwnRay],
+        rays: &[ShadowRay],
     ) -> (Vec<f64>, StepCounts) {
         if rays.is_empty() {
             // Nothing to build: a Sun-view grid per sample is dear.
@@ -625,7 +638,7 @@ impl<'w> Direct<'w> {
         &self,
         b: usize,
         light: &Sunlight<'_>,
-        rays: &[OwnRay],
+        rays: &[ShadowRay],
         (bound, bvh): (&HorizonBound, &Bvh),
     ) -> (Vec<f64>, u64) {
         let body = &self.world.bodies[b];
@@ -678,7 +691,7 @@ impl<'w> Direct<'w> {
         &self,
         b: usize,
         light: &Sunlight<'_>,
-        rays: &[OwnRay],
+        rays: &[ShadowRay],
     ) -> (Vec<f64>, u64) {
         let normals = &self.world.bodies[b].mesh.normals;
         let mut tallies = vec![DiskTally::default(); rays.len()];
@@ -709,7 +722,7 @@ impl<'w> Direct<'w> {
         skies: &[Sky],
         own: &[Option<Box<dyn ShadowQuery + '_>>],
         outs: &mut [&mut [f64]],
-    ) -> Vec<(StepCounts, Vec<OwnRay>)> {
+    ) -> Vec<(StepCounts, Vec<ShadowRay>)> {
         // Chunks of 256 to 2048 facets, at least 48 per thread where the mesh allows, each
         // taken alone by whichever thread is free: the rays gather where the shadows are,
         // so chunks cost unevenly, and a thread left with the last few (rayon's default
@@ -772,7 +785,7 @@ impl<'w> Direct<'w> {
         facets: Facets,
         sky: &Sky,
         values: &mut [f64],
-    ) -> (StepCounts, Vec<OwnRay>) {
+    ) -> (StepCounts, Vec<ShadowRay>) {
         let Facets { body: b, first } = facets;
         let mesh = &self.world.bodies[b].mesh;
         let horizon = &self.horizons[b];
@@ -868,7 +881,7 @@ impl<'w> Direct<'w> {
         pending: Vec<(usize, SkyPosition)>,
         values: &mut [f64],
         counts: &mut StepCounts,
-        rays: &mut Vec<OwnRay>,
+        rays: &mut Vec<ShadowRay>,
     ) {
         let Lookups { map, exact, sky } = lookups;
         for (k, at) in pending {
@@ -1040,8 +1053,8 @@ impl<'w> Direct<'w> {
 
     /// The shadow ray of facet `i` of body `b` through its own body, the Sun at `cos_i`
     /// from its normal.
-    fn own_ray(&self, b: usize, i: usize, cos_i: f64) -> OwnRay {
-        OwnRay {
+    fn own_ray(&self, b: usize, i: usize, cos_i: f64) -> ShadowRay {
+        ShadowRay {
             facet: i as u32,
             origin: self.world.bodies[b].mesh.centroids[i],
             t_min: self.t_min(b, i, cos_i),
@@ -1088,15 +1101,6 @@ impl DiskTally {
             1.0
         }
     }
-}
-
-/// A shadow ray of a facet toward the Sun, to be traced through its own body: from the
-/// facet's centroid (body frame, metres), hits farther than `t_min` on any other facet.
-#[derive(Clone, Copy)]
-struct OwnRay {
-    facet: u32,
-    origin: DVec3,
-    t_min: f64,
 }
 
 /// Where one body's Sun stands at one step: all that lighting its facets as if nothing
@@ -1221,47 +1225,35 @@ const PLANE: LocalHorizon = LocalHorizon {
     slope: 0.0,
 };
 
-/// How an own shadow ray came out.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-enum Shade {
-    /// Clear.
-    Lit,
-    /// Blocked, as the tracer found.
-    Blocked,
-    /// Blocked by the facet that blocked it at the step before.
-    Remembered,
-}
-
-/// Whether `ray` is blocked, looked for first on the surface around the facet that
-/// blocked it last: a Sun that moved a little is often still behind it or a neighbour,
-/// and a few exact tests cost far less than a walk through the tree. Either way the
-/// answer is the tracer's own predicate's; the facet found is remembered for the next
-/// step, and forgotten when the ray comes out clear.
-fn shade_remembering(own: &dyn ShadowQuery, ray: &OwnRay, last: Row<'_>) -> Shade {
+/// Whether `ray` is blocked by a facet found on the surface around the one that
+/// blocked it `lag` steps before (the row `last`): a Sun that moved a little is often
+/// still behind it or a neighbour, and a few exact tests cost far less than a walk
+/// through the tree. The answer is the tracer's own predicate's; the facet found is
+/// remembered in its place.
+fn blocked_as_remembered(own: &dyn ShadowQuery, ray: &ShadowRay, last: Row<'_>) -> bool {
     let memo = &last.facets[ray.facet as usize];
     let before = memo.load(Ordering::Relaxed);
-    if before != NO_BLOCKER {
-        let near = own.blocker_near(ray.origin, ray.t_min, ray.facet, before, last.neighbours);
-        if let Some(id) = near {
-            if id != before {
-                memo.store(id, Ordering::Relaxed);
-            }
-            return Shade::Remembered;
-        }
+    if before == NO_BLOCKER {
+        return false;
     }
-    match own.blocker(ray.origin, ray.t_min, Some(ray.facet)) {
-        Blocker::Clear => {
-            // Lit now: no exact test wasted on that facet at the next step.
-            if before != NO_BLOCKER {
-                memo.store(NO_BLOCKER, Ordering::Relaxed);
-            }
-            Shade::Lit
-        }
-        Blocker::Facet(id) => {
-            memo.store(id, Ordering::Relaxed);
-            Shade::Blocked
-        }
-        Blocker::Unnamed => Shade::Blocked,
+    let near = own.blocker_near(ray.origin, ray.t_min, ray.facet, before, last.neighbours);
+    if let Some(id) = near.filter(|&id| id != before) {
+        memo.store(id, Ordering::Relaxed);
+    }
+    near.is_some()
+}
+
+/// Keeps in `last` what the tracer found on `ray`: the facet that blocks it, or none
+/// when it came out clear (no exact test wasted on that facet at the next recall).
+fn remember(last: Row<'_>, ray: &ShadowRay, blocker: Blocker) {
+    let memo = &last.facets[ray.facet as usize];
+    let id = match blocker {
+        Blocker::Facet(id) => id,
+        Blocker::Clear => NO_BLOCKER,
+        Blocker::Unnamed => return,
+    };
+    if memo.load(Ordering::Relaxed) != id {
+        memo.store(id, Ordering::Relaxed);
     }
 }
 

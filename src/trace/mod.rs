@@ -50,6 +50,14 @@ pub trait ShadowQuery: Sync {
         }
     }
 
+    /// [`ShadowQuery::blocker`] of each of `rays`, in their order, each leaving out its
+    /// own facet. The BVH takes neighbouring rays through its tree together.
+    fn blockers(&self, rays: &[ShadowRay]) -> Vec<Blocker> {
+        rays.iter()
+            .map(|r| self.blocker(r.origin, r.t_min, Some(r.facet)))
+            .collect()
+    }
+
     /// A facet that blocks the ray by the exact predicate [`ShadowQuery::blocked`]
     /// applies (`skip` left out), looked for on the surface around `start` alone: first
     /// `start`, then each facet across the edge (`neighbours`, [`edge_neighbours`]) beyond
@@ -68,6 +76,15 @@ pub trait ShadowQuery: Sync {
     ) -> Option<u32> {
         None
     }
+}
+
+/// A shadow ray of a facet toward the Sun: from `origin` (the facet's centroid, mesh
+/// frame, metres), hits farther than `t_min` on any facet but `facet` itself.
+#[derive(Debug, Clone, Copy)]
+pub struct ShadowRay {
+    pub facet: u32,
+    pub origin: DVec3,
+    pub t_min: f64,
 }
 
 /// The most facets [`ShadowQuery::blocker_near`] tests on one ray. With the Sun 1° apart
