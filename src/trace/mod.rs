@@ -82,8 +82,11 @@ pub trait ShadowQuery: Sync {
 /// frame, metres), hits farther than `t_min` on any facet but `facet` itself.
 #[derive(Debug, Clone, Copy)]
 pub struct ShadowRay {
+    /// The facet the ray leaves (mesh id), which cannot block it.
     pub facet: u32,
+    /// Where it starts: the facet's centroid (mesh frame, m).
     pub origin: DVec3,
+    /// The least distance along the ray at which a hit counts (m).
     pub t_min: f64,
 }
 
