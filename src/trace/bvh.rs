@@ -258,7 +258,9 @@ impl Quad {
     /// Bit `k` set when child `k` is a leaf.
     #[inline]
     fn leaf_lanes(&self) -> u32 {
-        (0..4).fold(0, |m, k| m | ((self.child[k] >> 31) << k))
+        (0..4).fold(0, |m, k| {
+            m | (u32::from(self.child[k] & LEAF_BIT != 0) << k)
+        })
     }
 
     #[inline]
@@ -1015,10 +1017,20 @@ impl Slab {
     /// segment may pass through child `k`'s box.
     #[inline]
     fn hits(&self, quad: &Quad) -> u32 {
+        self.hits_widened(quad, None)
+    }
+
+    /// [`Slab::hits`] with each box first widened by `half` on each axis (m), when given.
+    #[inline(always)]
+    fn hits_widened(&self, quad: &Quad, half: Option<&[Vec4; 3]>) -> u32 {
         let (mut near, mut far) = (self.t0, self.t1);
         for axis in 0..3 {
-            let a = (quad.lo[axis] - self.origin[axis]) * self.inv[axis];
-            let b = (quad.hi[axis] - self.origin[axis]) * self.inv[axis];
+            let (mut lo, mut hi) = (quad.lo[axis], quad.hi[axis]);
+            if let Some(half) = half {
+                (lo, hi) = (lo - half[axis], hi + half[axis]);
+            }
+            let a = (lo - self.origin[axis]) * self.inv[axis];
+            let b = (hi - self.origin[axis]) * self.inv[axis];
             // A NaN (0·∞: the segment runs parallel to this axis, in a box face's plane)
             // either drops out (widening the range) or rejects the box; it rejects only a
             // segment lying in the plane of a face padded `BOX_MARGIN` beyond every facet
@@ -1028,6 +1040,14 @@ impl Slab {
         }
         near.cmple(far).bitmask()
     }
+}
+
+/// The box of the segments' starts (m from the tree's centre); empty (`lo` above `hi`)
+/// for no segments.
+fn starts_box(segments: &[Segment]) -> (Vec3, Vec3) {
+    let starts = segments.iter().map(|s| s.slab.start());
+    let lo = starts.clone().fold(Vec3::INFINITY, Vec3::min);
+    (lo, starts.fold(Vec3::NEG_INFINITY, Vec3::max))
 }
 
 /// Most segments in one packet. At 786k facets (`bench_peer --tracer bvh --steps 36`,
@@ -1053,9 +1073,7 @@ struct PacketSlab {
 
 impl PacketSlab {
     fn new(segments: &[Segment]) -> PacketSlab {
-        let starts = segments.iter().map(|s| s.slab.start());
-        let lo = starts.clone().fold(Vec3::INFINITY, Vec3::min);
-        let hi = starts.fold(Vec3::NEG_INFINITY, Vec3::max);
+        let (lo, hi) = starts_box(segments);
         let first = &segments[0].slab;
         let t0 = segments
             .iter()
@@ -1081,26 +1099,16 @@ impl PacketSlab {
 
     #[inline]
     fn hits(&self, quad: &Quad) -> u32 {
-        let s = &self.slab;
-        let (mut near, mut far) = (s.t0, s.t1);
-        for axis in 0..3 {
-            let a = (quad.lo[axis] - self.half[axis] - s.origin[axis]) * s.inv[axis];
-            let b = (quad.hi[axis] + self.half[axis] - s.origin[axis]) * s.inv[axis];
-            near = a.min(b).max(near);
-            far = a.max(b).min(far);
-        }
-        near.cmple(far).bitmask()
+        self.slab.hits_widened(quad, Some(&self.half))
     }
 }
 
 /// Parallel segments gathered to go through the tree together, with the indices of the
-/// rays they stand for and the box of their starts.
+/// rays they stand for.
 #[derive(Default)]
 struct Packet {
     rays: Vec<usize>,
     segments: Vec<Segment>,
-    lo: Vec3,
-    hi: Vec3,
 }
 
 impl Packet {
@@ -1108,16 +1116,12 @@ impl Packet {
     /// lie within [`PACKET_SPREAD`] typical facets on every axis.
     fn takes(&self, segment: &Segment, bvh: &Bvh) -> bool {
         let p = segment.slab.start();
-        let spread = (self.hi.max(p) - self.lo.min(p)).max_element();
+        let (lo, hi) = starts_box(&self.segments);
+        let spread = (hi.max(p) - lo.min(p)).max_element();
         self.rays.len() < PACKET && spread <= (PACKET_SPREAD * bvh.facet_size) as f32
     }
 
     fn push(&mut self, ray: usize, segment: Segment) {
-        let p = segment.slab.start();
-        if self.rays.is_empty() {
-            (self.lo, self.hi) = (p, p);
-        }
-        (self.lo, self.hi) = (self.lo.min(p), self.hi.max(p));
         self.rays.push(ray);
         self.segments.push(segment);
     }
