@@ -160,6 +160,9 @@ pub struct Demand {
     /// remember ([`crate::horizon::Shadows::bound_walk_bytes`]; a map's are counted
     /// with it).
     pub remembered_blocker_bytes: f64,
+    /// Bytes a run taken facet by facet holds for its chunks of facets
+    /// ([`crate::illum::sweep_bytes`]; 0 for a run taken step by step).
+    pub sweep_bytes: f64,
     /// Steps whose direct light is kept for the later steps that repeat them
     /// ([`crate::simulate::Repetition::computed`]; 0 when nothing repeats).
     pub repeat_values: f64,
@@ -298,6 +301,13 @@ impl Demand {
             self.facets * 8.0 * (self.block_values + 2.0 + 3.0 * self.stat_sets),
             "use a coarser mesh",
         );
+        if self.sweep_bytes > 0.0 {
+            e.push(
+                "chunks of facets over every step",
+                self.sweep_bytes,
+                "use fewer steps (a shorter window or longer steps), or split the run in time",
+            );
+        }
         if self.repeat_values > 0.0 {
             e.push(
                 "repeated steps' light",

@@ -34,6 +34,9 @@ use rayon::prelude::*;
 use std::sync::atomic::{AtomicU32, Ordering};
 use std::sync::Arc;
 
+mod sweep;
+pub use sweep::{chunk_facets as sweep_chunk_facets, sweep_bytes};
+
 /// Counts of what one step did.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 pub struct StepCounts {
@@ -58,6 +61,11 @@ pub struct StepCounts {
     /// part of a sharded run starts afresh), never on the result.
     #[serde(default)]
     pub remembered: u64,
+    /// Cones of directions looked at around the Sun when steps are taken facet by facet
+    /// ([`Direct::sweep`]): each decides the facet's shadow rays (counted in `rays`) while
+    /// the Sun stays within it, without a walk through the tracer.
+    #[serde(default)]
+    pub cones: u64,
 }
 
 impl std::ops::AddAssign for StepCounts {
@@ -68,6 +76,7 @@ impl std::ops::AddAssign for StepCounts {
         self.above_horizon += o.above_horizon;
         self.horizon_lookups += o.horizon_lookups;
         self.remembered += o.remembered;
+        self.cones += o.cones;
     }
 }
 

@@ -17,7 +17,8 @@ use crate::ephemeris::synthetic::{CircularOrbit, SyntheticMotion};
 use crate::ephemeris::{flux_at, Ephemeris, EpochState, SunReturn};
 use crate::error::{Error, Result};
 use crate::horizon::shadows::{bound_detail_for_run, recall_for_run, steps_back, RunSteps};
-use crate::horizon::Shadows;
+use crate::horizon::{Shadows, SunShape};
+use crate::illum::sweep_bytes;
 use crate::mesh::generate::ellipsoid;
 use crate::mesh::inspect::inspect;
 use crate::mesh::projection::PolarStereographic;
@@ -172,6 +173,21 @@ pub fn prepare(scene: &Scene, budget: &Budget, timings: &mut Timings) -> Result<
             bound_detail_for_run(world, &horizon_maps, steps, shadows.disk_samples());
         shadows.bound_detail = detail;
         why = format!("{why}; {reason}");
+        shadows.sweeps = sweeps_by_facet(
+            scene,
+            world,
+            &shadows,
+            (&horizon_maps, computed, states.len()),
+        );
+        if shadows.sweeps {
+            // No block of steps is held, nor rows of recalled blockers.
+            demand.block_values = 0.0;
+            demand.sweep_bytes = sweep_bytes(states.len(), world.facet_count());
+            why = format!(
+                "{why}; each chunk of facets takes every step in the order of the Sun's path, \
+                 and a cone around the Sun decides a facet's rays while the Sun stays within it"
+            );
+        }
         if shadows.remembers_blockers(false) {
             let SunReturn { lag, turn_deg } = shadows.recall;
             let back = steps_back(lag);
@@ -202,6 +218,28 @@ pub fn prepare(scene: &Scene, budget: &Budget, timings: &mut Timings) -> Result<
         shadows,
         horizon_maps,
     })
+}
+
+/// Whether the run takes its steps facet by facet ([`crate::illum::Direct::sweep`]): one
+/// body that shadows itself through the BVH tracer's bound toward a point Sun, every
+/// step computed (no repeats), and nothing that needs a step's values for all facets at
+/// once (history, scattered light, spectral bands).
+fn sweeps_by_facet(
+    scene: &Scene,
+    world: &World,
+    shadows: &Shadows,
+    (maps, computed, steps): (&[bool], usize, usize),
+) -> bool {
+    let [body] = world.bodies.as_slice() else {
+        return false;
+    };
+    let per_step_outputs = scene.output.history || !scene.bands.is_empty();
+    !body.convex
+        && !maps.first().copied().unwrap_or(false)
+        && shadows.sun == SunShape::Point
+        && !scene.scatter.as_ref().is_some_and(|s| s.enabled)
+        && !per_step_outputs
+        && computed == steps
 }
 
 /// The plan's word on a geometry that repeats (none when it does not): whether the
@@ -298,6 +336,7 @@ fn scene_demand(scene: &Scene) -> Demand {
         kernel_bytes: kernel_bytes(scene),
         horizon_map_bytes: 0.0,
         remembered_blocker_bytes: 0.0,
+        sweep_bytes: 0.0,
         repeat_values: 0.0,
     }
 }

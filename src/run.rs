@@ -23,7 +23,7 @@ use crate::prepare::{prepare, Assembly, Prepared};
 use crate::progress::{Progress, Timings};
 use crate::scatter::ScatterRecord;
 use crate::scene::Scene;
-use crate::simulate::{simulate, Options, Simulation, Slice, StepIrradiance};
+use crate::simulate::{simulate, OnStep, Options, Simulation, Slice, StepIrradiance};
 use crate::stats::{Bins, FacetStats};
 use crate::world::World;
 use std::path::{Path, PathBuf};
@@ -170,9 +170,13 @@ pub fn run_with(
         bands: bands.as_mut(),
         slice: slice.clone(),
     };
-    let sim = simulate(world, &states, options, &mut timings, progress, |s, e| {
-        history.as_mut().map_or(Ok(()), |h| h.write_step(s, e))
-    })?;
+    let mut write_step =
+        |s: &EpochState, e: StepIrradiance| history.as_mut().map_or(Ok(()), |h| h.write_step(s, e));
+    let on_step: Option<&mut OnStep> = match scene.output.history {
+        true => Some(&mut write_step),
+        false => None,
+    };
+    let sim = simulate(world, &states, options, &mut timings, progress, on_step)?;
     let band_parts = bands.map(Bands::into_parts).unwrap_or_default();
     let parts = named_parts(&sim, &band_parts);
     let results = Results {

@@ -21,7 +21,7 @@ use crate::horizon::bound::BoundDetail;
 use crate::horizon::map::HorizonMap;
 use crate::horizon::shadows::{sectors_extra_seconds, BoundRecord, MapRecord};
 use crate::horizon::Shadows;
-use crate::illum::{Direct, StepCounts};
+use crate::illum::{sweep_chunk_facets, Direct, StepCounts};
 use crate::progress::{Progress, Silent, Timings};
 use crate::scatter::{Scatter, ScatterRecord, Settings as ScatterSettings, LANES};
 use crate::stats::{Bins, FacetStats, Selection};
@@ -101,6 +101,9 @@ pub struct ScatterParts {
     pub record: ScatterRecord,
 }
 
+/// What sees each step's irradiance as the step loop goes ([`simulate`]).
+pub type OnStep<'a> = dyn FnMut(&EpochState, StepIrradiance) -> Result<()> + 'a;
+
 /// One step's irradiance (W/m²) of the facets that get outputs, body by body (every
 /// facet, in global order, when every body gets outputs).
 #[derive(Debug, Clone, Copy)]
@@ -113,19 +116,21 @@ pub struct StepIrradiance<'a> {
 
 /// Computes the irradiance at every step and accumulates statistics: after the direct
 /// irradiance of each step, with scattered light its solve; statistics of the total and
-/// of both parts. `on_step` sees each step's irradiance (global facet order).
+/// of both parts. `on_step`, when given, sees each step's irradiance (global facet
+/// order); without it a run whose shadows say so goes facet by facet
+/// ([`Direct::sweep`]).
 pub fn simulate(
     world: &World,
     states: &[EpochState],
     options: Options,
     timings: &mut Timings,
     progress: &dyn Progress,
-    mut on_step: impl FnMut(&EpochState, StepIrradiance) -> Result<()>,
+    mut on_step: Option<&mut OnStep<'_>>,
 ) -> Result<Simulation> {
     let Options {
         tracer,
         bins,
-        shadows,
+        mut shadows,
         horizon_maps,
         scatter,
         mut bands,
@@ -151,6 +156,15 @@ pub fn simulate(
         .enumerate()
         .map(|(b, body)| body.outputs || scatter.as_ref().is_some_and(|s| !s.is_planet(b)))
         .collect();
+    let kept = slice.kept(world);
+    // What the plan could not see: a shard's facets, and whether anyone reads the steps.
+    shadows.sweeps &= on_step.is_none()
+        && world.bodies.len() == 1
+        && kept.count() == world.facet_count()
+        && tracer == TracerKind::Bvh
+        && computed == states.len()
+        && scatter.is_none()
+        && bands.is_none();
     let direct = timings.time("trace build", || {
         Direct::with_maps(world, tracer, maps, &shadows).only_for(needed)
     });
@@ -163,19 +177,33 @@ pub fn simulate(
         })
     });
     let n = world.facet_count();
-    let kept = slice.kept(world);
     let with_planets = scatter.as_ref().is_some_and(Scatter::has_planets);
     let mut acc = Accumulators::new(kept, bins, scatter.is_some(), with_planets);
     let mut shines: Vec<Vec<f64>> = Vec::new();
-    let batch = steps_per_batch(scatter.as_ref(), scatter.is_some(), bands.is_some(), n)
-        .min(states.len())
-        .max(1);
+    let sweeping = shadows.sweeps && direct.sweeps(0);
+    // A sweep computes every step of a chunk of facets at once: no block of steps.
+    let batch = match sweeping {
+        true => 0,
+        false => steps_per_batch(scatter.as_ref(), scatter.is_some(), bands.is_some(), n)
+            .min(states.len())
+            .max(1),
+    };
     let mut directs = vec![vec![0.0; n]; batch];
     let mut scattered = vec![vec![0.0; n]; if scatter.is_some() { batch } else { 0 }];
     let mut counts = StepCounts::default();
     let mut repeats = Repeats::new(computed, states.len());
     progress.begin_steps(states.len() as u64);
-    for (c, chunk) in states.chunks(batch).enumerate() {
+    if sweeping {
+        let runs = (acc.total_stats).facet_runs(sweep_chunk_facets(states.len(), n), states.len());
+        counts = timings.time("direct irradiance", || {
+            direct.sweep(0, states, runs, progress)
+        })?;
+    }
+    for (c, chunk) in states
+        .chunks(batch.max(1))
+        .enumerate()
+        .take_while(|_| !sweeping)
+    {
         let directs = &mut directs[..chunk.len()];
         let lanes = chunk.len().min(scattered.len());
         let scattered = &mut scattered[..lanes];
@@ -203,9 +231,11 @@ pub fn simulate(
         }
         timings.time("statistics", || acc.add_steps(&lights, scattered, &shines));
         for (k, state) in chunk.iter().enumerate() {
-            timings.time("history", || {
-                on_step(state, acc.step(k, &lights, scattered))
-            })?;
+            if let Some(on_step) = on_step.as_mut() {
+                timings.time("history", || {
+                    on_step(state, acc.step(k, &lights, scattered))
+                })?;
+            }
             progress.step_done();
         }
     }
@@ -525,6 +555,6 @@ pub fn statistics(
         Options::direct(tracer, bins),
         &mut Timings::default(),
         &Silent,
-        |_, _| Ok(()),
+        None,
     )
 }

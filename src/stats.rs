@@ -430,6 +430,53 @@ pub struct FacetStats {
     hist: Vec<u32>,
 }
 
+/// The statistics of a run of consecutive facets ([`FacetStats::facet_runs`]), to which
+/// one task adds every step of the run.
+pub struct FacetRun<'a> {
+    moments: &'a mut [Moments],
+    hist: &'a mut [u32],
+    bins: Bins,
+    per_unit: f64,
+    first_step: u64,
+    steps: usize,
+}
+
+impl FacetRun<'_> {
+    /// Facets in the run.
+    pub fn len(&self) -> usize {
+        self.moments.len()
+    }
+
+    /// Whether the run holds no facet.
+    pub fn is_empty(&self) -> bool {
+        self.moments.is_empty()
+    }
+
+    /// Adds every step: `values[k · len + j]` is the value (W/m²) of the run's facet `j`
+    /// at step `k`, the steps in time order. Bit-identical to adding them step by step.
+    pub fn add_steps(&mut self, values: &[f64]) {
+        let len = self.moments.len();
+        assert_eq!(
+            values.len(),
+            self.steps * len,
+            "one value per facet and step"
+        );
+        let bins = self.bins;
+        let facets = self
+            .moments
+            .iter_mut()
+            .zip(self.hist.chunks_mut(bins.count));
+        for (j, (m, h)) in facets.enumerate() {
+            let mut running = *m;
+            for (k, e) in values.iter().skip(j).step_by(len.max(1)).enumerate() {
+                running.add(*e, self.first_step + k as u64, self.per_unit);
+                h[bins.index(*e)] += 1;
+            }
+            *m = running;
+        }
+    }
+}
+
 /// The fixed-point unit for `bins`: the power of two with which 256 times the last
 /// threshold (or the width, when there is one threshold) fits in 63 bits.
 fn unit_for(bins: Bins) -> f64 {
@@ -506,6 +553,26 @@ impl FacetStats {
                     *m = running;
                 }
             });
+    }
+
+    /// Views of `size` consecutive facets each (the last may hold fewer), to each of which
+    /// one task then adds the same `steps` steps ([`FacetRun::add_steps`]): a run that
+    /// computes facet by facet instead of step by step. These statistics count the steps
+    /// at once; every view must take them all.
+    pub fn facet_runs(&mut self, size: usize, steps: usize) -> Vec<FacetRun<'_>> {
+        let (bins, per_unit, first_step) = (self.bins, 1.0 / self.unit, self.steps);
+        self.steps += steps as u64;
+        (self.moments.chunks_mut(size.max(1)))
+            .zip(self.hist.chunks_mut(size.max(1) * bins.count))
+            .map(|(moments, hist)| FacetRun {
+                moments,
+                hist,
+                bins,
+                per_unit,
+                first_step,
+                steps,
+            })
+            .collect()
     }
 
     /// Merges statistics of the same facets and bins over the time range that follows
@@ -741,6 +808,33 @@ mod tests {
             blocked.longest_dark_steps(facets - 1),
             longest_dark_by_scan(&data.iter().map(|s| s[facets - 1]).collect::<Vec<_>>())
         );
+    }
+
+    /// Runs of facets each taking every step of a range at once, after steps added the
+    /// usual way, equal the steps added one by one (the last run shorter, dark runs
+    /// across the two ranges).
+    #[test]
+    fn runs_of_facets_over_every_step_equal_steps_one_by_one() {
+        let (facets, size) = (37, 8);
+        let bins = Bins::covering(10.0, 200.0);
+        let data = series(facets, 45);
+        let mut single = FacetStats::new(facets, bins);
+        data.iter().for_each(|e| single.add_step(e));
+        let mut by_runs = FacetStats::new(facets, bins);
+        data[..9].iter().for_each(|e| by_runs.add_step(e));
+        let later = &data[9..];
+        for (r, mut run) in by_runs
+            .facet_runs(size, later.len())
+            .into_iter()
+            .enumerate()
+        {
+            let first = r * size;
+            let values: Vec<f64> = (later.iter())
+                .flat_map(|step| step[first..first + run.len()].iter().copied())
+                .collect();
+            run.add_steps(&values);
+        }
+        assert_eq!(by_runs, single);
     }
 
     #[test]

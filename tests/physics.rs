@@ -25,7 +25,7 @@ use slim::mesh::inspect::inspect;
 use slim::mesh::{read_mesh, LengthUnit, Mesh, RawMesh};
 use slim::prepare::epoch_states;
 use slim::progress::{Silent, Timings};
-use slim::simulate::{simulate, Options, Simulation};
+use slim::simulate::{simulate, Options, Simulation, StepIrradiance};
 use slim::stats::{Bins, FacetStats};
 use slim::trace::{self, TracerKind};
 use slim::world::{Body, Pose, World};
@@ -95,7 +95,7 @@ fn run(world: &World, eph: &dyn Ephemeris, kind: TracerKind, bins: Bins) -> Simu
         Options::direct(kind, bins),
         &mut Timings::default(),
         &Silent,
-        |_, _| Ok(()),
+        None,
     )
     .expect("simulate")
 }
@@ -1470,6 +1470,72 @@ fn remembered_blockers_change_no_shadow() {
     assert_eq!(by_bvh.iter().map(|(_, c)| c.remembered).sum::<u64>(), 0);
 }
 
+/// A run taken facet by facet along the Sun's path (`Direct::sweep`) must give the
+/// statistics of the step loop bit for bit: its cones decide a facet's rays only while
+/// the Sun stays within them, by the facets reaching in, and the statistics take each
+/// facet's steps in time order. The Suns come as a year of hours does (a spin of 12.13
+/// steps, so that consecutive steps stand 30° apart and the path's order is not the time
+/// order), on two latitudes 0.3° apart, 10° and 25° above the equator (several bands
+/// of the path, short and long rays over the concavities of Itokawa), with both bounds.
+/// The sweep must use its cones, and the walks from a last blocker, many times.
+#[test]
+fn a_sweep_facet_by_facet_gives_the_step_loops_statistics() {
+    let mesh = load_km("data/shapes/itokawa/itokawa_16.obj");
+    let world = World {
+        bodies: vec![Body::new("itokawa_16", mesh, false)],
+    };
+    for latitude in [10.0f64, 25.0] {
+        let suns: Vec<DVec3> = (0..1200)
+            .map(|k| {
+                let turn = -std::f64::consts::TAU * k as f64 / 12.13;
+                let lat = (latitude + 0.3 * (k % 2) as f64).to_radians();
+                DVec3::new(lat.cos() * turn.cos(), lat.cos() * turn.sin(), lat.sin())
+            })
+            .collect();
+        let states = epoch_states(&fixed(&suns, 1000.0, vec![Pose::IDENTITY])).expect("states");
+        for detail in [BoundDetail::Whole, BoundDetail::Sectors] {
+            let by = |sweeps: bool| {
+                let shadows = Shadows {
+                    bound_detail: detail,
+                    sweeps,
+                    ..Shadows::default()
+                };
+                let options = Options {
+                    shadows,
+                    ..Options::direct(TracerKind::Bvh, Bins::covering(20.0, 1000.0))
+                };
+                simulate(
+                    &world,
+                    &states,
+                    options,
+                    &mut Timings::default(),
+                    &Silent,
+                    None,
+                )
+                .expect("simulate")
+            };
+            let (steps, swept) = (by(false), by(true));
+            let case = format!("latitude {latitude}°, {detail:?} bound");
+            assert!(steps.counts.shadowed > 10_000, "{case}: {:?}", steps.counts);
+            assert!(
+                swept.counts.cones > 1_000 && swept.counts.remembered > 1_000,
+                "{case}: {:?}",
+                swept.counts
+            );
+            assert_eq!(
+                steps.counts.cones, 0,
+                "{case}: the step loop takes no cones"
+            );
+            assert_eq!(swept.stats, steps.stats, "{case}");
+            assert_eq!(
+                (swept.counts.shadowed, swept.counts.rays),
+                (steps.counts.shadowed, steps.counts.rays),
+                "{case}"
+            );
+        }
+    }
+}
+
 /// An icosphere is found convex by the inspection, and a lone convex body costs no
 /// shadow rays at all.
 #[test]
@@ -2150,10 +2216,10 @@ fn a_repeating_spin_computes_one_period_and_every_copy_equals_its_own_step() {
         Options::direct(TracerKind::Bvh, Bins::covering(50.0, FLUX_152)),
         &mut Timings::default(),
         &Silent,
-        |_, e| {
+        Some(&mut |_, e: StepIrradiance| {
             handed_on.push(e.total.to_vec());
             Ok(())
-        },
+        }),
     )
     .expect("simulate");
     assert!(sim.counts.shadowed > 0, "the bowl shadows its floor");

@@ -235,6 +235,57 @@ impl HorizonBound {
         self.detail
     }
 
+    /// The facets of `mesh` other than `i` reaching into the `cone` of directions from
+    /// facet `i`'s centroid (every facet a ray within it can cross, as the tracers'
+    /// predicate decides, rounding included), or `None` when more than `most` do: then
+    /// the rays within it are better traced. Empty: every ray within it is clear.
+    pub fn reaching(
+        &self,
+        mesh: &Mesh,
+        bvh: &Bvh,
+        i: usize,
+        cone: &Cone,
+        most: usize,
+    ) -> Option<Vec<u32>> {
+        let mut reaching = Vec::new();
+        self.each_reaching(mesh, bvh, i, cone, |id, _| {
+            reaching.push(id);
+            reaching.len() > most
+        });
+        (reaching.len() <= most).then_some(reaching)
+    }
+
+    /// Each facet of `mesh` but `i` that reaches into `cone` from facet `i`'s centroid,
+    /// with its corners, to `visit`, until it returns `true`.
+    fn each_reaching(
+        &self,
+        mesh: &Mesh,
+        bvh: &Bvh,
+        i: usize,
+        cone: &Cone,
+        mut visit: impl FnMut(u32, &[DVec3; 3]) -> bool,
+    ) {
+        let Cone {
+            axis,
+            cos_half,
+            tan_half,
+            ..
+        } = *cone;
+        let c = mesh.centroids[i];
+        // Across the axis, toward the facet's plane: where its neighbours lie.
+        let n = mesh.normals[i];
+        let down = -(n - axis * n.dot(axis)).normalize_or_zero();
+        // The tree's boxes are padded far beyond the widening (`Bvh`'s box margin). A
+        // triangle's elevation sine above the plane across `axis` is the cosine of its
+        // least angle from `axis`: what the bound's geometry computes exactly.
+        bvh.near_cone(c, axis, tan_half, |id, tri| {
+            id as usize != i
+                && may_reach_cone(c, (axis, tan_half), down, tri, self.widening)
+                && triangle_bound(c, axis, tri, self.widening, cos_half) > cos_half
+                && visit(id, tri)
+        });
+    }
+
     /// What facet `i`'s centroid sees of the `cone` of directions, through the other
     /// facets of `mesh` (the one `bvh` and the bound were built over):
     /// [`ConeView::Covered`] only by a facet farther than `beyond` metres. Exact up to the rounding of the ray predicate, which every
@@ -248,19 +299,11 @@ impl HorizonBound {
         cone: &Cone,
         beyond: f64,
     ) -> ConeView {
-        let Cone {
-            axis,
-            cos_half,
-            sin_half,
-            tan_half,
-        } = *cone;
+        let Cone { axis, sin_half, .. } = *cone;
         let c = mesh.centroids[i];
         let covered = Cell::new(false);
         // The mesh ids of the triangles reaching into the cone.
         let reaching = RefCell::new(Vec::new());
-        // Across the axis, toward the facet's plane: where its neighbours lie.
-        let n = mesh.normals[i];
-        let down = -(n - axis * n.dot(axis)).normalize_or_zero();
         // The plane tests first, with no spare (a cover with one is a cover without), so
         // that the distance is taken only for the few outlines that pass them.
         let cover = |pieces: &[&[DVec3; 3]], outline: &[DVec3]| {
@@ -278,17 +321,9 @@ impl HorizonBound {
                     )
             }
         };
-        // The tree's boxes are padded far beyond the widening (`Bvh`'s box margin). A
-        // triangle's elevation sine above the plane across `axis` is the cosine of its
-        // least angle from `axis`: what the bound's geometry computes exactly.
-        bvh.near_cone(c, axis, tan_half, |id, tri| {
-            if id as usize != i
-                && may_reach_cone(c, (axis, tan_half), down, tri, self.widening)
-                && triangle_bound(c, axis, tri, self.widening, cos_half) > cos_half
-            {
-                covered.set(cover(&[tri], tri));
-                reaching.borrow_mut().push(id);
-            }
+        self.each_reaching(mesh, bvh, i, cone, |id, tri| {
+            covered.set(cover(&[tri], tri));
+            reaching.borrow_mut().push(id);
             covered.get()
         });
         let reaching = reaching.into_inner();

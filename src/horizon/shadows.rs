@@ -86,6 +86,10 @@ pub struct Shadows {
     /// remember any ([`Shadows::remembers_blockers`]; the run's steps decide:
     /// [`crate::ephemeris::sun_return`]).
     pub recall: SunReturn,
+    /// Whether the run takes its steps facet by facet along the Sun's path
+    /// ([`crate::illum::Direct::sweep`]; the run's outputs and bodies decide:
+    /// `prepare`), so that no ray recalls blockers.
+    pub sweeps: bool,
 }
 
 impl Default for Shadows {
@@ -102,6 +106,7 @@ impl Default for Shadows {
             cache_dir: None,
             bound_detail: BoundDetail::Whole,
             recall: SunReturn::UNKNOWN,
+            sweeps: false,
         }
     }
 }
@@ -428,7 +433,7 @@ impl Shadows {
             false => self.bound_detail == BoundDetail::Sectors,
         };
         let close = !map && self.recall.turn_deg <= WHOLE_BOUND_RECALL_DEG;
-        point && (mostly_shadowed || close)
+        point && (mostly_shadowed || close) && !self.sweeps
     }
 
     /// A map's bytes per facet: its cells (4 per wedge) and its ceilings.

@@ -11,7 +11,7 @@ use crate::ephemeris::EpochState;
 use crate::error::{Error, Result};
 use crate::prepare::Prepared;
 use crate::progress::{Progress, Timings};
-use crate::simulate::{simulate, Options};
+use crate::simulate::{simulate, Options, StepIrradiance};
 
 /// Irradiance of one body's facets over a window of evenly spaced steps.
 #[derive(Debug, Clone)]
@@ -113,11 +113,19 @@ impl Light {
             slice: Default::default(),
         };
         let mut timings = Timings::default();
-        simulate(world, states, options, &mut timings, progress, |_, e| {
+        let mut keep = |_: &EpochState, e: StepIrradiance| {
             let own = &e.total[offset..offset + facets];
             irradiance.extend(own.iter().map(|&v| v as f32));
             Ok(())
-        })?;
+        };
+        simulate(
+            world,
+            states,
+            options,
+            &mut timings,
+            progress,
+            Some(&mut keep),
+        )?;
         let flux = states.iter().map(|s| s.bodies[body].flux_w_m2).collect();
         let epochs = states.iter().map(|s| s.epoch.to_tdb_seconds()).collect();
         Light::new(facets, first_step, step_s, epochs, flux, irradiance).map_err(Error::Usage)

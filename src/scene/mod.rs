@@ -116,6 +116,7 @@ impl Scene {
             // The plan decides these, from the run's steps (`crate::prepare`).
             bound_detail: BoundDetail::Whole,
             recall: SunReturn::UNKNOWN,
+            sweeps: false,
         }
     }
 
