@@ -1477,15 +1477,16 @@ fn remembered_blockers_change_no_shadow() {
 /// steps, so that consecutive steps stand 30° apart and the path's order is not the time
 /// order), on two latitudes 0.3° apart, 10° and 25° above the equator (several bands
 /// of the path, short and long rays over the concavities of Itokawa), with both bounds.
-/// The sweep must use its cones, and the walks from a last blocker, many times.
+/// The sweep must use its cones where 2,400 steps put the Suns 0.3° apart on the path,
+/// none where 300 steps put them 2.4° apart, and the walks from a last blocker.
 #[test]
 fn a_sweep_facet_by_facet_gives_the_step_loops_statistics() {
     let mesh = load_km("data/shapes/itokawa/itokawa_16.obj");
     let world = World {
         bodies: vec![Body::new("itokawa_16", mesh, false)],
     };
-    for latitude in [10.0f64, 25.0] {
-        let suns: Vec<DVec3> = (0..1200)
+    for (steps, latitude) in [(2400, 10.0f64), (2400, 25.0), (300, 10.0)] {
+        let suns: Vec<DVec3> = (0..steps)
             .map(|k| {
                 let turn = -std::f64::consts::TAU * k as f64 / 12.13;
                 let lat = (latitude + 0.3 * (k % 2) as f64).to_radians();
@@ -1514,22 +1515,25 @@ fn a_sweep_facet_by_facet_gives_the_step_loops_statistics() {
                 )
                 .expect("simulate")
             };
-            let (steps, swept) = (by(false), by(true));
-            let case = format!("latitude {latitude}°, {detail:?} bound");
-            assert!(steps.counts.shadowed > 10_000, "{case}: {:?}", steps.counts);
+            let (stepped, swept) = (by(false), by(true));
+            let case = format!("{steps} steps, latitude {latitude}°, {detail:?} bound");
             assert!(
-                swept.counts.cones > 1_000 && swept.counts.remembered > 1_000,
+                stepped.counts.shadowed > 1_000,
                 "{case}: {:?}",
-                swept.counts
+                stepped.counts
             );
+            // 300 steps stand 2.4° apart on the path: too far for cones to pay.
+            let cones = swept.counts.cones > 1_000;
+            assert_eq!(cones, steps > 300, "{case}: {:?}", swept.counts);
+            assert!(swept.counts.remembered > 100, "{case}: {:?}", swept.counts);
             assert_eq!(
-                steps.counts.cones, 0,
+                stepped.counts.cones, 0,
                 "{case}: the step loop takes no cones"
             );
-            assert_eq!(swept.stats, steps.stats, "{case}");
+            assert_eq!(swept.stats, stepped.stats, "{case}");
             assert_eq!(
                 (swept.counts.shadowed, swept.counts.rays),
-                (steps.counts.shadowed, steps.counts.rays),
+                (stepped.counts.shadowed, stepped.counts.rays),
                 "{case}"
             );
         }

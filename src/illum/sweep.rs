@@ -112,9 +112,11 @@ struct Path<'a> {
     /// Per position, the farthest position ahead whose Sun stands within the cone's
     /// reach of this one's, where a cone made here is centred.
     ahead: Vec<usize>,
-    /// The cones' half-angle, and the cosine within which a Sun is taken as inside.
+    /// The cones' half-angle, and the cosine within which a Sun is taken as inside;
+    /// no cones where the Suns stand too far apart for one to serve many steps.
     cone: f64,
     cos_inside: f64,
+    cones: bool,
 }
 
 impl Direct<'_> {
@@ -205,7 +207,7 @@ impl Direct<'_> {
                 // steps to come.
                 if fact.certificate.is_none() {
                     match fact.last {
-                        Last::Lit(from) if from <= p => {
+                        Last::Lit(from) if from <= p && path.cones => {
                             counts.cones += 1;
                             let made = self.certify(ray, path, p, (bound, bvh, mesh));
                             if made.is_none() {
@@ -284,7 +286,8 @@ impl<'a> Path<'a> {
         let steps = path_order(&skies.iter().map(|s| s.sun).collect::<Vec<_>>());
         let suns: Vec<DVec3> = steps.iter().map(|&k| skies[k].sun).collect();
         let queries = suns.iter().map(|&s| BvhRays::new(bvh, s)).collect();
-        let cone = (CONE_STEPS * median_turn(&suns)).clamp(CONE_MIN, CONE_MAX);
+        let turn = median_turn(&suns);
+        let cone = (CONE_STEPS * turn).clamp(CONE_MIN, CONE_MAX);
         // A Sun counts as inside a little within the cone: its test is widened by far
         // more than this (`Bvh::near_cone`).
         let cos_inside = (cone * (1.0 - 1e-3)).cos();
@@ -308,8 +311,18 @@ impl<'a> Path<'a> {
             ahead,
             cone,
             cos_inside,
+            cones: cone_pays(turn),
         }
     }
+}
+
+/// Whether cones pay where consecutive Suns on the path stand `turn` radians apart
+/// (median): where the widest cone spans six of them or more. Measured on the 786k
+/// Itokawa (true hours of its spin, one latitude): 0.16° apart, cones took the run
+/// from 39 s to 26 s; 0.41° apart (the widest cone spanning six), 18.3–19.6 s against
+/// 19.8–20.0 s.
+fn cone_pays(turn: f64) -> bool {
+    3.0 * turn <= CONE_MAX
 }
 
 /// The median angle (radians) between consecutive Suns.
