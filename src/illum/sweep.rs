@@ -291,18 +291,7 @@ impl<'a> Path<'a> {
         // A Sun counts as inside a little within the cone: its test is widened by far
         // more than this (`Bvh::near_cone`).
         let cos_inside = (cone * (1.0 - 1e-3)).cos();
-        // Centred this far from the Sun it is made for, a cone holds it and the Suns up
-        // to twice as far on.
-        let reach = (0.9 * cone).cos();
-        let mut ahead = Vec::with_capacity(suns.len());
-        let mut q = 0;
-        for p in 0..suns.len() {
-            q = q.max(p);
-            while q + 1 < suns.len() && suns[p].dot(suns[q + 1]) >= reach {
-                q += 1;
-            }
-            ahead.push(q);
-        }
+        let ahead = cone_centres(&suns, cone);
         Path {
             steps,
             suns,
@@ -314,6 +303,29 @@ impl<'a> Path<'a> {
             cones: cone_pays(turn),
         }
     }
+}
+
+/// Per position of the path `suns`, the farthest position ahead whose Sun stands within
+/// 0.9 of the half-angle `cone` of this one's, where a cone made here is centred: it
+/// then holds this Sun and the Suns up to about twice as far on.
+fn cone_centres(suns: &[DVec3], cone: f64) -> Vec<usize> {
+    let reach = (0.9 * cone).cos();
+    let mut ahead = Vec::with_capacity(suns.len());
+    let mut q = 0;
+    for p in 0..suns.len() {
+        q = q.max(p);
+        while q + 1 < suns.len() && suns[p].dot(suns[q + 1]) >= reach {
+            q += 1;
+        }
+        // The cone decides this Sun's ray at once, so it must hold it: where the path
+        // turned back (a band's end), the farthest found for the position before may
+        // stand beyond this one's reach.
+        ahead.push(match suns[p].dot(suns[q]) >= reach {
+            true => q,
+            false => p,
+        });
+    }
+    ahead
 }
 
 /// Whether cones pay where consecutive Suns on the path stand `turn` radians apart
@@ -364,4 +376,62 @@ fn path_order(suns: &[DVec3]) -> Vec<usize> {
         .collect();
     keyed.sort_by(|a, b| a.0.cmp(&b.0).then(a.1.total_cmp(&b.1)));
     keyed.into_iter().map(|(_, _, k)| k).collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::TestRng;
+
+    fn sun(lat_deg: f64, lon_deg: f64) -> DVec3 {
+        let (lat, lon) = (lat_deg.to_radians(), lon_deg.to_radians());
+        DVec3::new(lat.cos() * lon.cos(), lat.cos() * lon.sin(), lat.sin())
+    }
+
+    /// Suns of one latitude, given 30° apart in time, come out in order of longitude,
+    /// each a 360th of the turn from the next (but at the seam).
+    #[test]
+    fn suns_of_one_latitude_follow_their_longitude() {
+        let suns: Vec<DVec3> = (0..360)
+            .map(|k| sun(15.0, (k * 30 + k / 12) as f64))
+            .collect();
+        let order = path_order(&suns);
+        let mut path: Vec<DVec3> = order.iter().map(|&k| suns[k]).collect();
+        let turns: Vec<f64> = path.windows(2).map(|w| w[0].angle_between(w[1])).collect();
+        let step = 15f64.to_radians().cos() * 1f64.to_radians();
+        assert!(
+            turns.iter().all(|&t| (t - step).abs() < 1e-6 * step),
+            "{turns:?}"
+        );
+        path.dedup();
+        assert_eq!(path.len(), 360);
+    }
+
+    /// Over Suns scattered across a band of latitude (several bands of the path, turns
+    /// at their ends), every position's cone centre holds its own Sun within the reach,
+    /// lies ahead of it, and the path visits every step once.
+    #[test]
+    fn every_cone_holds_the_sun_it_is_made_for() {
+        let mut rng = TestRng::new(7);
+        let suns: Vec<DVec3> = (0..3000)
+            .map(|_| sun(-20.0 + 40.0 * rng.unit(), 360.0 * rng.unit()))
+            .collect();
+        let mut order = path_order(&suns);
+        let path: Vec<DVec3> = order.iter().map(|&k| suns[k]).collect();
+        for cone in [0.005, 0.02, 0.2] {
+            let ahead = cone_centres(&path, cone);
+            let reach = (0.9 * cone).cos();
+            for (p, &a) in ahead.iter().enumerate() {
+                assert!(
+                    a >= p && path[p].dot(path[a]) >= reach,
+                    "{cone}: {p} -> {a}"
+                );
+            }
+            // The widest cone holds many Suns (they stand about 2° apart here).
+            let far = ahead.iter().enumerate().filter(|(p, &a)| a > p + 2).count();
+            assert!(cone < 0.1 || far > 1000, "{cone}: {far}");
+        }
+        order.sort_unstable();
+        assert!(order.iter().enumerate().all(|(k, &o)| k == o));
+    }
 }
