@@ -8,7 +8,10 @@
 //! the Sun as a disk, `E_i = S · f · sin ē` ([`crate::horizon::disk`]) times the share
 //! of the disk no other body hides: a generated ellipsoid's in closed form ([`crate::horizon::eclipse`]), a
 //! mesh's by `sun_samples` rays through the disk. Bodies whose light nothing reads
-//! ([`Direct::only_for`]) get 0 and still cast shadows.
+//! ([`Direct::only_for`]) get 0 and still cast shadows. A run that keeps statistics
+//! only may instead take every step of a chunk of facets at once, in the order of the
+//! Sun's path ([`Direct::sweep`], module `sweep`): the same values, handed to the
+//! statistics facet by facet.
 //!
 //! Self-shadowing guard: the facet itself is excluded by id, and a blocking hit must lie
 //! higher above the facet's plane than `h_min = 1e-9·L + 256·ε·R` (L the facet's longest
