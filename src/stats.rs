@@ -466,15 +466,28 @@ impl FacetRun<'_> {
             .moments
             .iter_mut()
             .zip(self.hist.chunks_mut(bins.count));
-        for (j, (m, h)) in facets.enumerate() {
-            let mut running = *m;
-            for (k, e) in values.iter().skip(j).step_by(len.max(1)).enumerate() {
-                running.add(*e, self.first_step + k as u64, self.per_unit);
-                h[bins.index(*e)] += 1;
-            }
-            *m = running;
+        for (j, facet) in facets.enumerate() {
+            let series = values.iter().skip(j).step_by(len.max(1)).copied();
+            add_facet_steps(facet, series, self.first_step, (bins, self.per_unit));
         }
     }
+}
+
+/// Adds one facet's `values` (W/m², consecutive steps from step `first_step`) to its
+/// moments and CDF counts `h`, the moments kept in registers over the steps.
+#[inline]
+fn add_facet_steps(
+    (m, h): (&mut Moments, &mut [u32]),
+    values: impl Iterator<Item = f64>,
+    first_step: u64,
+    (bins, per_unit): (Bins, f64),
+) {
+    let mut running = *m;
+    for (k, e) in values.enumerate() {
+        running.add(e, first_step + k as u64, per_unit);
+        h[bins.index(e)] += 1;
+    }
+    *m = running;
 }
 
 /// The fixed-point unit for `bins`: the power of two with which 256 times the last
@@ -544,13 +557,8 @@ impl FacetStats {
                 let globals = runs.globals(first..first + moments.len());
                 let facets = moments.iter_mut().zip(hist.chunks_mut(bins.count));
                 for ((m, h), g) in facets.zip(globals) {
-                    let mut running = *m;
-                    for (k, step) in steps.iter().enumerate() {
-                        let e = step[g];
-                        running.add(e, first_step + k as u64, per_unit);
-                        h[bins.index(e)] += 1;
-                    }
-                    *m = running;
+                    let values = steps.iter().map(|step| step[g]);
+                    add_facet_steps((m, h), values, first_step, (bins, per_unit));
                 }
             });
     }
