@@ -92,6 +92,14 @@ enum Last {
     Blocker(u32),
 }
 
+/// How [`Direct::decide`] answers a facet's ray.
+enum Answer {
+    Lit,
+    Shadowed,
+    /// Through the tree, with the step's other rays.
+    Trace,
+}
+
 /// What a chunk keeps of one facet between steps.
 #[derive(Default)]
 struct Fact {
@@ -195,54 +203,13 @@ impl Direct<'_> {
             traced.clear();
             for ray in &rays {
                 let j = ray.facet as usize - facets.first;
-                let fact = &mut facts[j];
-                if (fact.certificate.as_ref())
-                    .is_some_and(|c| path.suns[c.axis].dot(path.suns[p]) < path.cos_inside)
-                {
-                    fact.certificate = None;
-                }
-                // What the facet learnt last: a cone that still holds the Sun decides; a
-                // blocker is looked for around the last one, then through the tree; a
-                // facet lit last time gets a cone, which most often stays clear for the
-                // steps to come.
-                if fact.certificate.is_none() {
-                    match fact.last {
-                        Last::Lit(from) if from <= p && path.cones => {
-                            counts.cones += 1;
-                            let made = self.certify(ray, path, p, (bound, bvh, mesh));
-                            if made.is_none() {
-                                fact.last = Last::Lit(path.ahead[path.ahead[p]]);
-                                traced.push(*ray);
-                                continue;
-                            }
-                            fact.certificate = made;
-                        }
-                        Last::Blocker(id) => {
-                            let neighbours = &path.neighbours;
-                            match query
-                                .blocker_near(ray.origin, ray.t_min, ray.facet, id, neighbours)
-                            {
-                                Some(id) => {
-                                    fact.last = Last::Blocker(id);
-                                    counts.remembered += 1;
-                                    counts.shadowed += 1;
-                                    out[j] = 0.0;
-                                }
-                                None => traced.push(*ray),
-                            }
-                            continue;
-                        }
-                        Last::Lit(_) | Last::Unknown => {
-                            traced.push(*ray);
-                            continue;
-                        }
+                match self.decide(&mut facts[j], ray, path, p, (bound, bvh, mesh), &mut counts) {
+                    Answer::Lit => {}
+                    Answer::Shadowed => {
+                        counts.shadowed += 1;
+                        out[j] = 0.0;
                     }
-                }
-                let among = &fact.certificate.as_ref().expect("certified above").among;
-                if !among.is_empty() && query.blocked_among(ray.origin, ray.t_min, ray.facet, among)
-                {
-                    counts.shadowed += 1;
-                    out[j] = 0.0;
+                    Answer::Trace => traced.push(*ray),
                 }
             }
             for (ray, blocker) in traced.iter().zip(query.blockers(&traced)) {
@@ -261,6 +228,56 @@ impl Direct<'_> {
             }
         }
         counts
+    }
+
+    /// What facet `fact` learnt last decides `ray` at path position `p` where it can: a
+    /// cone that still holds the Sun decides by its list; a facet lit last time gets a
+    /// cone, which most often stays clear for the steps to come; a blocker is looked for
+    /// around the last one. The rest are traced.
+    fn decide(
+        &self,
+        fact: &mut Fact,
+        ray: &ShadowRay,
+        path: &Path<'_>,
+        p: usize,
+        tree: (&HorizonBound, &Bvh, &crate::mesh::Mesh),
+        counts: &mut StepCounts,
+    ) -> Answer {
+        let held = |c: &Certificate| path.suns[c.axis].dot(path.suns[p]) >= path.cos_inside;
+        if !fact.certificate.as_ref().is_some_and(held) {
+            fact.certificate = None;
+            match fact.last {
+                Last::Lit(from) if from <= p && path.cones => {
+                    counts.cones += 1;
+                    fact.certificate = self.certify(ray, path, p, tree);
+                    if fact.certificate.is_none() {
+                        // Too many facets reach in: wait until the Sun has moved on by
+                        // the cone's width.
+                        fact.last = Last::Lit(path.ahead[path.ahead[p]]);
+                        return Answer::Trace;
+                    }
+                }
+                Last::Blocker(id) => {
+                    let query = &path.queries[p];
+                    let near =
+                        query.blocker_near(ray.origin, ray.t_min, ray.facet, id, &path.neighbours);
+                    let Some(id) = near else {
+                        return Answer::Trace;
+                    };
+                    fact.last = Last::Blocker(id);
+                    counts.remembered += 1;
+                    return Answer::Shadowed;
+                }
+                Last::Lit(_) | Last::Unknown => return Answer::Trace,
+            }
+        }
+        let among = &fact.certificate.as_ref().expect("held or made above").among;
+        match !among.is_empty()
+            && path.queries[p].blocked_among(ray.origin, ray.t_min, ray.facet, among)
+        {
+            true => Answer::Shadowed,
+            false => Answer::Lit,
+        }
     }
 
     /// The facets reaching into the cone centred on the Sun a little ahead on the path
