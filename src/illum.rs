@@ -664,36 +664,54 @@ impl<'w> Direct<'w> {
         let (shares, answered): (Vec<f64>, Vec<u64>) = rays
             .par_iter()
             .map(|r| {
-                let i = r.facet as usize;
-                let n = body.mesh.normals[i];
-                // The samples' rays count hits beyond their `t_min`, the farthest for the
-                // disk's lowest point; a disk reaching below the plane is never covered.
-                let lowest = lowest_sin(n.dot(light.sun), light.radius);
-                let beyond = match lowest > 0.0 {
-                    true => self.t_min(b, i, lowest),
-                    false => f64::INFINITY,
-                };
-                match bound.cone_view(body.shadow_mesh(), bvh, i, &cone, beyond) {
-                    ConeView::Clear => (1.0, 0),
-                    ConeView::Covered => (0.0, 0),
-                    ConeView::Partial(among) => {
-                        let mut tally = DiskTally::default();
-                        for (s, query) in &samples {
-                            tally.add(n.dot(*s), |cos| {
-                                !query.blocked_among(
-                                    r.origin,
-                                    self.t_min(b, i, cos),
-                                    r.facet,
-                                    &among,
-                                )
-                            });
-                        }
-                        (tally.share(), tally.rays)
-                    }
-                }
+                let beyond = self.disk_beyond(b, r.facet as usize, (light.sun, light.radius));
+                let view =
+                    bound.cone_view(body.shadow_mesh(), bvh, r.facet as usize, &cone, beyond);
+                self.share_in_view(b, r, &view, samples.iter().copied())
             })
             .unzip();
         (shares, answered.iter().sum())
+    }
+
+    /// How far (metres) from facet `i`'s centroid a facet must stand to cover a disk Sun
+    /// (unit vector toward its centre, angular radius) for it: the disk's samples count
+    /// hits beyond their `t_min`, the farthest for the disk's lowest point; a disk
+    /// reaching below the plane is never covered.
+    fn disk_beyond(&self, b: usize, i: usize, (sun, radius): (DVec3, f64)) -> f64 {
+        let n = self.world.bodies[b].mesh.normals[i];
+        let lowest = lowest_sin(n.dot(sun), radius);
+        match lowest > 0.0 {
+            true => self.t_min(b, i, lowest),
+            false => f64::INFINITY,
+        }
+    }
+
+    /// The share of a disk Sun above the plane of the facet of `r` that its own body
+    /// leaves in view, from what its centroid sees of the disk's cone (`view`), and the
+    /// samples answered: a clear cone 1, a covered one 0, a partial one the share of its
+    /// `samples` (directions with their rays) that the facets reaching in leave clear.
+    fn share_in_view<'q>(
+        &self,
+        b: usize,
+        r: &ShadowRay,
+        view: &ConeView,
+        samples: impl Iterator<Item = (DVec3, BvhRays<'q>)>,
+    ) -> (f64, u64) {
+        let i = r.facet as usize;
+        match view {
+            ConeView::Clear => (1.0, 0),
+            ConeView::Covered(_) => (0.0, 0),
+            ConeView::Partial(among) => {
+                let n = self.world.bodies[b].mesh.normals[i];
+                let mut tally = DiskTally::default();
+                for (s, query) in samples {
+                    tally.add(n.dot(s), |cos| {
+                        !query.blocked_among(r.origin, self.t_min(b, i, cos), r.facet, among)
+                    });
+                }
+                (tally.share(), tally.rays)
+            }
+        }
     }
 
     /// [`Direct::own_disk_shares`] with every sample traced by the body's tracer, one

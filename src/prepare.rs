@@ -17,7 +17,7 @@ use crate::ephemeris::synthetic::{CircularOrbit, SyntheticMotion};
 use crate::ephemeris::{flux_at, Ephemeris, EpochState, SunReturn};
 use crate::error::{Error, Result};
 use crate::horizon::shadows::{bound_detail_for_run, recall_for_run, steps_back, RunSteps};
-use crate::horizon::{Shadows, SunShape};
+use crate::horizon::Shadows;
 use crate::illum::sweep_bytes;
 use crate::mesh::generate::ellipsoid;
 use crate::mesh::inspect::inspect;
@@ -173,16 +173,12 @@ pub fn prepare(scene: &Scene, budget: &Budget, timings: &mut Timings) -> Result<
             bound_detail_for_run(world, &horizon_maps, steps, shadows.disk_samples());
         shadows.bound_detail = detail;
         why = format!("{why}; {reason}");
-        shadows.sweeps = sweeps_by_facet(
-            scene,
-            world,
-            &shadows,
-            (&horizon_maps, computed, states.len()),
-        );
+        shadows.sweeps = sweeps_by_facet(scene, world, (&horizon_maps, computed, states.len()));
         if shadows.sweeps {
             // No block of steps is held, nor rows of recalled blockers.
             demand.block_values = 0.0;
-            demand.sweep_bytes = sweep_bytes(states.len(), world.facet_count());
+            demand.sweep_bytes =
+                sweep_bytes(states.len(), world.facet_count(), shadows.disk_samples());
             why = format!(
                 "{why}; each chunk of facets takes every step in the order of the Sun's path, \
                  and a cone around the Sun decides a facet's rays while the Sun stays within it"
@@ -221,13 +217,12 @@ pub fn prepare(scene: &Scene, budget: &Budget, timings: &mut Timings) -> Result<
 }
 
 /// Whether the run takes its steps facet by facet ([`crate::illum::Direct::sweep`]): one
-/// body that shadows itself through the BVH tracer's bound toward a point Sun, every
-/// step computed (no repeats), and nothing that needs a step's values for all facets at
+/// body that shadows itself through the BVH tracer's bound (toward a point Sun or a
+/// disk), every step computed (no repeats), and nothing that needs a step's values for all facets at
 /// once (history, scattered light, spectral bands).
 fn sweeps_by_facet(
     scene: &Scene,
     world: &World,
-    shadows: &Shadows,
     (maps, computed, steps): (&[bool], usize, usize),
 ) -> bool {
     let [body] = world.bodies.as_slice() else {
@@ -236,7 +231,6 @@ fn sweeps_by_facet(
     let per_step_outputs = scene.output.history || !scene.bands.is_empty();
     !body.convex
         && !maps.first().copied().unwrap_or(false)
-        && shadows.sun == SunShape::Point
         && !scene.scatter.as_ref().is_some_and(|s| s.enabled)
         && !per_step_outputs
         && computed == steps

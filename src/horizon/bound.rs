@@ -50,7 +50,7 @@ use crate::mesh::Mesh;
 use crate::trace::bvh::Bvh;
 use glam::DVec3;
 use serde::{Deserialize, Serialize};
-use std::cell::{Cell, RefCell};
+use std::cell::RefCell;
 
 /// How far above the highest horizon found a whole bound may lie (sine): the search
 /// skips whatever cannot rise more than this above it, which keeps it to the few hundred
@@ -172,14 +172,43 @@ impl Cone {
     }
 }
 
+/// A triangle seen from a point as a screen for rays: the planes through the point and
+/// each edge, the triangle's distance, and the margin past the rounding of the ray
+/// predicate. [`HorizonBound::cone_view`]'s test of a cover, for a cone of no width,
+/// set up once for the many directions it is then asked about ([`Screen::blocks`]).
+#[derive(Debug, Clone, Copy)]
+pub struct Screen {
+    /// Unit directions from the point toward the corners.
+    corners: [DVec3; 3],
+    /// Unit normals of the planes through the point and each edge, toward the inside.
+    inward: [DVec3; 3],
+    /// The nearest distance (metres) past which the triangle blocks, and the sine by
+    /// which a direction must lie inside every edge's plane.
+    beyond: f64,
+    spare: f64,
+}
+
+impl Screen {
+    /// Whether the ray along the unit `dir` from the point, counting hits farther than
+    /// `t_min` metres, is blocked by the triangle for the tracers' exact predicate: it
+    /// passes inside every edge by more than the rounding can move it, and the triangle
+    /// lies wholly beyond `t_min`. (False says nothing: the ray is then traced.)
+    #[inline]
+    pub fn blocks(&self, dir: DVec3, t_min: f64) -> bool {
+        self.beyond > t_min
+            && self.corners.iter().all(|u| dir.dot(*u) > 0.0)
+            && self.inward.iter().all(|m| dir.dot(*m) > self.spare)
+    }
+}
+
 /// What a facet's centroid sees of a narrow cone of directions (a disk Sun).
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub enum ConeView {
     /// No other facet reaches into the cone: every ray within it is clear.
     Clear,
-    /// One facet covers the whole cone beyond the distance asked for: every ray within
-    /// it is blocked.
-    Covered,
+    /// One facet (`Some`, its mesh id) or a pair sharing an edge (`None`) covers the
+    /// whole cone beyond the distance asked for: every ray within it is blocked.
+    Covered(Option<u32>),
     /// Anything else: facets reach in without one covering it all. They are every facet
     /// a ray within the cone can cross (as the tracers' predicate decides, rounding
     /// included), which can then answer it alone (`BvhRays::blocked_among`).
@@ -265,6 +294,16 @@ impl HorizonBound {
         cone: &Cone,
         mut visit: impl FnMut(u32, &[DVec3; 3]) -> bool,
     ) {
+        let reaches = self.reaches(mesh, i, cone);
+        // The tree's boxes are padded far beyond the widening (`Bvh`'s box margin).
+        bvh.near_cone(mesh.centroids[i], cone.axis, cone.tan_half, |id, tri| {
+            reaches(id, tri) && visit(id, tri)
+        });
+    }
+
+    /// Whether a facet (its id and corners) other than `i` reaches into `cone` from facet
+    /// `i`'s centroid, widened by the rounding of the ray predicate.
+    fn reaches(&self, mesh: &Mesh, i: usize, cone: &Cone) -> impl Fn(u32, &[DVec3; 3]) -> bool {
         let Cone {
             axis,
             cos_half,
@@ -275,22 +314,21 @@ impl HorizonBound {
         // Across the axis, toward the facet's plane: where its neighbours lie.
         let n = mesh.normals[i];
         let down = -(n - axis * n.dot(axis)).normalize_or_zero();
-        // The tree's boxes are padded far beyond the widening (`Bvh`'s box margin). A
-        // triangle's elevation sine above the plane across `axis` is the cosine of its
+        let widening = self.widening;
+        // A triangle's elevation sine above the plane across `axis` is the cosine of its
         // least angle from `axis`: what the bound's geometry computes exactly.
-        bvh.near_cone(c, axis, tan_half, |id, tri| {
+        move |id, tri| {
             id as usize != i
-                && may_reach_cone(c, (axis, tan_half), down, tri, self.widening)
-                && triangle_bound(c, axis, tri, self.widening, cos_half) > cos_half
-                && visit(id, tri)
-        });
+                && may_reach_cone(c, (axis, tan_half), down, tri, widening)
+                && triangle_bound(c, axis, tri, widening, cos_half) > cos_half
+        }
     }
 
     /// What facet `i`'s centroid sees of the `cone` of directions, through the other
     /// facets of `mesh` (the one `bvh` and the bound were built over):
-    /// [`ConeView::Covered`] only by a facet farther than `beyond` metres. Exact up to the rounding of the ray predicate, which every
-    /// triangle is widened by (so a clear cone is clear, a covered one covered, for the
-    /// tracers' rays).
+    /// [`ConeView::Covered`] only by a facet farther than `beyond` metres. Exact up to the
+    /// rounding of the ray predicate, which every triangle is widened by (so a clear cone
+    /// is clear, a covered one covered, for the tracers' rays).
     pub fn cone_view(
         &self,
         mesh: &Mesh,
@@ -299,11 +337,42 @@ impl HorizonBound {
         cone: &Cone,
         beyond: f64,
     ) -> ConeView {
+        self.view_of(mesh, (i, cone, beyond), |visit| {
+            self.each_reaching(mesh, bvh, i, cone, visit)
+        })
+    }
+
+    /// [`HorizonBound::cone_view`] from the facets `among` alone, without the tree: the
+    /// same view when `among` holds every facet reaching into `cone` (as the facets
+    /// [`HorizonBound::reaching`] finds for a wider cone holding it do). Fewer can still
+    /// show the cone covered (the facet that covered it a step before).
+    pub fn cone_view_among(
+        &self,
+        mesh: &Mesh,
+        (i, cone, beyond): (usize, &Cone, f64),
+        among: &[u32],
+    ) -> ConeView {
+        let reaches = self.reaches(mesh, i, cone);
+        self.view_of(mesh, (i, cone, beyond), |visit| {
+            for &id in among {
+                let tri = mesh.corners(id as usize);
+                if reaches(id, &tri) && visit(id, &tri) {
+                    break;
+                }
+            }
+        })
+    }
+
+    /// [`HorizonBound::cone_view`] over the facets reaching into the cone that
+    /// `each_reaching` hands to its visitor (until the visitor returns `true`).
+    fn view_of(
+        &self,
+        mesh: &Mesh,
+        (i, cone, beyond): (usize, &Cone, f64),
+        each_reaching: impl FnOnce(&mut dyn FnMut(u32, &[DVec3; 3]) -> bool),
+    ) -> ConeView {
         let Cone { axis, sin_half, .. } = *cone;
         let c = mesh.centroids[i];
-        let covered = Cell::new(false);
-        // The mesh ids of the triangles reaching into the cone.
-        let reaching = RefCell::new(Vec::new());
         // The plane tests first, with no spare (a cover with one is a cover without), so
         // that the distance is taken only for the few outlines that pass them.
         let cover = |pieces: &[&[DVec3; 3]], outline: &[DVec3]| {
@@ -321,31 +390,57 @@ impl HorizonBound {
                     )
             }
         };
-        self.each_reaching(mesh, bvh, i, cone, |id, tri| {
-            covered.set(cover(&[tri], tri));
-            reaching.borrow_mut().push(id);
-            covered.get()
+        // The mesh ids of the triangles reaching into the cone, and the one covering it.
+        let mut reaching = Vec::new();
+        let mut covered_by = None;
+        each_reaching(&mut |id, tri| {
+            reaching.push(id);
+            covered_by = cover(&[tri], tri).then_some(id);
+            covered_by.is_some()
         });
-        let reaching = reaching.into_inner();
+        if covered_by.is_some() {
+            return ConeView::Covered(covered_by);
+        }
         if reaching.is_empty() {
             return ConeView::Clear;
         }
         // Two triangles sharing an edge that crosses the cone cover it together when,
         // seen from the centroid, they make a convex quadrilateral around it.
         let corners = |id: &u32| mesh.corners(*id as usize);
-        let paired = covered.get()
-            || (reaching.len() <= PAIRED_MAX
-                && reaching.iter().enumerate().any(|(k, a)| {
-                    let a = corners(a);
-                    reaching[k + 1..].iter().map(corners).any(|b| {
-                        quadrilateral(&a, &b).is_some_and(|outline| cover(&[&a, &b], &outline))
-                    })
-                }));
-        if paired {
-            ConeView::Covered
-        } else {
-            ConeView::Partial(reaching)
+        let paired = reaching.len() <= PAIRED_MAX
+            && reaching.iter().enumerate().any(|(k, a)| {
+                let a = corners(a);
+                reaching[k + 1..].iter().map(corners).any(|b| {
+                    quadrilateral(&a, &b).is_some_and(|outline| cover(&[&a, &b], &outline))
+                })
+            });
+        match paired {
+            true => ConeView::Covered(None),
+            false => ConeView::Partial(reaching),
         }
+    }
+
+    /// Facet `id` of `mesh` as a screen seen from facet `i`'s centroid ([`Screen`]);
+    /// `None` where it is seen edge-on, or nearer than the rounding.
+    pub fn screen(&self, mesh: &Mesh, i: usize, id: u32) -> Option<Screen> {
+        let c = mesh.centroids[i];
+        let tri = mesh.corners(id as usize);
+        let gap = distance_to_triangle(c, &tri) - self.widening;
+        let u = tri.map(|p| (p - c).normalize());
+        let turn = |j: usize| u[j].dot(u[(j + 1) % 3].cross(u[(j + 2) % 3]));
+        let orientation = turn(0);
+        let turns_alike = (1..3).all(|j| turn(j) * orientation > 0.0);
+        if orientation == 0.0 || !orientation.is_finite() || !turns_alike || gap <= 0.0 {
+            return None;
+        }
+        let inward =
+            |j: usize| u[j].cross(u[(j + 1) % 3]).normalize_or_zero() * orientation.signum();
+        Some(Screen {
+            corners: u,
+            inward: [inward(0), inward(1), inward(2)],
+            beyond: gap,
+            spare: self.widening / gap,
+        })
     }
 
     /// True when a Sun along the unit vector `sun`, at `sin_elevation` (n·s) above the
@@ -956,12 +1051,12 @@ mod tests {
             bound.cone_view(&mesh, &bvh, 0, &Cone::new(toward(z), rho), beyond)
         };
         assert_eq!(view(h + 0.1, 0.0), ConeView::Clear);
-        assert_eq!(view(h - 0.2, 0.0), ConeView::Covered);
+        assert!(matches!(view(h - 0.2, 0.0), ConeView::Covered(Some(_))));
         assert!(matches!(view(h, 0.0), ConeView::Partial(_)));
         // The diagonal from (x, −half, 0) to (x, half, h) crosses y = c.y here.
         let diagonal = h * (c.y + half) / (2.0 * half);
-        assert_eq!(view(diagonal, 0.0), ConeView::Covered);
-        assert_eq!(view(diagonal + 0.2, 0.0), ConeView::Covered);
+        assert_eq!(view(diagonal, 0.0), ConeView::Covered(None));
+        assert!(matches!(view(diagonal + 0.2, 0.0), ConeView::Covered(_)));
         assert!(matches!(view(h - 0.2, d + 0.5), ConeView::Partial(_)));
     }
 
@@ -986,7 +1081,7 @@ mod tests {
             let view = bound.cone_view(&mesh, &bvh, i, &Cone::new(axis, half), 1e-6);
             seen[match view {
                 ConeView::Clear => 0,
-                ConeView::Covered => 1,
+                ConeView::Covered(_) => 1,
                 ConeView::Partial(_) => 2,
             }] += 1;
             let (e1, e2) = (
@@ -1008,7 +1103,7 @@ mod tests {
                             partial_rays[blocked as usize] += 1;
                             BvhRays::new(&bvh, dir).blocked_among(c, 1e-6, i as u32, among)
                         }
-                        view => *view == ConeView::Covered,
+                        view => matches!(view, ConeView::Covered(_)),
                     };
                     assert_eq!(told, blocked, "facet {i}, {view:?}, ring {ring}, k {k}");
                 }
@@ -1023,6 +1118,67 @@ mod tests {
             partial_rays.iter().all(|&k| k >= 200),
             "rays of partial cones clear, blocked: {partial_rays:?}"
         );
+    }
+
+    /// On rough terrain, a direction a [`Screen`] says blocked is blocked for the exact
+    /// ray predicate, with the triangle alone (`BvhRays::blocked_among`): directions
+    /// inside triangles, on their edges and corners, and a hair outside or inside the
+    /// edges (1e-13 to 1e-9 of the distance), with `t_min` short of the triangle or
+    /// reaching into it. Most interior directions must be screened.
+    #[test]
+    fn a_direction_a_screen_blocks_is_blocked_by_the_ray_predicate() {
+        let mesh = rough_terrain();
+        let bvh = Bvh::build(&mesh);
+        let bound = HorizonBound::new(&mesh, mesh.len(), &bvh, BoundDetail::Whole);
+        let mut rng = crate::TestRng::new(5);
+        let (mut interior, mut screened, mut near_edges) = (0, 0, 0);
+        for _ in 0..3000 {
+            let i = (rng.unit() * mesh.len() as f64) as usize;
+            let id = (rng.unit() * mesh.len() as f64) as u32;
+            let Some(screen) = bound.screen(&mesh, i, id) else {
+                continue;
+            };
+            let c = mesh.centroids[i];
+            let [a, b, d] = mesh.corners(id as usize);
+            let (u, v) = (rng.unit(), rng.unit());
+            let (u, v) = if u + v > 1.0 {
+                (1.0 - u, 1.0 - v)
+            } else {
+                (u, v)
+            };
+            let inside = a + u * (b - a) + v * (d - a);
+            let on_edge = a + u * (b - a);
+            // Across the edge a→b within the triangle's plane, outward.
+            let normal = (b - a).cross(d - a);
+            let outward =
+                (b - a).cross(normal).normalize() * (b - a).cross(normal).dot(a - d).signum();
+            let reach = (inside - c).length();
+            let mut targets = vec![(inside, true), (on_edge, false), (a, false)];
+            for hair in [1e-13, 1e-11, 1e-9] {
+                targets.push((on_edge + outward * hair * reach, false));
+                targets.push((on_edge - outward * hair * reach, false));
+            }
+            for (target, counted) in targets {
+                let dir = (target - c).normalize();
+                let query = BvhRays::new(&bvh, dir);
+                for t_min in [1e-6, 0.5 * reach, (target - c).length() * (1.0 - 1e-12)] {
+                    let blocked = query.blocked_among(c, t_min, i as u32, &[id]);
+                    let said = screen.blocks(dir, t_min);
+                    assert!(!said || blocked, "facet {i}, triangle {id}, t_min {t_min}");
+                    near_edges += (!counted && said) as usize;
+                    if counted && t_min == 1e-6 {
+                        interior += 1;
+                        screened += said as usize;
+                    }
+                }
+            }
+        }
+        assert!(
+            interior > 300 && screened * 10 > interior * 9,
+            "{screened} of {interior}"
+        );
+        // Directions a hair inside an edge are screened too, not only deep ones.
+        assert!(near_edges > 100, "{near_edges}");
     }
 
     /// Rough terrain (folds of ±2.5 m over 20 m): for every facet and Suns at several

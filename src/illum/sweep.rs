@@ -2,8 +2,8 @@
 //! the run, in the order of the Sun's path across the body's sky, before the next chunk.
 //!
 //! In: the run's steps, a body that shadows itself with the BVH tracer and its horizon
-//! bound, a point Sun. Out: per facet and step the irradiance (W/m²), handed to the
-//! statistics chunk by chunk in time order ([`FacetRun`]), and the run's counts.
+//! bound, a point Sun or a disk. Out: per facet and step the irradiance (W/m²), handed
+//! to the statistics chunk by chunk in time order ([`FacetRun`]), and the run's counts.
 //!
 //! Why: a shadow ray the bound cannot spare costs a walk through the tree (about 0.5 µs
 //! at 786k facets), and a year of hourly steps leaves about a billion of them. Taken in
@@ -20,17 +20,33 @@
 //!   ([`ShadowQuery::blocker_near`]), as the step loop's rays recall theirs, then traces;
 //! - the rest go through the tree in packets ([`ShadowQuery::blockers`]).
 //!
+//! A disk Sun asks each facet the bound leaves in doubt what its centroid sees of the
+//! disk's cone ([`HorizonBound::cone_view`]: clear, covered, or the facets reaching in,
+//! which then answer the disk's samples), as the step loop does, with the same memory:
+//! - the cones are wider by the disk's radius, so that one serving a Sun holds its
+//!   whole disk; the view is then taken from the cone's list alone
+//!   ([`HorizonBound::cone_view_among`]), and it is the tree's;
+//! - a facet whose disk one facet covered tries that facet first;
+//! - a facet all of whose samples were blocked keeps each sample's blocker, and while
+//!   every sample above its plane is blocked still (by that blocker seen as a
+//!   [`Screen`], or one found by a walk from it) its share is 0, as the step loop's
+//!   tally gives it.
+//!
 //! Every answer is the tracer's, bit for bit, and so are the statistics
 //! ([`FacetRun::add_steps`] adds each facet's steps in time order).
 //!
 //! Memory: per chunk being computed, its values for every step (8 bytes per facet and
-//! step, chunks sized to keep this to a few MB) and its certificates.
+//! step, chunks sized to keep this to a few MB) and its certificates; for a disk Sun,
+//! each step's samples with their rays (120 bytes a sample, 34 MB for a year of hourly
+//! steps at 32 samples).
 
-use super::{Direct, Facets, OwnHorizon, Sky, StepCounts};
+use super::{disk_point, Direct, Facets, OwnHorizon, Sky, StepCounts};
 use crate::ephemeris::EpochState;
 use crate::error::{Error, Result};
-use crate::horizon::bound::{Cone, HorizonBound};
+use crate::horizon::bound::{Cone, ConeView, HorizonBound, Screen};
+use crate::horizon::SunShape;
 use crate::mesh::inspect::edge_neighbours;
+use crate::mesh::Mesh;
 use crate::progress::Progress;
 use crate::stats::FacetRun;
 use crate::trace::bvh::{Bvh, BvhRays};
@@ -67,10 +83,20 @@ pub fn chunk_facets(steps: usize, facets: usize) -> usize {
 const LIST_MAX: usize = 8;
 
 /// Bytes a sweep over `steps` steps of `facets` facets holds: each thread's chunk of
-/// values, and the facets' neighbours across their edges (12 bytes each).
-pub fn sweep_bytes(steps: usize, facets: usize) -> f64 {
-    let chunk = chunk_facets(steps, facets) as f64 * steps as f64 * 8.0;
-    rayon::current_num_threads() as f64 * chunk + 12.0 * facets as f64
+/// values and facts (for a disk Sun at most a blocker per sample and [`SCREENS_MAX`]
+/// screens per facet), the facets' neighbours across their edges (12 bytes each), and
+/// for a disk Sun of `disk_samples` samples each step's samples with their rays.
+pub fn sweep_bytes(steps: usize, facets: usize, disk_samples: Option<u32>) -> f64 {
+    let samples = f64::from(disk_samples.unwrap_or(0));
+    let fact = std::mem::size_of::<Fact>() as f64
+        + match disk_samples {
+            Some(_) => 4.0 * samples + (SCREENS_MAX * size_of::<(u32, Option<Screen>)>()) as f64,
+            None => 0.0,
+        };
+    let chunk = chunk_facets(steps, facets) as f64 * (steps as f64 * 8.0 + fact);
+    let sample_bytes = size_of::<(DVec3, BvhRays)>() as f64;
+    let shared = 12.0 * facets as f64 + sample_bytes * samples * steps as f64;
+    rayon::current_num_threads() as f64 * chunk + shared
 }
 
 /// What one facet knows of its shadow for Suns near the one it was taken for: the path
@@ -90,6 +116,9 @@ enum Last {
     /// facets waits until the Sun has moved on by its width).
     Lit(usize),
     Blocker(u32),
+    /// Every sample of a disk Sun above the facet's plane was blocked, each by the facet
+    /// kept for it in [`Fact::dark`].
+    Dark,
 }
 
 /// How [`Direct::decide`] answers a facet's ray.
@@ -105,7 +134,16 @@ enum Answer {
 struct Fact {
     certificate: Option<Certificate>,
     last: Last,
+    /// Under a disk Sun, per sample of the disk, the facet that blocked it last
+    /// ([`Last::Dark`]; `u32::MAX` for a sample below the facet's plane).
+    dark: Vec<u32>,
+    /// The blockers of [`Fact::dark`] as screens seen from the facet, set up once for
+    /// the many steps and samples they serve (at most [`SCREENS_MAX`]).
+    screens: Vec<(u32, Option<Screen>)>,
 }
+
+/// The most blockers a facet keeps as screens ([`Fact::screens`]).
+const SCREENS_MAX: usize = 16;
 
 /// The run's Suns in the order of their path, with what every chunk shares.
 struct Path<'a> {
@@ -114,25 +152,40 @@ struct Path<'a> {
     /// Per position, the Sun (body frame) and its shadow queries.
     suns: Vec<DVec3>,
     queries: Vec<BvhRays<'a>>,
+    /// For a disk Sun, per position its cone and its samples (directions with their
+    /// rays; [`Direct::disk_samples`]'s count per position, as the step loop takes them).
+    disks: Vec<Cone>,
+    samples: Vec<(DVec3, BvhRays<'a>)>,
     /// Per facet of the tree, its neighbour across each edge (the walks from a last
     /// blocker, [`ShadowQuery::blocker_near`]).
     neighbours: Vec<[u32; 3]>,
     /// Per position, the farthest position ahead whose Sun stands within the cone's
     /// reach of this one's, where a cone made here is centred.
     ahead: Vec<usize>,
-    /// The cones' half-angle, and the cosine within which a Sun is taken as inside;
-    /// no cones where the Suns stand too far apart for one to serve many steps.
-    cone: f64,
+    /// The cosine of how far a Sun may stand from a cone's axis for the cone to serve
+    /// it; no cones where the Suns stand too far apart for one to serve many steps.
     cos_inside: f64,
     cones: bool,
+    /// The cones' half-angle: [`Path::cone`] and the widest disk of the run (0 for a
+    /// point Sun), so that a cone serving a Sun holds its whole disk.
+    listed: f64,
+}
+
+/// What a chunk of facets shares with the sweep: the run's skies and path, the body's
+/// tree, bound and mesh.
+struct Chunk<'a> {
+    facets: Facets,
+    skies: &'a [Sky],
+    path: &'a Path<'a>,
+    bound: &'a HorizonBound,
+    bvh: &'a Bvh<'a>,
+    mesh: &'a Mesh,
 }
 
 impl Direct<'_> {
     /// Whether body `b` can be computed facet by facet ([`Direct::sweep`]).
     pub fn sweeps(&self, b: usize) -> bool {
-        self.sun == crate::horizon::SunShape::Point
-            && self.traces_own(b)
-            && matches!(self.horizons[b], OwnHorizon::Bound { .. })
+        self.traces_own(b) && matches!(self.horizons[b], OwnHorizon::Bound { .. })
     }
 
     /// The direct irradiance of body `b` (its facets only) over `states`, facet by
@@ -151,7 +204,8 @@ impl Direct<'_> {
         let skies = (states.iter())
             .map(|state| self.sky(b, state))
             .collect::<Result<Vec<_>>>()?;
-        let path = Path::new(&skies, bvh, self.world.bodies[b].shadow_mesh());
+        let mesh = self.world.bodies[b].shadow_mesh();
+        let path = Path::new(&skies, bvh, mesh, &self.disk_samples);
         let size = runs.first().map_or(1, FacetRun::len);
         let done = AtomicUsize::new(0);
         let chunks = runs.len();
@@ -160,12 +214,19 @@ impl Direct<'_> {
                 if progress.cancelled() {
                     return Err(Error::Cancelled);
                 }
-                let facets = Facets {
-                    body: b,
-                    first: c * size,
+                let chunk = Chunk {
+                    facets: Facets {
+                        body: b,
+                        first: c * size,
+                    },
+                    skies: &skies,
+                    path: &path,
+                    bound,
+                    bvh,
+                    mesh,
                 };
                 let mut values = vec![0.0; skies.len() * run.len()];
-                let counts = self.sweep_chunk(facets, (&skies, &path), (bound, bvh), &mut values);
+                let counts = self.sweep_chunk(&chunk, &mut values);
                 run.add_steps(&values);
                 // Steps done, in proportion to the chunks done.
                 let before = done.fetch_add(1, Ordering::Relaxed);
@@ -182,49 +243,62 @@ impl Direct<'_> {
 
     /// One chunk of facets over every step, in the path's order; `values` takes them
     /// step by step in time order.
-    fn sweep_chunk(
-        &self,
-        facets: Facets,
-        (skies, path): (&[Sky], &Path<'_>),
-        (bound, bvh): (&HorizonBound, &Bvh),
-        values: &mut [f64],
-    ) -> StepCounts {
+    fn sweep_chunk(&self, chunk: &Chunk<'_>, values: &mut [f64]) -> StepCounts {
+        let skies = chunk.skies;
         let len = values.len() / skies.len().max(1);
-        let mesh = self.world.bodies[facets.body].shadow_mesh();
         let mut facts: Vec<Fact> = (0..len).map(|_| Fact::default()).collect();
         let mut counts = StepCounts::default();
-        let mut traced = Vec::new();
-        for (p, &k) in path.steps.iter().enumerate() {
+        for (p, &k) in chunk.path.steps.iter().enumerate() {
             let out = &mut values[k * len..(k + 1) * len];
-            let (lit, rays) = self.light_chunk(facets, &skies[k], out);
+            let (lit, rays) = self.light_chunk(chunk.facets, &skies[k], out);
             counts += lit;
-            counts.rays += rays.len() as u64;
-            let query = &path.queries[p];
-            traced.clear();
-            for ray in &rays {
-                let j = ray.facet as usize - facets.first;
-                match self.decide(&mut facts[j], ray, path, p, (bound, bvh, mesh), &mut counts) {
-                    Answer::Lit => {}
-                    Answer::Shadowed => {
-                        counts.shadowed += 1;
-                        out[j] = 0.0;
-                    }
-                    Answer::Trace => traced.push(*ray),
-                }
-            }
-            for (ray, blocker) in traced.iter().zip(query.blockers(&traced)) {
-                let j = ray.facet as usize - facets.first;
-                let fact = &mut facts[j];
-                fact.last = match (blocker, fact.last) {
-                    (Blocker::Clear, Last::Lit(from)) => Last::Lit(from),
-                    (Blocker::Clear, _) => Last::Lit(p),
-                    (Blocker::Facet(id), _) => Last::Blocker(id),
-                    (Blocker::Unnamed, _) => Last::Unknown,
-                };
-                if blocker != Blocker::Clear {
+            counts += match self.sun {
+                SunShape::Point => self.shade_point(chunk, p, &rays, &mut facts, out),
+                SunShape::Disk => self.shade_disk_by_facts(chunk, p, &rays, &mut facts, out),
+            };
+        }
+        counts
+    }
+
+    /// Darkens the facets of a chunk whose `rays` toward a point Sun at path position
+    /// `p` are blocked: those their facts decide ([`Direct::decide`]), then the rest
+    /// through the tree together, whose answers become the facts of the next step.
+    fn shade_point(
+        &self,
+        chunk: &Chunk<'_>,
+        p: usize,
+        rays: &[ShadowRay],
+        facts: &mut [Fact],
+        out: &mut [f64],
+    ) -> StepCounts {
+        let mut counts = StepCounts {
+            rays: rays.len() as u64,
+            ..StepCounts::default()
+        };
+        let mut traced = Vec::new();
+        for ray in rays {
+            let j = ray.facet as usize - chunk.facets.first;
+            match self.decide(chunk, &mut facts[j], ray, p, &mut counts) {
+                Answer::Lit => {}
+                Answer::Shadowed => {
                     counts.shadowed += 1;
                     out[j] = 0.0;
                 }
+                Answer::Trace => traced.push(*ray),
+            }
+        }
+        for (ray, blocker) in traced.iter().zip(chunk.path.queries[p].blockers(&traced)) {
+            let j = ray.facet as usize - chunk.facets.first;
+            let fact = &mut facts[j];
+            fact.last = match (blocker, fact.last) {
+                (Blocker::Clear, Last::Lit(from)) => Last::Lit(from),
+                (Blocker::Clear, _) => Last::Lit(p),
+                (Blocker::Facet(id), _) => Last::Blocker(id),
+                (Blocker::Unnamed, _) => Last::Unknown,
+            };
+            if blocker != Blocker::Clear {
+                counts.shadowed += 1;
+                out[j] = 0.0;
             }
         }
         counts
@@ -236,24 +310,17 @@ impl Direct<'_> {
     /// around the last one. The rest are traced.
     fn decide(
         &self,
+        chunk: &Chunk<'_>,
         fact: &mut Fact,
         ray: &ShadowRay,
-        path: &Path<'_>,
         p: usize,
-        tree: (&HorizonBound, &Bvh, &crate::mesh::Mesh),
         counts: &mut StepCounts,
     ) -> Answer {
-        let held = |c: &Certificate| path.suns[c.axis].dot(path.suns[p]) >= path.cos_inside;
-        if !fact.certificate.as_ref().is_some_and(held) {
-            fact.certificate = None;
+        let path = chunk.path;
+        if !fact.holds(path, p) {
             match fact.last {
                 Last::Lit(from) if from <= p && path.cones => {
-                    counts.cones += 1;
-                    fact.certificate = self.certify(ray, path, p, tree);
-                    if fact.certificate.is_none() {
-                        // Too many facets reach in: wait until the Sun has moved on by
-                        // the cone's width.
-                        fact.last = Last::Lit(path.ahead[path.ahead[p]]);
+                    if !self.certify(chunk, fact, ray, p, counts) {
                         return Answer::Trace;
                     }
                 }
@@ -268,7 +335,7 @@ impl Direct<'_> {
                     counts.remembered += 1;
                     return Answer::Shadowed;
                 }
-                Last::Lit(_) | Last::Unknown => return Answer::Trace,
+                Last::Lit(_) | Last::Unknown | Last::Dark => return Answer::Trace,
             }
         }
         let among = &fact.certificate.as_ref().expect("held or made above").among;
@@ -280,44 +347,271 @@ impl Direct<'_> {
         }
     }
 
-    /// The facets reaching into the cone centred on the Sun a little ahead on the path
-    /// of position `p`'s, which holds that Sun, seen from facet `ray.facet`; `None` when
-    /// more than [`LIST_MAX`] do.
+    /// Scales the facets of a chunk whose `rays` need their own body's share of a disk
+    /// Sun at path position `p` by that share ([`Direct::disk_view`]), as the step loop
+    /// does ([`Direct::shade_disk`]).
+    fn shade_disk_by_facts(
+        &self,
+        chunk: &Chunk<'_>,
+        p: usize,
+        rays: &[ShadowRay],
+        facts: &mut [Fact],
+        out: &mut [f64],
+    ) -> StepCounts {
+        let samples = || self.disk_samples_at(chunk, p);
+        let mut counts = StepCounts::default();
+        for ray in rays {
+            let j = ray.facet as usize - chunk.facets.first;
+            let fact = &mut facts[j];
+            let (share, answered) = match self.still_dark(chunk, fact, ray, p) {
+                Some(answered) => {
+                    counts.remembered += 1;
+                    (0.0, answered)
+                }
+                None => {
+                    let view = self.disk_view(chunk, fact, ray, p, &mut counts);
+                    let (share, answered) =
+                        self.share_in_view(chunk.facets.body, ray, &view, samples());
+                    if let (ConeView::Partial(among), 0.0) = (&view, share) {
+                        self.learn_dark(chunk, fact, ray, p, among);
+                    }
+                    (share, answered)
+                }
+            };
+            counts.rays += answered;
+            out[j] *= share;
+            counts.shadowed += (out[j] == 0.0) as u64;
+        }
+        counts
+    }
+
+    /// The samples of the disk Sun at path position `p` (directions, with their rays),
+    /// as the step loop takes them.
+    fn disk_samples_at<'c>(
+        &self,
+        chunk: &Chunk<'c>,
+        p: usize,
+    ) -> impl Iterator<Item = (DVec3, BvhRays<'c>)> + 'c {
+        let n = self.disk_samples.len();
+        chunk.path.samples[p * n..(p + 1) * n].iter().copied()
+    }
+
+    /// Keeps, for a facet whose disk samples at path position `p` the facets `among`
+    /// (reaching into the disk's cone) blocked every one, each sample's blocker.
+    fn learn_dark(
+        &self,
+        chunk: &Chunk<'_>,
+        fact: &mut Fact,
+        ray: &ShadowRay,
+        p: usize,
+        among: &[u32],
+    ) {
+        let (b, i) = (chunk.facets.body, ray.facet as usize);
+        let n = self.world.bodies[b].mesh.normals[i];
+        let blockers = (self.disk_samples_at(chunk, p))
+            .map(|(s, query)| {
+                let cos = n.dot(s);
+                match cos > 0.0 {
+                    true => {
+                        query.blocker_among(ray.origin, self.t_min(b, i, cos), ray.facet, among)
+                    }
+                    false => Some(u32::MAX),
+                }
+            })
+            .collect::<Option<Vec<u32>>>();
+        // A share of 0 says every sample above the plane was blocked; kept only if so.
+        if let Some(blockers) = blockers {
+            fact.dark = blockers;
+            fact.last = Last::Dark;
+        }
+    }
+
+    /// For a facet all of whose disk samples were blocked last time ([`Last::Dark`]):
+    /// whether every sample above its plane at path position `p` is blocked still, each
+    /// found by a walk from its last blocker ([`ShadowQuery::blocker_near`]); then its
+    /// share is 0, as the step loop's tally gives it, and the samples answered are
+    /// returned. `None` when a walk fails or no sample stands above the plane (a disk
+    /// that only grazes the plane is taken as whole by the tally).
+    fn still_dark(
+        &self,
+        chunk: &Chunk<'_>,
+        fact: &mut Fact,
+        ray: &ShadowRay,
+        p: usize,
+    ) -> Option<u64> {
+        if !matches!(fact.last, Last::Dark) {
+            return None;
+        }
+        let (b, i) = (chunk.facets.body, ray.facet as usize);
+        let n = self.world.bodies[b].mesh.normals[i];
+        let neighbours = &chunk.path.neighbours;
+        let screens = &mut fact.screens;
+        let mut answered = 0;
+        for ((s, query), last) in self.disk_samples_at(chunk, p).zip(&mut fact.dark) {
+            let cos = n.dot(s);
+            if cos <= 0.0 {
+                continue;
+            }
+            let t_min = self.t_min(b, i, cos);
+            let screen = match screens.iter().find(|(id, _)| id == last) {
+                Some(&(_, screen)) => screen,
+                None if *last == u32::MAX => None,
+                None => {
+                    if screens.len() == SCREENS_MAX {
+                        screens.clear();
+                    }
+                    let screen = chunk.bound.screen(chunk.mesh, i, *last);
+                    screens.push((*last, screen));
+                    screen
+                }
+            };
+            let start = match *last {
+                _ if screen.is_some_and(|screen| screen.blocks(s, t_min)) => Some(*last),
+                u32::MAX => None,
+                id => query.blocker_near(ray.origin, t_min, ray.facet, id, neighbours),
+            };
+            let Some(id) = start else {
+                fact.last = Last::Unknown;
+                return None;
+            };
+            *last = id;
+            answered += 1;
+        }
+        if answered == 0 {
+            fact.last = Last::Unknown;
+        }
+        (answered > 0).then_some(answered)
+    }
+
+    /// What facet `fact`'s centroid sees of the cone of the disk Sun at path position
+    /// `p` (the view the step loop takes through the tree, [`HorizonBound::cone_view`]),
+    /// from what it learnt before where it can: a cone that still holds the disk, or
+    /// the facet that covered it last; else through the tree.
+    fn disk_view(
+        &self,
+        chunk: &Chunk<'_>,
+        fact: &mut Fact,
+        ray: &ShadowRay,
+        p: usize,
+        counts: &mut StepCounts,
+    ) -> ConeView {
+        let (path, i) = (chunk.path, ray.facet as usize);
+        let sky = &chunk.skies[path.steps[p]];
+        let cone = &path.disks[p];
+        let at = || {
+            (
+                i,
+                cone,
+                self.disk_beyond(chunk.facets.body, i, (sky.sun, sky.radius)),
+            )
+        };
+        if !fact.holds(path, p) {
+            match fact.last {
+                Last::Lit(from) if from <= p && path.cones => {
+                    self.certify(chunk, fact, ray, p, counts);
+                }
+                Last::Blocker(id) => {
+                    let view = chunk.bound.cone_view_among(chunk.mesh, at(), &[id]);
+                    if matches!(view, ConeView::Covered(_)) {
+                        counts.remembered += 1;
+                        return view;
+                    }
+                }
+                Last::Lit(_) | Last::Unknown | Last::Dark => {}
+            }
+        }
+        let view = match &fact.certificate {
+            // Most often: nothing reaches in, and the disk's depth is not needed.
+            Some(certificate) if certificate.among.is_empty() => ConeView::Clear,
+            Some(certificate) => {
+                (chunk.bound).cone_view_among(chunk.mesh, at(), &certificate.among)
+            }
+            None => (chunk.bound).cone_view(chunk.mesh, chunk.bvh, i, cone, at().2),
+        };
+        fact.last = match (&view, fact.last) {
+            (ConeView::Covered(Some(id)), _) => Last::Blocker(*id),
+            (ConeView::Covered(None), _) => Last::Unknown,
+            (_, Last::Lit(from)) => Last::Lit(from),
+            _ => Last::Lit(p),
+        };
+        view
+    }
+
+    /// Gives `fact` the facets reaching into the cone centred on the Sun a little ahead
+    /// on the path of position `p`'s, which holds that Sun (and its disk), seen from
+    /// facet `ray.facet`; false when more than [`LIST_MAX`] do: the facet then waits
+    /// until the Sun has moved on by the cone's width.
     fn certify(
         &self,
+        chunk: &Chunk<'_>,
+        fact: &mut Fact,
         ray: &ShadowRay,
-        path: &Path<'_>,
         p: usize,
-        (bound, bvh, mesh): (&HorizonBound, &Bvh, &crate::mesh::Mesh),
-    ) -> Option<Certificate> {
+        counts: &mut StepCounts,
+    ) -> bool {
+        counts.cones += 1;
+        let path = chunk.path;
         let axis = path.ahead[p];
-        let cone = Cone::new(path.suns[axis], path.cone);
-        let among = bound.reaching(mesh, bvh, ray.facet as usize, &cone, LIST_MAX)?;
-        Some(Certificate { axis, among })
+        let cone = Cone::new(path.suns[axis], path.listed);
+        let i = ray.facet as usize;
+        let among = (chunk.bound).reaching(chunk.mesh, chunk.bvh, i, &cone, LIST_MAX);
+        fact.certificate = among.map(|among| Certificate { axis, among });
+        if fact.certificate.is_none() {
+            fact.last = Last::Lit(path.ahead[path.ahead[p]]);
+        }
+        fact.certificate.is_some()
+    }
+}
+
+impl Fact {
+    /// Whether the facet's cone still holds the Sun at path position `p`; drops it if not.
+    fn holds(&mut self, path: &Path<'_>, p: usize) -> bool {
+        let held = |c: &Certificate| path.suns[c.axis].dot(path.suns[p]) >= path.cos_inside;
+        if !self.certificate.as_ref().is_some_and(held) {
+            self.certificate = None;
+        }
+        self.certificate.is_some()
     }
 }
 
 impl<'a> Path<'a> {
-    /// The Suns of `skies` in the order of their path, with their queries through `bvh`.
-    fn new(skies: &[Sky], bvh: &'a Bvh<'a>, mesh: &crate::mesh::Mesh) -> Path<'a> {
+    /// The Suns of `skies` in the order of their path, with their queries through `bvh`
+    /// and for a disk Sun its cones and its samples at `offsets` ([`disk_point`]).
+    fn new(skies: &[Sky], bvh: &'a Bvh<'a>, mesh: &Mesh, offsets: &[(f64, f64)]) -> Path<'a> {
         let steps = path_order(&skies.iter().map(|s| s.sun).collect::<Vec<_>>());
         let suns: Vec<DVec3> = steps.iter().map(|&k| skies[k].sun).collect();
         let queries = suns.iter().map(|&s| BvhRays::new(bvh, s)).collect();
+        let disks = match offsets.is_empty() {
+            true => Vec::new(),
+            false => (steps.iter())
+                .map(|&k| Cone::new(skies[k].sun, skies[k].radius))
+                .collect(),
+        };
+        let samples = (steps.iter())
+            .flat_map(|&k| offsets.iter().map(move |&offset| (&skies[k], offset)))
+            .map(|(sky, offset)| {
+                let s = disk_point(sky.sun, sky.radius, offset);
+                (s, BvhRays::new(bvh, s))
+            })
+            .collect();
         let turn = median_turn(&suns);
         let cone = (CONE_STEPS * turn).clamp(CONE_MIN, CONE_MAX);
         // A Sun counts as inside a little within the cone: its test is widened by far
         // more than this (`Bvh::near_cone`).
         let cos_inside = (cone * (1.0 - 1e-3)).cos();
         let ahead = cone_centres(&suns, cone);
+        let widest = skies.iter().map(|s| s.radius).fold(0.0, f64::max);
         Path {
             steps,
             suns,
             queries,
+            disks,
+            samples,
             neighbours: edge_neighbours(mesh),
             ahead,
-            cone,
             cos_inside,
             cones: cone_pays(turn),
+            listed: cone + widest,
         }
     }
 }

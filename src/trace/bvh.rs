@@ -596,6 +596,7 @@ impl Toward {
 }
 
 /// Shadow rays along one direction, answered by the tree.
+#[derive(Clone, Copy)]
 pub(crate) struct BvhRays<'b> {
     bvh: &'b Bvh<'b>,
     toward: Toward,
@@ -692,8 +693,22 @@ impl<'b> BvhRays<'b> {
     ) -> bool {
         // Only the exact tests: the boxes and screens that `ray` would also prepare
         // decide nothing here, and a ray missing the tree's sphere crosses no facet.
+        self.blocker_among(origin, t_min, skip, among).is_some()
+    }
+
+    /// [`BvhRays::blocked_among`] naming the first facet of `among` that blocks the ray.
+    pub(crate) fn blocker_among(
+        &self,
+        origin: DVec3,
+        t_min: f64,
+        skip: u32,
+        among: &[u32],
+    ) -> Option<u32> {
         let exact = self.exact(origin, t_min, skip);
-        among.iter().any(|&id| self.bvh.crosses(&exact, id))
+        among
+            .iter()
+            .copied()
+            .find(|&id| self.bvh.crosses(&exact, id))
     }
 
     /// The exact predicate's view of the ray from `origin` (the facet `skip` left out).
