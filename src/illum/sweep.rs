@@ -83,7 +83,7 @@ pub fn chunk_facets(steps: usize, facets: usize) -> usize {
 const LIST_MAX: usize = 8;
 
 /// Bytes a sweep over `steps` steps of `facets` facets holds: each thread's chunk of
-/// values and facts (for a disk Sun at most a blocker per sample and [`SCREENS_MAX`]
+/// values and facts (for a disk Sun at most a blocker per sample and 16
 /// screens per facet), the facets' neighbours across their edges (12 bytes each), and
 /// for a disk Sun of `disk_samples` samples each step's samples with their rays.
 pub fn sweep_bytes(steps: usize, facets: usize, disk_samples: Option<u32>) -> f64 {
