@@ -141,10 +141,15 @@ pub fn prepare(scene: &Scene, budget: &Budget, timings: &mut Timings) -> Result<
         &states[..computed],
         budget.remembered_blocker_bytes(),
     );
+    // A map must beat the steps taken facet by facet where the run would take them so.
+    let no_maps = vec![false; world.bodies.len()];
+    shadows.sweeps = sweeps_by_facet(scene, world, (&no_maps, computed, states.len()));
     let (horizon_maps, reasons): (Vec<bool>, Vec<String>) = shadows
         .choose(world, computed, scene.run.tracer)
         .into_iter()
         .unzip();
+    // Decided again below, with the maps and the tracer chosen.
+    shadows.sweeps = false;
     demand.horizon_map_bytes = shadows.map_bytes(world, &horizon_maps);
     let map_decisions = world
         .bodies

@@ -88,7 +88,8 @@ pub struct Shadows {
     pub recall: SunReturn,
     /// Whether the run takes its steps facet by facet along the Sun's path
     /// ([`crate::illum::Direct::sweep`]; the run's outputs and bodies decide:
-    /// `prepare`), so that no ray recalls blockers.
+    /// `prepare`), so that no ray recalls blockers. Before the maps are chosen: whether
+    /// it would without a map, which a map must then beat.
     pub sweeps: bool,
 }
 
@@ -205,6 +206,16 @@ const SAVED_S_PER_FACET_STEP: f64 = 0.37e-6;
 /// far apart leave sectors less). 0.032 lies between.
 const SAVED_OVER_BVH: (f64, f64) = (0.032e-6, 0.33e-6);
 
+/// What a map spares per facet and step over the BVH's rays where the run takes its
+/// steps facet by facet ([`Shadows::sweeps`]), for a point Sun and for a disk Sun of 32
+/// samples (CPU seconds). Whole runs of the true-hour year of Itokawa on 2 threads,
+/// the map cached against `shadows = "rays"` (2026-11-29): a disk Sun at 49k facets
+/// 8.4–8.5 s against 14.1–14.8 s, 0.028 µs; at 786k the map's run without its build
+/// 108 s against 382 s, 0.080 µs; the smaller is taken. A point Sun's sweep of that
+/// year at 786k took 65–75 s in all, its direct stage 0.018 µs per facet and step,
+/// less than the disk's map lookups (0.024 µs): a map spares it next to nothing.
+const SAVED_OVER_SWEEP: (f64, f64) = (0.002e-6, 0.028e-6);
+
 impl Shadows {
     /// Checks the settings, naming the key at fault.
     pub fn check(&self) -> std::result::Result<(), String> {
@@ -311,11 +322,18 @@ impl Shadows {
     /// What a map spares per facet and step over the rays `tracer` traces instead: for a
     /// point Sun one ray, for a disk Sun rays toward its samples. The Sun-view grid's
     /// disk rays are each about as dear as a point Sun's one (each is a direction of its
-    /// own). The BVH's are cheaper ([`SAVED_OVER_BVH`]); `auto` counts as the BVH, which
-    /// it takes for any run long enough for a map to pay.
+    /// own). The BVH's are cheaper ([`SAVED_OVER_BVH`]), and cheaper still where the run
+    /// would take its steps facet by facet without a map ([`Shadows::sweeps`] set
+    /// before the choice; [`SAVED_OVER_SWEEP`]); `auto` counts as the BVH, which it
+    /// takes for any run long enough for a map to pay.
     fn saved_s_per_facet_step(&self, tracer: TracerKind) -> f64 {
         let samples = self.sun_samples as f64;
+        let bvh = matches!(tracer, TracerKind::Bvh | TracerKind::Auto);
         match (tracer, self.sun) {
+            (_, SunShape::Point) if bvh && self.sweeps => SAVED_OVER_SWEEP.0,
+            (_, SunShape::Disk) if bvh && self.sweeps => {
+                SAVED_OVER_SWEEP.1 * samples / DEFAULT_SUN_SAMPLES as f64
+            }
             (TracerKind::Bvh | TracerKind::Auto, SunShape::Point) => SAVED_OVER_BVH.0,
             (TracerKind::Bvh | TracerKind::Auto, SunShape::Disk) => {
                 SAVED_OVER_BVH.1 * samples / DEFAULT_SUN_SAMPLES as f64
@@ -1446,6 +1464,34 @@ mod tests {
         assert!(auto(SunShape::Disk, disk).0);
         assert!(!auto(SunShape::Point, disk).0);
         assert!(auto(SunShape::Point, point.ceil() as usize).0);
+    }
+
+    /// Where the run would take its steps facet by facet, a map pays later still: a
+    /// disk Sun's year of hourly steps (8,760) at 49k facets no longer builds one.
+    #[test]
+    fn auto_builds_a_map_later_where_the_steps_are_swept() {
+        let body = floor_and_wall_body();
+        for sun in [SunShape::Point, SunShape::Disk] {
+            let by = |sweeps| Shadows {
+                method: ShadowMethod::Auto,
+                sun,
+                sweeps,
+                ..Shadows::default()
+            };
+            let even = |shadows: Shadows| {
+                (build_s_per_facet(&body) / shadows.saved_s_per_facet_step(TracerKind::Auto)).ceil()
+                    as usize
+            };
+            let (stepped, swept) = (even(by(false)), even(by(true)));
+            assert!(swept > 3 * stepped, "{sun:?}: {swept} against {stepped}");
+            assert!(by(false).choose_for(&body, stepped, TracerKind::Auto).0);
+            assert!(!by(true).choose_for(&body, stepped, TracerKind::Auto).0);
+            assert!(by(true).choose_for(&body, swept, TracerKind::Auto).0);
+        }
+        // A closed 49,152-facet body's map against a year of hourly disk Suns, swept.
+        let per_facet = 0.05e-3 + 0.29e-6 * 49_152f64.powf(2.0 / 3.0);
+        assert!(per_facet / SAVED_OVER_SWEEP.1 > 8_760.0);
+        assert!(per_facet / SAVED_OVER_BVH.1 < 8_760.0);
     }
 
     /// Against the BVH's rays (under `bvh` or `auto`) a map pays later: its bound and

@@ -83,9 +83,9 @@ pub fn chunk_facets(steps: usize, facets: usize) -> usize {
 const LIST_MAX: usize = 8;
 
 /// Bytes a sweep over `steps` steps of `facets` facets holds: each thread's chunk of
-/// values and facts (for a disk Sun at most a blocker per sample and 16
-/// screens per facet), the facets' neighbours across their edges (12 bytes each), and
-/// for a disk Sun of `disk_samples` samples each step's samples with their rays.
+/// values and facts (for a disk Sun at most a blocker per sample and 16 screens per
+/// facet), the facets' neighbours across their edges (12 bytes each), and for a disk
+/// Sun of `disk_samples` samples each step's samples with their rays.
 pub fn sweep_bytes(steps: usize, facets: usize, disk_samples: Option<u32>) -> f64 {
     let samples = f64::from(disk_samples.unwrap_or(0));
     let fact = std::mem::size_of::<Fact>() as f64
@@ -166,8 +166,9 @@ struct Path<'a> {
     /// it; no cones where the Suns stand too far apart for one to serve many steps.
     cos_inside: f64,
     cones: bool,
-    /// The cones' half-angle: [`Path::cone`] and the widest disk of the run (0 for a
-    /// point Sun), so that a cone serving a Sun holds its whole disk.
+    /// The cones' half-angle: how far a Sun may stand from a cone's axis (12 times the
+    /// Suns' median spacing, within [`CONE_MIN`] and [`CONE_MAX`]) and the widest disk of
+    /// the run (0 for a point Sun), so that a cone serving a Sun holds its whole disk.
     listed: f64,
 }
 
