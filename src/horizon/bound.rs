@@ -426,18 +426,11 @@ impl HorizonBound {
         let c = mesh.centroids[i];
         let tri = mesh.corners(id as usize);
         let gap = distance_to_triangle(c, &tri) - self.widening;
-        let u = tri.map(|p| (p - c).normalize());
-        let turn = |j: usize| u[j].dot(u[(j + 1) % 3].cross(u[(j + 2) % 3]));
-        let orientation = turn(0);
-        let turns_alike = (1..3).all(|j| turn(j) * orientation > 0.0);
-        if orientation == 0.0 || !orientation.is_finite() || !turns_alike || gap <= 0.0 {
-            return None;
-        }
-        let inward =
-            |j: usize| u[j].cross(u[(j + 1) % 3]).normalize_or_zero() * orientation.signum();
+        let (directions, orientation) = seen_outline(c, &tri).filter(|_| gap > 0.0)?;
+        let u = &directions[..3];
         Some(Screen {
-            corners: u,
-            inward: [inward(0), inward(1), inward(2)],
+            corners: [u[0], u[1], u[2]],
+            inward: [0, 1, 2].map(|j| inward(u, j, orientation)),
             beyond: gap,
             spare: self.widening / gap,
         })
@@ -902,8 +895,21 @@ const PAIRED_MAX: usize = 8;
 /// way at every corner makes the polygon convex. At most four corners.
 fn covers(c: DVec3, cone: (DVec3, f64), outline: &[DVec3], spare: f64) -> bool {
     let (axis, sin_half) = cone;
+    let Some((directions, orientation)) = seen_outline(c, outline) else {
+        return false;
+    };
+    let u = &directions[..outline.len()];
+    u.iter().all(|d| axis.dot(*d) > 0.0)
+        && (0..u.len()).all(|j| axis.dot(inward(u, j, orientation)) > sin_half + spare)
+}
+
+/// The unit directions from `c` toward the corners of `outline` (3 or 4, in order
+/// around it; the first `outline.len()` of the array) and the sign of their turn, when
+/// they turn the same way at every corner; `None` when they do not, or the outline is
+/// seen edge-on.
+fn seen_outline(c: DVec3, outline: &[DVec3]) -> Option<([DVec3; 4], f64)> {
     // A triangle or a quadrilateral: the directions kept on the stack.
-    assert!(outline.len() <= 4, "covers takes 3 or 4 corners");
+    assert!(outline.len() <= 4, "an outline has 3 or 4 corners");
     let mut directions = [DVec3::ZERO; 4];
     let k = outline.len();
     for (d, &p) in directions.iter_mut().zip(outline) {
@@ -912,14 +918,17 @@ fn covers(c: DVec3, cone: (DVec3, f64), outline: &[DVec3], spare: f64) -> bool {
     let u = &directions[..k];
     let turn = |j: usize| u[j].dot(u[(j + 1) % k].cross(u[(j + 2) % k]));
     let orientation = turn(0);
-    if orientation == 0.0 || !orientation.is_finite() || u.iter().any(|d| axis.dot(*d) <= 0.0) {
-        return false;
-    }
-    (1..k).all(|j| turn(j) * orientation > 0.0)
-        && (0..k).all(|j| {
-            let inward = u[j].cross(u[(j + 1) % k]).normalize_or_zero() * orientation.signum();
-            axis.dot(inward) > sin_half + spare
-        })
+    let convex = orientation != 0.0
+        && orientation.is_finite()
+        && (1..k).all(|j| turn(j) * orientation > 0.0);
+    convex.then_some((directions, orientation.signum()))
+}
+
+/// The unit normal, toward the inside, of the plane through the point and edge `j` of
+/// an outline seen from it as the unit directions `u`, turning with sign `orientation`
+/// ([`seen_outline`]).
+fn inward(u: &[DVec3], j: usize, orientation: f64) -> DVec3 {
+    u[j].cross(u[(j + 1) % u.len()]).normalize_or_zero() * orientation
 }
 
 /// The outline of triangles `a` and `b` when they share exactly one edge: its ends and
