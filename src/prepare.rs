@@ -142,13 +142,13 @@ pub fn prepare(scene: &Scene, budget: &Budget, timings: &mut Timings) -> Result<
         budget.remembered_blocker_bytes(),
     );
     // A map must beat the steps taken facet by facet where the run would take them so.
-    let no_maps = vec![false; world.bodies.len()];
-    shadows.sweeps = sweeps_by_facet(scene, world, (&no_maps, computed, states.len()));
+    let sweepable = sweeps_by_facet(scene, world, (computed, states.len()));
+    shadows.sweeps = sweepable;
     let (horizon_maps, reasons): (Vec<bool>, Vec<String>) = shadows
         .choose(world, computed, scene.run.tracer)
         .into_iter()
         .unzip();
-    // Decided again below, with the maps and the tracer chosen.
+    // Decided below, with the maps and the tracer chosen.
     shadows.sweeps = false;
     demand.horizon_map_bytes = shadows.map_bytes(world, &horizon_maps);
     let map_decisions = world
@@ -178,7 +178,7 @@ pub fn prepare(scene: &Scene, budget: &Budget, timings: &mut Timings) -> Result<
             bound_detail_for_run(world, &horizon_maps, steps, shadows.disk_samples());
         shadows.bound_detail = detail;
         why = format!("{why}; {reason}");
-        shadows.sweeps = sweeps_by_facet(scene, world, (&horizon_maps, computed, states.len()));
+        shadows.sweeps = sweepable && !horizon_maps.first().copied().unwrap_or(false);
         if shadows.sweeps {
             // No block of steps is held, nor rows of recalled blockers.
             demand.block_values = 0.0;
@@ -221,21 +221,17 @@ pub fn prepare(scene: &Scene, budget: &Budget, timings: &mut Timings) -> Result<
     })
 }
 
-/// Whether the run takes its steps facet by facet ([`crate::illum::Direct::sweep`]): one
-/// body that shadows itself through the BVH tracer's bound (toward a point Sun or a
-/// disk), every step computed (no repeats), and nothing that needs a step's values for all facets at
-/// once (history, scattered light, spectral bands).
-fn sweeps_by_facet(
-    scene: &Scene,
-    world: &World,
-    (maps, computed, steps): (&[bool], usize, usize),
-) -> bool {
+/// Whether the run would take its steps facet by facet ([`crate::illum::Direct::sweep`])
+/// unless its body reads a horizon map: one body that shadows itself (through the BVH
+/// tracer's bound, toward a point Sun or a disk), every step computed (no repeats), and
+/// nothing that needs a step's values for all facets at once (history, scattered light,
+/// spectral bands).
+fn sweeps_by_facet(scene: &Scene, world: &World, (computed, steps): (usize, usize)) -> bool {
     let [body] = world.bodies.as_slice() else {
         return false;
     };
     let per_step_outputs = scene.output.history || !scene.bands.is_empty();
     !body.convex
-        && !maps.first().copied().unwrap_or(false)
         && !scene.scatter.as_ref().is_some_and(|s| s.enabled)
         && !per_step_outputs
         && computed == steps
