@@ -88,7 +88,7 @@ const LIST_MAX: usize = 8;
 /// Sun of `disk_samples` samples each step's samples with their rays.
 pub fn sweep_bytes(steps: usize, facets: usize, disk_samples: Option<u32>) -> f64 {
     let samples = f64::from(disk_samples.unwrap_or(0));
-    let fact = std::mem::size_of::<Fact>() as f64
+    let fact = size_of::<Fact>() as f64
         + match disk_samples {
             Some(_) => 4.0 * samples + (SCREENS_MAX * size_of::<(u32, Option<Screen>)>()) as f64,
             None => 0.0,
