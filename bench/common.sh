@@ -51,8 +51,10 @@ TOML
 }
 
 # hourly_scene NAME MESH STEPS [RUN_LINE]: the body of spin_scene (Parquet only) under a
-# fixed geometry that lists the Sun of STEPS true hours of its 12.13 h spin, in the
-# body's frame (the spin turns the Sun by -2π·t/P about the z axis).
+# fixed geometry that lists the Sun of STEPS true hours of its spin, in the body's frame
+# (the spin turns the Sun by -2π·t/P about the z axis). P is Itokawa's measured
+# 12.132371 h, not the spin scene's 12.13 h: 12.13 h is 1,213 hours to 100 spins, so a
+# year would list each of 1,213 Suns about 7 times.
 hourly_scene() {
   cat <<TOML
 [run]
@@ -67,7 +69,7 @@ step_s = 3600.0
 TOML
   python3 - "$3" <<'PY'
 import math, sys
-lat, period_h = math.radians(15.0), 12.13
+lat, period_h = math.radians(15.0), 12.132371
 for k in range(int(sys.argv[1])):
     turn = -2.0 * math.pi * k / period_h
     x, y, z = math.cos(lat) * math.cos(turn), math.cos(lat) * math.sin(turn), math.sin(lat)

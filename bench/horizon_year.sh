@@ -11,10 +11,12 @@
 # PERIODS=730 each spin repeats the first bit for bit, and the run computes the light of
 # one spin and hands it on (docs/scene.md, "Repeated steps").
 #
-# HOURS=1 lists instead the Sun of every true hour of the 12.13 h spin (8,760 Suns of a
-# fixed geometry, the same 1.1 AU and 15° sub-solar latitude): the spin then fits no
-# whole number of steps, and 12 steps back the Sun stands 3.7° from where it stood, not
-# 0.02° as in the spin scene, as on a real orbit.
+# HOURS=1 lists instead the Sun of every true hour of Itokawa's 12.132371 h spin (8,760
+# Suns of a fixed geometry, the same 1.1 AU and 15° sub-solar latitude): the spin then
+# fits no whole number of steps, and 12 steps back the Sun stands 3.9° from where it
+# stood, not 0.02° as in the spin scene, as on a real orbit. (Until 2026-11-29 this used
+# the spin scene's 12.13 h, which is 1,213 hours to 100 spins: the year's Suns were 1,213
+# directions, each listed about 7 times, bit for bit but for rounding.)
 #
 # The map is kept in bench/results/horizon-year-cache between invocations (its key
 # follows the mesh, the settings and the map's source), so the first run of a fresh

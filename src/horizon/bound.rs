@@ -46,6 +46,7 @@ use super::geometry::{
 };
 use super::map::{in_seeded_runs, ZenithLine};
 use super::outline::{turned_outward, Outline};
+use crate::mesh::inspect::NO_NEIGHBOUR;
 use crate::mesh::Mesh;
 use crate::trace::bvh::Bvh;
 use glam::DVec3;
@@ -434,6 +435,87 @@ impl HorizonBound {
             beyond: gap,
             spare: self.widening / gap,
         })
+    }
+
+    /// The distance (metres, less the rounding) past which a patch of facets joined
+    /// across their edges to facet `seed` covers the whole `cone` seen from facet `i`'s
+    /// centroid (`neighbours`: each facet's neighbour across each edge,
+    /// [`crate::mesh::inspect::edge_neighbours`]); `None` when that is not shown with at
+    /// most `most` facets.
+    ///
+    /// The patch grows from `seed` across every edge that comes into the cone (rounding
+    /// included), so that every edge where it ends lies outside the cone. Seen from the
+    /// centroid, the patch's outline can then cross the cone only at a fold: an edge
+    /// whose two facets lie on one side of the plane through the centroid and the edge.
+    /// Where no fold comes into the cone either, the patch covers all of the cone or
+    /// none of it, and all of it when the axis lies inside one of its facets. A ray
+    /// within the cone then crosses a facet of the patch by the tracers' predicate too,
+    /// which gives two facets sharing an edge exactly opposite edge values
+    /// (`crate::trace::ray`), so that no ray slips between them. An edge into the cone
+    /// on the mesh's rim, or on facet `i` (whose rays leave it out), ends the search.
+    pub fn patch_cover(
+        &self,
+        mesh: &Mesh,
+        neighbours: &[[u32; 3]],
+        (i, cone): (usize, &Cone),
+        seed: u32,
+        most: usize,
+    ) -> Option<f64> {
+        let c = mesh.centroids[i];
+        // The facet's own edges lie in its plane.
+        if mesh.normals[i].dot(cone.axis) <= cone.sin_half + SIN_MARGIN {
+            return None;
+        }
+        let mut patch = Vec::with_capacity(most);
+        let mut gap = f64::INFINITY;
+        let mut join = |id: u32, patch: &mut Vec<(u32, f64)>| {
+            let beyond = distance_to_triangle(c, &mesh.corners(id as usize)) - self.widening;
+            // A facet of no area is left out by the tracers: it would leave a gap.
+            let joins = patch.len() < most && beyond > 0.0 && mesh.areas[id as usize] > 0.0;
+            gap = gap.min(beyond);
+            patch.push((id, beyond));
+            joins
+        };
+        if !join(seed, &mut patch) {
+            return None;
+        }
+        let mut next = 0;
+        while let Some(&(m, beyond)) = patch.get(next) {
+            next += 1;
+            let tri = mesh.corners(m as usize);
+            // The rounding, as an angle seen from the centroid (a sine).
+            let spare = self.widening / beyond;
+            for (k, &across) in neighbours[m as usize].iter().enumerate() {
+                let edge = (tri[k], tri[(k + 1) % 3]);
+                let member = patch.iter().find(|(id, _)| *id == across).copied();
+                let holds = match member {
+                    // Two facets of the patch: an edge, unless they fold over it.
+                    Some((_, other)) => {
+                        let far = |p: &&DVec3| **p != edge.0 && **p != edge.1;
+                        let x = mesh.corners(across as usize).iter().find(far).copied();
+                        x.is_some_and(|x| opposite_sides(c, edge, tri[(k + 2) % 3], x))
+                            || edge_clear_of_cone(c, edge, cone, spare.max(self.widening / other))
+                    }
+                    None if edge_clear_of_cone(c, edge, cone, spare) => true,
+                    // The edge comes into the cone: the facet across must join.
+                    None => {
+                        across != NO_NEIGHBOUR && across as usize != i && join(across, &mut patch)
+                    }
+                };
+                if !holds {
+                    return None;
+                }
+            }
+        }
+        let covered = (patch.iter()).any(|&(m, beyond)| {
+            covers(
+                c,
+                (cone.axis, 0.0),
+                &mesh.corners(m as usize),
+                self.widening / beyond,
+            )
+        });
+        covered.then_some(gap)
     }
 
     /// True when a Sun along the unit vector `sun`, at `sin_elevation` (n·s) above the
@@ -931,6 +1013,45 @@ fn inward(u: &[DVec3], j: usize, orientation: f64) -> DVec3 {
     u[j].cross(u[(j + 1) % u.len()]).normalize_or_zero() * orientation
 }
 
+/// Whether `x` and `y` lie on opposite sides of the plane through `c` and the edge `a`–`b`,
+/// each farther from it than the rounding: seen from `c`, the two triangles sharing the
+/// edge then lie on either side of it.
+fn opposite_sides(c: DVec3, (a, b): (DVec3, DVec3), x: DVec3, y: DVec3) -> bool {
+    let plane = (a - c).cross(b - c);
+    let side = |p: DVec3| {
+        let s = plane.dot(p - c);
+        // Far beyond the few units in the last place these products can be off by.
+        let noise = 1e-9 * plane.length() * (p - c).length();
+        match s.abs() > noise {
+            true => s.signum(),
+            false => 0.0,
+        }
+    };
+    side(x) * side(y) < 0.0
+}
+
+/// Whether the segment `a`–`b`, seen from `c`, stays farther from `cone`'s axis than its
+/// half-angle, by more than `spare` (a sine, the rounding) and a little more.
+fn edge_clear_of_cone(c: DVec3, (a, b): (DVec3, DVec3), cone: &Cone, spare: f64) -> bool {
+    let (ua, ub) = ((a - c).normalize(), (b - c).normalize());
+    let Some(pole) = ua.cross(ub).try_normalize() else {
+        return false;
+    };
+    let axis = cone.axis;
+    // The point of the segment's great circle nearest the axis, when it lies between
+    // the ends (the shorter arc from `ua` to `ub` turns positively about `pole`).
+    let foot = axis - pole * axis.dot(pole);
+    let between = ua.cross(foot).dot(pole) >= 0.0 && foot.cross(ub).dot(pole) >= 0.0;
+    let nearest_cos = match between {
+        true => foot.length(),
+        false => axis.dot(ua).max(axis.dot(ub)),
+    };
+    // The cosine of the half-angle widened by `spare` twice and a margin, from below:
+    // cos(h + d) >= cos h (1 - d²/2) - sin h d.
+    let d = 2.0 * spare + SIN_MARGIN;
+    nearest_cos < cone.cos_half * (1.0 - 0.5 * d * d) - cone.sin_half * d
+}
+
 /// The outline of triangles `a` and `b` when they share exactly one edge: its ends and
 /// the two other corners, in order around the quadrilateral.
 fn quadrilateral(a: &[DVec3; 3], b: &[DVec3; 3]) -> Option<[DVec3; 4]> {
@@ -950,7 +1071,7 @@ mod tests {
     use crate::mesh::generate::{floor_and_wall, icosphere};
     use crate::mesh::LengthUnit;
     use crate::trace::bvh::BvhRays;
-    use crate::trace::Tracer;
+    use crate::trace::{ShadowQuery, Tracer};
 
     /// A floor (two triangles, z = 0) and a vertical wall of height `h` along x = `wall_x`,
     /// wide enough that the top edge's nearest point is straight across from the floor
@@ -1149,12 +1270,7 @@ mod tests {
             };
             let c = mesh.centroids[i];
             let [a, b, d] = mesh.corners(id as usize);
-            let (u, v) = (rng.unit(), rng.unit());
-            let (u, v) = if u + v > 1.0 {
-                (1.0 - u, 1.0 - v)
-            } else {
-                (u, v)
-            };
+            let (u, v) = in_triangle(&mut rng);
             let inside = a + u * (b - a) + v * (d - a);
             let on_edge = a + u * (b - a);
             // Across the edge a→b within the triangle's plane, outward.
@@ -1355,6 +1471,81 @@ mod tests {
         assert_eq!(sector(-1.0, 0.0), Some(SECTORS / 2));
         assert_eq!(sector(1.0, -1e-12), Some(SECTORS - 1));
         assert_eq!(sector_of(n, DVec3::new(1e-9, 0.0, 1.0).normalize()), None);
+    }
+
+    /// Rough terrain, from random facets toward random points of other facets, cones of
+    /// 0.1° to 12°: wherever a patch is said to cover a cone, every ray within it (inside,
+    /// and on its rim) is blocked past the distance given, for the BVH's exact rays
+    /// through the whole mesh; the seed is the facet the axis points at, or any. Many
+    /// covers are shown, among them cones that neither one facet nor a pair covers (the
+    /// tree's view is partial), and many are refused.
+    #[test]
+    fn a_cone_a_patch_covers_is_blocked_for_every_ray() {
+        let mesh = Mesh::from_raw(
+            crate::mesh::generate::height_field((28, 28), (-10.0, 10.0), (-10.0, 10.0), |x, y| {
+                2.5 * (x / 2.3).sin() * (y / 3.1).cos() + 0.3 * x
+            }),
+            LengthUnit::M,
+        );
+        let bvh = Bvh::build(&mesh);
+        let bound = HorizonBound::new(&mesh, mesh.len(), &bvh, BoundDetail::Whole);
+        let neighbours = crate::mesh::inspect::edge_neighbours(&mesh);
+        let mut rng = crate::TestRng::new(11);
+        let (mut covered, mut beyond_pairs, mut refused) = (0, 0, 0);
+        for _ in 0..8000 {
+            let i = (rng.unit() * mesh.len() as f64) as usize;
+            let id = (rng.unit() * mesh.len() as f64) as u32;
+            let [a, b, d] = mesh.corners(id as usize);
+            let (u, v) = in_triangle(&mut rng);
+            let c = mesh.centroids[i];
+            let axis = (a + u * (b - a) + v * (d - a) - c).normalize();
+            let half = (0.1 + 11.9 * rng.unit() * rng.unit()).to_radians();
+            let cone = Cone::new(axis, half);
+            // Every other seed anywhere: most often its patch lies wholly outside the cone.
+            let seed = match rng.unit() < 0.5 {
+                true => id,
+                false => (rng.unit() * mesh.len() as f64) as u32,
+            };
+            let Some(gap) = bound.patch_cover(&mesh, &neighbours, (i, &cone), seed, 128) else {
+                refused += 1;
+                continue;
+            };
+            covered += 1;
+            let view = bound.cone_view(&mesh, &bvh, i, &cone, 0.0);
+            beyond_pairs += matches!(view, ConeView::Partial(_)) as usize;
+            let across = axis.any_orthonormal_pair();
+            for k in 0..64 {
+                // Half the rays on the cone's rim, a hair inside it.
+                let r = match k % 2 {
+                    0 => half * (1.0 - 1e-9),
+                    _ => half * rng.unit().sqrt(),
+                };
+                let turn = std::f64::consts::TAU * rng.unit();
+                let side = across.0 * turn.cos() + across.1 * turn.sin();
+                let dir = (axis * r.cos() + side * r.sin()).normalize();
+                let t_min = gap * rng.unit();
+                let blocked = BvhRays::new(&bvh, dir).blocked(c, t_min, Some(i as u32));
+                assert!(blocked, "facet {i}, seed {seed}, half {half}, ray {k}");
+            }
+        }
+        assert!(
+            covered > 500 && refused > 500,
+            "{covered} covered, {refused} refused"
+        );
+        assert!(
+            beyond_pairs > 50,
+            "{beyond_pairs} covers beyond one facet or a pair"
+        );
+    }
+
+    /// Random coordinates (u, v) along two edges of a triangle from one corner, uniform
+    /// over the triangle.
+    fn in_triangle(rng: &mut crate::TestRng) -> (f64, f64) {
+        let (u, v) = (rng.unit(), rng.unit());
+        match u + v > 1.0 {
+            true => (1.0 - u, 1.0 - v),
+            false => (u, v),
+        }
     }
 
     fn rough_terrain() -> Mesh {

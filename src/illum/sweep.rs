@@ -30,7 +30,10 @@
 //! - a facet all of whose samples were blocked keeps each sample's blocker, and while
 //!   every sample above its plane is blocked still (by that blocker seen as a
 //!   [`Screen`], or one found by a walk from it) its share is 0, as the step loop's
-//!   tally gives it.
+//!   tally gives it;
+//! - such a facet also looks for a patch of facets joined across their edges to a
+//!   blocker that covers a whole cone around the Sun ([`HorizonBound::patch_cover`]):
+//!   while the disk stays within it, its share is 0 without a sample.
 //!
 //! Every answer is the tracer's, bit for bit, and so are the statistics
 //! ([`FacetRun::add_steps`] adds each facet's steps in time order).
@@ -140,7 +143,23 @@ struct Fact {
     /// The blockers of [`Fact::dark`] as screens seen from the facet, set up once for
     /// the many steps and samples they serve (at most [`SCREENS_MAX`]).
     screens: Vec<(u32, Option<Screen>)>,
+    /// Under a disk Sun, facets joined across their edges that cover a cone around it.
+    cover: Option<Cover>,
+    /// The path position from which a cover is looked for again after one was not found.
+    cover_from: usize,
 }
+
+/// A patch of facets covering, seen from a facet, a cone centred on the Sun at path
+/// position `axis` ([`HorizonBound::patch_cover`]), as wide as a certificate's: every
+/// ray within it is blocked by a facet farther than `beyond` metres.
+struct Cover {
+    axis: usize,
+    beyond: f64,
+}
+
+/// The most facets a patch covering a cone may hold ([`Fact::cover`]): on the 786k
+/// Itokawa, a cone of 0.7° was covered by about 17 facets on average.
+const PATCH_MAX: usize = 128;
 
 /// The most blockers a facet keeps as screens ([`Fact::screens`]).
 const SCREENS_MAX: usize = 16;
@@ -364,7 +383,12 @@ impl Direct<'_> {
         for ray in rays {
             let j = ray.facet as usize - chunk.facets.first;
             let fact = &mut facts[j];
-            let (share, answered) = match self.still_dark(chunk, fact, ray, p) {
+            let remembered = self.still_covered(chunk, fact, ray, p).or_else(|| {
+                let answered = self.still_dark(chunk, fact, ray, p)?;
+                self.find_cover(chunk, fact, ray, p);
+                Some(answered)
+            });
+            let (share, answered) = match remembered {
                 Some(answered) => {
                     counts.remembered += 1;
                     (0.0, answered)
@@ -375,6 +399,7 @@ impl Direct<'_> {
                         self.share_in_view(chunk.facets.body, ray, &view, samples());
                     if let (ConeView::Partial(among), 0.0) = (&view, share) {
                         self.learn_dark(chunk, fact, ray, p, among);
+                        self.find_cover(chunk, fact, ray, p);
                     }
                     (share, answered)
                 }
@@ -424,6 +449,54 @@ impl Direct<'_> {
         if let Some(blockers) = blockers {
             fact.dark = blockers;
             fact.last = Last::Dark;
+        }
+    }
+
+    /// For a facet with a cover ([`Fact::cover`]): whether it holds the disk Sun at path
+    /// position `p`, wholly above the facet's plane and its samples' rays reaching past
+    /// the cover's distance; then every sample is blocked, the share is 0, as the step
+    /// loop's tally gives it, and the samples (all answered) are returned. A cover that
+    /// no longer holds is dropped.
+    fn still_covered(
+        &self,
+        chunk: &Chunk<'_>,
+        fact: &mut Fact,
+        ray: &ShadowRay,
+        p: usize,
+    ) -> Option<u64> {
+        let cover = fact.cover.as_ref()?;
+        let path = chunk.path;
+        let sky = &chunk.skies[path.steps[p]];
+        let beyond = self.disk_beyond(chunk.facets.body, ray.facet as usize, (sky.sun, sky.radius));
+        let held =
+            path.suns[cover.axis].dot(path.suns[p]) >= path.cos_inside && beyond < cover.beyond;
+        if !held {
+            fact.cover = None;
+            return None;
+        }
+        Some(self.disk_samples.len() as u64)
+    }
+
+    /// Looks for a cover ([`Fact::cover`]) of a cone centred a little ahead of path
+    /// position `p` for a facet whose samples were all blocked there ([`Last::Dark`]),
+    /// by the facets joined to a blocker of theirs; where none is found, not again
+    /// until the Sun has moved on by the cone's width.
+    fn find_cover(&self, chunk: &Chunk<'_>, fact: &mut Fact, ray: &ShadowRay, p: usize) {
+        let path = chunk.path;
+        if !path.cones || p < fact.cover_from || !matches!(fact.last, Last::Dark) {
+            return;
+        }
+        let Some(&seed) = fact.dark.iter().find(|&&id| id != u32::MAX) else {
+            return;
+        };
+        let axis = path.ahead[p];
+        let cone = Cone::new(path.suns[axis], path.listed);
+        let i = ray.facet as usize;
+        let found =
+            (chunk.bound).patch_cover(chunk.mesh, &path.neighbours, (i, &cone), seed, PATCH_MAX);
+        fact.cover = found.map(|beyond| Cover { axis, beyond });
+        if fact.cover.is_none() {
+            fact.cover_from = path.ahead[path.ahead[p]];
         }
     }
 
