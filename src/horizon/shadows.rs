@@ -208,13 +208,13 @@ const SAVED_OVER_BVH: (f64, f64) = (0.032e-6, 0.33e-6);
 
 /// What a map spares per facet and step over the BVH's rays where the run takes its
 /// steps facet by facet ([`Shadows::sweeps`]), for a point Sun and for a disk Sun of 32
-/// samples (CPU seconds). Whole runs of the true-hour year of Itokawa on 2 threads,
-/// the map cached against `shadows = "rays"` (2026-11-29): a disk Sun at 49k facets
-/// 8.4–8.5 s against 14.1–14.8 s, 0.028 µs; at 786k the map's run without its build
-/// 108 s against 382 s, 0.080 µs; the smaller is taken. A point Sun's sweep of that
-/// year at 786k took 65–75 s in all, its direct stage 0.018 µs per facet and step,
-/// less than the disk's map lookups (0.024 µs): a map spares it next to nothing.
-const SAVED_OVER_SWEEP: (f64, f64) = (0.002e-6, 0.028e-6);
+/// samples (CPU seconds). Whole runs of the true-hour year of Itokawa (12.132371 h spin,
+/// `bench/common.sh`'s `hourly_scene`) on 2 threads, the map cached against
+/// `shadows = "rays"` (2026-11-29, early morning): a disk Sun at 49k facets 8.13–8.14 s
+/// against 12.09–12.28 s, 0.019 µs; at 786k 114.1 s against 449.5 s, 0.097 µs; the
+/// smaller is taken. A point Sun's sweep of that year at 786k took 55.6 s in all, less
+/// than the disk's map lookups alone: a map spares it next to nothing.
+const SAVED_OVER_SWEEP: (f64, f64) = (0.002e-6, 0.019e-6);
 
 impl Shadows {
     /// Checks the settings, naming the key at fault.
