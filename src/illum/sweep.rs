@@ -383,11 +383,8 @@ impl Direct<'_> {
         for ray in rays {
             let j = ray.facet as usize - chunk.facets.first;
             let fact = &mut facts[j];
-            let remembered = self.still_covered(chunk, fact, ray, p).or_else(|| {
-                let answered = self.still_dark(chunk, fact, ray, p)?;
-                self.find_cover(chunk, fact, ray, p);
-                Some(answered)
-            });
+            let remembered = (self.still_covered(chunk, fact, ray, p))
+                .or_else(|| self.still_dark(chunk, fact, ray, p));
             let (share, answered) = match remembered {
                 Some(answered) => {
                     counts.remembered += 1;
@@ -399,11 +396,13 @@ impl Direct<'_> {
                         self.share_in_view(chunk.facets.body, ray, &view, samples());
                     if let (ConeView::Partial(among), 0.0) = (&view, share) {
                         self.learn_dark(chunk, fact, ray, p, among);
-                        self.find_cover(chunk, fact, ray, p);
                     }
                     (share, answered)
                 }
             };
+            if fact.cover.is_none() {
+                self.find_cover(chunk, fact, ray, p);
+            }
             counts.rays += answered;
             out[j] *= share;
             counts.shadowed += (out[j] == 0.0) as u64;
@@ -478,7 +477,8 @@ impl Direct<'_> {
     }
 
     /// Looks for a cover ([`Fact::cover`]) of a cone centred a little ahead of path
-    /// position `p` for a facet whose samples were all blocked there ([`Last::Dark`]),
+    /// position `p` for a facet whose samples were all blocked there ([`Last::Dark`]:
+    /// kept dark, or found so by the tally; nothing for any other facet),
     /// by the facets joined to a blocker of theirs; where none is found, not again
     /// until the Sun has moved on by the cone's width.
     fn find_cover(&self, chunk: &Chunk<'_>, fact: &mut Fact, ray: &ShadowRay, p: usize) {
