@@ -68,6 +68,8 @@ const SWITCHES: &[&str] = &["--folded"];
 struct Memory {
     hwm_mb: f64,
     rss_mb: f64,
+    /// Bytes allocated and not yet freed ([`heap::live_bytes`]), MB.
+    heap_mb: f64,
 }
 
 impl Memory {
@@ -75,11 +77,83 @@ impl Memory {
         Memory {
             hwm_mb: common::proc_status_mb("VmHWM:"),
             rss_mb: common::proc_status_mb("VmRSS:"),
+            heap_mb: heap::live_bytes() as f64 / (1024.0 * 1024.0),
         }
     }
 
+    /// [`Memory::now`] once the allocator has handed the build's freed temporaries back
+    /// to the system, so that the resident growth is what the structures keep (the
+    /// peer's side does the same).
+    fn settled() -> Memory {
+        heap::release_free();
+        Memory::now()
+    }
+
     fn json(self) -> serde_json::Value {
-        serde_json::json!({ "vm_hwm_mb": self.hwm_mb, "vm_rss_mb": self.rss_mb })
+        serde_json::json!({
+            "vm_hwm_mb": self.hwm_mb,
+            "vm_rss_mb": self.rss_mb,
+            "heap_mb": self.heap_mb,
+        })
+    }
+}
+
+/// The process's heap as the memory figures need it: the bytes allocated and not freed
+/// (counted by a wrapper around the system allocator, exact whatever the allocator keeps
+/// for reuse), and a way to give freed memory back. The library forbids `unsafe`; a
+/// global allocator and a C call need it, so they live here, in the benchmark only.
+mod heap {
+    use std::alloc::{GlobalAlloc, Layout, System};
+    use std::sync::atomic::{AtomicUsize, Ordering};
+
+    static LIVE: AtomicUsize = AtomicUsize::new(0);
+
+    /// The system allocator, counting what is held.
+    struct Counting;
+
+    // SAFETY: every call is passed to `System` unchanged; the counter is only arithmetic.
+    unsafe impl GlobalAlloc for Counting {
+        unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
+            LIVE.fetch_add(layout.size(), Ordering::Relaxed);
+            System.alloc(layout)
+        }
+        unsafe fn alloc_zeroed(&self, layout: Layout) -> *mut u8 {
+            LIVE.fetch_add(layout.size(), Ordering::Relaxed);
+            System.alloc_zeroed(layout)
+        }
+        unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
+            LIVE.fetch_sub(layout.size(), Ordering::Relaxed);
+            System.dealloc(ptr, layout)
+        }
+        unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
+            LIVE.fetch_add(new_size, Ordering::Relaxed);
+            LIVE.fetch_sub(layout.size(), Ordering::Relaxed);
+            System.realloc(ptr, layout, new_size)
+        }
+    }
+
+    #[global_allocator]
+    static GLOBAL: Counting = Counting;
+
+    /// Bytes allocated and not yet freed.
+    pub fn live_bytes() -> usize {
+        LIVE.load(Ordering::Relaxed)
+    }
+
+    /// Returns the heap's free pages to the system (glibc's `malloc_trim`; a no-op
+    /// elsewhere), so that resident memory counts what is held, not what was.
+    pub fn release_free() {
+        #[cfg(all(target_os = "linux", target_env = "gnu"))]
+        {
+            extern "C" {
+                fn malloc_trim(pad: usize) -> i32;
+            }
+            // SAFETY: glibc's malloc_trim takes a byte count and touches only the heap's
+            // free lists.
+            unsafe {
+                malloc_trim(0);
+            }
+        }
     }
 }
 
@@ -191,7 +265,7 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
     println!("slim: {label}: {facets} facets, {steps} steps, {threads} threads");
 
     let tracer: String = options.value("--tracer", "sunview".to_string())?;
-    let before_build = Memory::now();
+    let before_build = Memory::settled();
     let build_t0 = Instant::now();
     // The earlier step whose blockers the rays recall, as `slim run` finds it.
     let recall = recall_for_run(
@@ -234,7 +308,7 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
         }
     };
     let build_s = build_t0.elapsed().as_secs_f64();
-    let after_build = Memory::now();
+    let after_build = Memory::settled();
     let min_height: Vec<f64> = (0..facets).map(|i| direct.t_min(0, i, 1.0)).collect();
 
     // Everything the loop writes is allocated and touched before the "before" reading,
@@ -398,7 +472,9 @@ struct Summary<'a> {
 /// `night_facet_steps`, `above_horizon_facet_steps` (answered by the horizon bound, no
 /// ray), `remembered_facet_steps` (shadowed rays whose blocker the walk from the step
 /// before's found, no tree); memory `before_loop` and `after_loop` (VmHWM = peak, VmRSS = current, MB),
-/// their growth, and `build_rss_growth_mb` (the tracer's structures built once).
+/// their growth, and the growth over the build (the tracer's structures built once):
+/// `build_rss_growth_mb`, resident, read after the build's freed temporaries went back
+/// to the system, and `build_heap_growth_mb`, the bytes allocated and held.
 fn summary(s: &Summary<'_>) -> serde_json::Value {
     let body = &s.world.bodies[0];
     let min_ms = s.step_ms.iter().copied().fold(f64::INFINITY, f64::min);
@@ -429,6 +505,7 @@ fn summary(s: &Summary<'_>) -> serde_json::Value {
             "hwm_growth_mb": s.after.hwm_mb - s.before.hwm_mb,
             "rss_growth_mb": s.after.rss_mb - s.before.rss_mb,
             "build_rss_growth_mb": s.build.1.rss_mb - s.build.0.rss_mb,
+            "build_heap_growth_mb": s.build.1.heap_mb - s.build.0.heap_mb,
         },
     })
 }

@@ -94,7 +94,9 @@ pub struct Direct<'w> {
     /// Equal-flux points of the disk (units of its radius) that sample the share a mesh
     /// hides: another body's, or the body's own where no horizon map decides.
     disk_samples: Vec<(f64, f64)>,
-    min_height_m: Vec<Vec<f64>>,
+    /// Per body and facet, `h_min` (module doc) in metres, held as the nearest `f32` not
+    /// below it: half the memory, and a guard higher by a part in 10⁷ at most.
+    min_height_m: Vec<Vec<f32>>,
     offsets: Vec<usize>,
     /// Per body, whether its own irradiance is needed (false: it only casts shadows and
     /// nothing reads its facets' light; they stay at 0).
@@ -1094,7 +1096,7 @@ impl<'w> Direct<'w> {
     /// The least distance along the Sun ray at which a hit on facet `i` of body `b` counts
     /// as a shadow, for the Sun at `cos_i` from its normal (the module doc's `h_min`).
     pub fn t_min(&self, b: usize, i: usize, cos_i: f64) -> f64 {
-        self.min_height_m[b][i] / cos_i
+        f64::from(self.min_height_m[b][i]) / cos_i
     }
 }
 
@@ -1325,14 +1327,20 @@ fn checked_sun(body: &Body, state: &EpochState, b: usize) -> Result<DVec3> {
     Ok(s)
 }
 
-/// Per facet, the least height above its plane at which a hit counts as a shadow.
-fn min_blocker_heights(body: &Body) -> Vec<f64> {
+/// Per facet, the least height above its plane at which a hit counts as a shadow, as
+/// the nearest `f32` not below it.
+fn min_blocker_heights(body: &Body) -> Vec<f32> {
     let rounding = 256.0 * f64::EPSILON * body.bounding_radius_m;
     (0..body.mesh.len())
         .map(|i| {
             let [a, b, c] = body.mesh.corners(i);
             let longest = (b - a).length().max((c - b).length()).max((a - c).length());
-            1e-9 * longest + rounding
+            let height = 1e-9 * longest + rounding;
+            let held = height as f32;
+            match f64::from(held) < height {
+                true => held.next_up(),
+                false => held,
+            }
         })
         .collect()
 }

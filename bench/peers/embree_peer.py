@@ -8,7 +8,8 @@ What it does:
 1. Builds one Embree scene over the mesh (f64 coordinates rounded to f32), robust mode,
    and reports the geometry upload (embreex copies the arrays element by element in
    Python-level code) and the BVH build (`rtcCommitScene`) separately, with the resident
-   memory they added.
+   memory they added (read after the heap's free pages went back to the system, as
+   slim's half reads its own).
 2. Per step, casts an occlusion ray for exactly the facets slim traced (n·s > 0, read
    from slim's bitmap): origin the facet centroid, direction the Sun. embreex fixes the
    ray's tnear at 0 and cannot skip a facet by id, so the ray's start is moved along
@@ -46,6 +47,18 @@ def status_mb(key):
 
 def memory():
     return {"vm_hwm_mb": status_mb("VmHWM:"), "vm_rss_mb": status_mb("VmRSS:")}
+
+
+def settled_memory():
+    """`memory()` once the C heap's free pages went back to the system (glibc's
+    malloc_trim), so that the growth is what the scene keeps, not the build's freed
+    temporaries; slim's half reads its memory the same way."""
+    try:
+        import ctypes
+        ctypes.CDLL(None).malloc_trim(0)
+    except (OSError, AttributeError):
+        pass  # not glibc: the figure is read as it is
+    return memory()
 
 
 def os_threads():
@@ -121,7 +134,7 @@ def build_scene(case):
     triangles = np.ascontiguousarray(case.triangles, dtype=np.int32)
     probe_origin = np.zeros((1, 3), np.float32)
     probe_dir = np.array([[0.0, 0.0, 1.0]], np.float32)
-    before = memory()
+    before = settled_memory()
     threads_before = os_threads()
     t0 = time.perf_counter()
     device = rtcore.EmbreeDevice()
@@ -131,7 +144,7 @@ def build_scene(case):
     # embreex commits the scene (builds the BVH) on the first query.
     scene.run(probe_origin, probe_dir, query="OCCLUDED")
     t2 = time.perf_counter()
-    after = memory()
+    after = settled_memory()
     info = {
         "embree": repr(device),
         "upload_s": t1 - t0,

@@ -63,6 +63,7 @@ def load_case(folder):
         "slim_tracer": slim1["tracer"],
         "slim_block": slim1.get("block", 1),
         "slim_build_growth_mb": slim1["memory"]["build_rss_growth_mb"],
+        "slim_build_heap_mb": slim1["memory"].get("build_heap_growth_mb", float("nan")),
         "slim_above_horizon_share": slim1["above_horizon_facet_steps"]
         / max(1, slim1["traced_facet_steps"]),
         "slim_shadowed": slim1["shadowed_facet_steps"],
@@ -135,7 +136,7 @@ def tables(rows):
     ]
     other = [
         "| case | slim setup s (1T) | slim setup / Embree's steps (1T) "
-        "| slim built-once MB | slim loop growth MB (1T/2T) "
+        "| slim built-once MB (heap) | slim loop growth MB (1T/2T) "
         "| slim peak MB | Embree geometry+BVH MB | Embree BVH build s "
         "| rays spared by the horizon bound | shadowed slim / Embree "
         "| disagreements (slim-only / Embree-only) | refereed | slim right | Embree right "
@@ -153,7 +154,7 @@ def tables(rows):
         other.append(
             f"| {r['case']} | {r['slim_direct_new_s']:.2f} "
             f"| {setup_over_steps(r):.1f}× "
-            f"| {r['slim_build_growth_mb']:.1f} "
+            f"| {r['slim_build_growth_mb']:.1f} ({r['slim_build_heap_mb']:.1f}) "
             f"| {r['slim_1t_loop_growth_mb']:.1f} / {r['slim_2t_loop_growth_mb']:.1f} "
             f"| {r['slim_1t_peak_mb']:.1f} | {r['embree_build_growth_mb']:.1f} "
             f"| {r['embree_bvh_build_s']:.2f} | {100 * r['slim_above_horizon_share']:.0f} % "
@@ -207,9 +208,11 @@ def main():
         "slim setup / Embree's steps: slim's setup on one thread (with a horizon map built "
         "in the run, the map's build) over Embree's one thread's time for all the case's "
         "steps (the horizon issue's build target is at most 1× for 360 steps).",
-        "Memory: slim's RSS growth while building its tracer (built once) and over the "
-        "step loop (per-step structures); Embree's RSS growth over geometry upload + BVH "
-        "build.",
+        "Memory: slim's RSS growth while building its tracer (built once; in parentheses "
+        "the bytes its allocations hold, counted) and over the step loop (per-step "
+        "structures); Embree's RSS growth over geometry upload + BVH build. Both sides "
+        "read the build's growth after handing the heap's free pages back to the system "
+        "(glibc malloc_trim), so it is what the structures keep, not freed temporaries.",
         "Disagreements: traced facet-steps where the two classify differently; each refereed"
         " one is settled by an f64 Möller–Trumbore test against all other facets "
         "(map-approximate decides from the map alone: its disagreements are its error).",

@@ -1234,6 +1234,8 @@ fn quads(nodes: &[Node], centre: DVec3, margin: f32) -> (Vec<Quad>, Vec<(u32, u3
         }
         quads.push(quad);
     }
+    // Kept for the tracer's life: no room left over from the pushes.
+    quads.shrink_to_fit();
     (quads, runs)
 }
 
