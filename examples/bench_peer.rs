@@ -4,7 +4,7 @@
 //! ```text
 //! cargo run --release --example bench_peer -- [MESH] [--subdivide N] [--folded]
 //!     [--steps N] [--threads N] [--tracer sunview|bvh|map-exact|map-approximate]
-//!     [--cache DIR] [--bound-cache DIR] [--block K] --out DIR
+//!     [--cache DIR] [--bound-cache DIR] [--block K|run] --out DIR
 //! ```
 //! In: a mesh file in km (default: the 49,152-facet Itokawa model) or `--folded` (the
 //! bilobed test shape of `examples/common/folded.rs`), optionally subdivided (×4 facets
@@ -17,8 +17,9 @@
 //! the map is not certain, the same classification as the tracers; `map-approximate`:
 //! no rays), its build (or its read from `--cache DIR`) in `direct_new_s`. The
 //! exports happen after the loop. Steps are computed one at a time, or with `--block K`
-//! in blocks of K (`Direct::compute_steps`, as `slim run` computes them: 16 steps up to
-//! a million facets), each step of a block given the block's time over K. The rays
+//! in blocks of K (`Direct::compute_steps`), with `--block run` in the blocks `slim run`
+//! takes for the mesh (`slim::simulate::steps_per_batch`: 64 steps up to 262,144 facets,
+//! 16 at a million), each step of a block given the block's time over K. The rays
 //! recall the blockers of the earlier step `slim run` would pick (over one spin, the step
 //! before: `slim::ephemeris::sun_return`), and under the whole bound remember them where
 //! it would (steps up to 3° apart).
@@ -244,10 +245,7 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
         return Err("--steps must be at least 1".into());
     }
     let _: u32 = options.value("--subdivide", 0)?;
-    let block: usize = options.value("--block", 1)?;
-    if block == 0 {
-        return Err("--block must be at least 1".into());
-    }
+    let block_flag: String = options.value("--block", "1".to_string())?;
     let out_dir: PathBuf = options
         .optional::<String>("--out")?
         .ok_or("--out DIR is required")?
@@ -257,6 +255,13 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
         .map_err(|e| format!("cannot create {}: {e}", out_dir.display()))?;
 
     let (world, label) = build_world(&options)?;
+    let block = match block_flag.as_str() {
+        "run" => slim::simulate::steps_per_batch(None, false, false, world.facet_count()),
+        k => match k.parse::<usize>() {
+            Ok(k) if k > 0 => k,
+            _ => return Err(format!("--block takes a step count from 1 or run, not {k}").into()),
+        },
+    };
     let states = common::spin_states(steps, DVec3::X)?;
     let body = &world.bodies[0];
     let mesh = &body.mesh;

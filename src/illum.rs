@@ -699,21 +699,37 @@ impl<'w> Direct<'w> {
         view: &ConeView,
         samples: impl Iterator<Item = (DVec3, BvhRays<'q>)>,
     ) -> (f64, u64) {
-        let i = r.facet as usize;
         match view {
             ConeView::Clear => (1.0, 0),
             ConeView::Covered(_) => (0.0, 0),
-            ConeView::Partial(among) => {
-                let n = self.world.bodies[b].mesh.normals[i];
-                let mut tally = DiskTally::default();
-                for (s, query) in samples {
-                    tally.add(n.dot(s), |cos| {
-                        !query.blocked_among(r.origin, self.t_min(b, i, cos), r.facet, among)
-                    });
-                }
-                (tally.share(), tally.rays)
-            }
+            ConeView::Partial(among) => self.share_among(b, r, among, samples, |_| {}),
         }
+    }
+
+    /// The share of the disk's `samples` above the plane of the facet of `r` that the
+    /// facets `among` leave clear, and the samples answered; each sample's blocker (the
+    /// first of `among` that blocks it; `u32::MAX` for one clear or below the plane) goes
+    /// to `blocker`, in the samples' order.
+    fn share_among<'q>(
+        &self,
+        b: usize,
+        r: &ShadowRay,
+        among: &[u32],
+        samples: impl Iterator<Item = (DVec3, BvhRays<'q>)>,
+        mut blocker: impl FnMut(u32),
+    ) -> (f64, u64) {
+        let i = r.facet as usize;
+        let n = self.world.bodies[b].mesh.normals[i];
+        let mut tally = DiskTally::default();
+        for (s, query) in samples {
+            let mut found = None;
+            tally.add(n.dot(s), |cos| {
+                found = query.blocker_among(r.origin, self.t_min(b, i, cos), r.facet, among);
+                found.is_none()
+            });
+            blocker(found.unwrap_or(u32::MAX));
+        }
+        (tally.share(), tally.rays)
     }
 
     /// [`Direct::own_disk_shares`] with every sample traced by the body's tracer, one

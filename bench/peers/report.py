@@ -190,8 +190,14 @@ def main():
     }
     speed, other = tables(rows)
     stamp["slim_tracer"] = rows[0]["slim_tracer"] if rows else ""
-    block = rows[0]["slim_block"] if rows else 1
-    blocks = f" in blocks of {block} steps" if block > 1 else ""
+    sizes = sorted({r["slim_block"] for r in rows})
+    if sizes == [1] or not sizes:
+        blocks = ""
+    elif len(sizes) == 1:
+        blocks = f" in blocks of {sizes[0]} steps"
+    else:
+        blocks = " in blocks of " + ", ".join(
+            f"{r['slim_block']} steps ({r['case']})" for r in rows)
     header = (f"Peer benchmark, slim tracer {stamp['slim_tracer']}{blocks}, {stamp['date']}, "
               f"{stamp['machine']}, {stamp['cpu']}, "
               f"{stamp['logical_cpus']} logical CPUs, {stamp['embree']}")

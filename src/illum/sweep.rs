@@ -137,8 +137,10 @@ enum Answer {
 struct Fact {
     certificate: Option<Certificate>,
     last: Last,
-    /// Under a disk Sun, per sample of the disk, the facet that blocked it last
-    /// ([`Last::Dark`]; `u32::MAX` for a sample below the facet's plane).
+    /// Under a disk Sun, per sample of the disk, the facet that blocked it at the last
+    /// tally (`u32::MAX` for a sample clear or below the facet's plane); read only while
+    /// [`Last::Dark`], when every sample above the plane had one. A wrong entry costs
+    /// time, not bits: [`Direct::still_dark`] tests every sample again.
     dark: Vec<u32>,
     /// The blockers of [`Fact::dark`] as screens seen from the facet, set up once for
     /// the many steps and samples they serve (at most [`SCREENS_MAX`]).
@@ -392,12 +394,12 @@ impl Direct<'_> {
                 }
                 None => {
                     let view = self.disk_view(chunk, fact, ray, p, &mut counts);
-                    let (share, answered) =
-                        self.share_in_view(chunk.facets.body, ray, &view, samples());
-                    if let (ConeView::Partial(among), 0.0) = (&view, share) {
-                        self.learn_dark(chunk, fact, ray, p, among);
+                    match &view {
+                        ConeView::Partial(among) => {
+                            self.tally_and_learn(chunk, fact, ray, p, among)
+                        }
+                        _ => self.share_in_view(chunk.facets.body, ray, &view, samples()),
                     }
-                    (share, answered)
                 }
             };
             if fact.cover.is_none() {
@@ -421,34 +423,33 @@ impl Direct<'_> {
         chunk.path.samples[p * n..(p + 1) * n].iter().copied()
     }
 
-    /// Keeps, for a facet whose disk samples at path position `p` the facets `among`
-    /// (reaching into the disk's cone) blocked every one, each sample's blocker.
-    fn learn_dark(
+    /// The share of the disk Sun at path position `p` that the facets `among` (reaching
+    /// into its cone) leave in view of facet `ray.facet`, and the samples answered, as
+    /// the step loop's tally gives them; where every sample above the facet's plane is
+    /// blocked, each sample's blocker is kept ([`Last::Dark`]) for the steps after.
+    fn tally_and_learn(
         &self,
         chunk: &Chunk<'_>,
         fact: &mut Fact,
         ray: &ShadowRay,
         p: usize,
         among: &[u32],
-    ) {
-        let (b, i) = (chunk.facets.body, ray.facet as usize);
-        let n = self.world.bodies[b].mesh.normals[i];
-        let blockers = (self.disk_samples_at(chunk, p))
-            .map(|(s, query)| {
-                let cos = n.dot(s);
-                match cos > 0.0 {
-                    true => {
-                        query.blocker_among(ray.origin, self.t_min(b, i, cos), ray.facet, among)
-                    }
-                    false => Some(u32::MAX),
-                }
-            })
-            .collect::<Option<Vec<u32>>>();
-        // A share of 0 says every sample above the plane was blocked; kept only if so.
-        if let Some(blockers) = blockers {
-            fact.dark = blockers;
+    ) -> (f64, u64) {
+        // `fact.dark` serves only a facet kept dark, which this one is not (its samples
+        // were not all answered as blocked): its room takes this tally's blockers, one
+        // per sample, whether or not they are kept.
+        let mut blockers = std::mem::take(&mut fact.dark);
+        blockers.clear();
+        let samples = self.disk_samples_at(chunk, p);
+        let (share, answered) = self.share_among(chunk.facets.body, ray, among, samples, |id| {
+            blockers.push(id)
+        });
+        // A share of 0 says every sample above the plane was blocked (and one was there).
+        if share == 0.0 {
             fact.last = Last::Dark;
         }
+        fact.dark = blockers;
+        (share, answered)
     }
 
     /// For a facet with a cover ([`Fact::cover`]): whether it holds the disk Sun at path
