@@ -245,7 +245,18 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
         return Err("--steps must be at least 1".into());
     }
     let _: u32 = options.value("--subdivide", 0)?;
-    let block_flag: String = options.value("--block", "1".to_string())?;
+    // `None`: the blocks `slim run` takes, known once the mesh is read.
+    let block: Option<usize> = match options.value("--block", "1".to_string())?.as_str() {
+        "run" => None,
+        k => match k.parse::<usize>() {
+            Ok(k) if k > 0 => Some(k),
+            _ => {
+                return Err(
+                    format!("--block takes a step count of 1 or more, or run, not {k}").into(),
+                )
+            }
+        },
+    };
     let out_dir: PathBuf = options
         .optional::<String>("--out")?
         .ok_or("--out DIR is required")?
@@ -255,13 +266,9 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
         .map_err(|e| format!("cannot create {}: {e}", out_dir.display()))?;
 
     let (world, label) = build_world(&options)?;
-    let block = match block_flag.as_str() {
-        "run" => slim::simulate::steps_per_batch(None, false, false, world.facet_count()),
-        k => match k.parse::<usize>() {
-            Ok(k) if k > 0 => k,
-            _ => return Err(format!("--block takes a step count from 1 or run, not {k}").into()),
-        },
-    };
+    let block = block.unwrap_or_else(|| {
+        slim::simulate::steps_per_batch(None, false, false, world.facet_count())
+    });
     let states = common::spin_states(steps, DVec3::X)?;
     let body = &world.bodies[0];
     let mesh = &body.mesh;
