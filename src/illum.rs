@@ -29,7 +29,7 @@ use crate::horizon::shadows::BoundRecord;
 use crate::horizon::sky::{LocalHorizon, SkyPosition};
 use crate::horizon::{HorizonMode, Shadows, SunShape};
 use crate::mesh::inspect::edge_neighbours;
-use crate::trace::bvh::{Bvh, BvhRays};
+use crate::trace::bvh::{round_up, Bvh, BvhRays};
 use crate::trace::{self, Blocker, ShadowQuery, ShadowRay, Tracer, TracerKind};
 use crate::world::{Body, FrameTransform, World};
 use glam::DVec3;
@@ -94,8 +94,9 @@ pub struct Direct<'w> {
     /// Equal-flux points of the disk (units of its radius) that sample the share a mesh
     /// hides: another body's, or the body's own where no horizon map decides.
     disk_samples: Vec<(f64, f64)>,
-    /// Per body and facet, `h_min` (module doc) in metres, held as the nearest `f32` not
-    /// below it: half the memory, and a guard higher by a part in 10⁷ at most.
+    /// Per body and facet, `h_min` (module doc) in metres, held as an `f32` not below it
+    /// (within two `f32` steps): half the memory, and a guard higher by a few parts in
+    /// 10⁷ at most.
     min_height_m: Vec<Vec<f32>>,
     offsets: Vec<usize>,
     /// Per body, whether its own irradiance is needed (false: it only casts shadows and
@@ -1343,20 +1344,15 @@ fn checked_sun(body: &Body, state: &EpochState, b: usize) -> Result<DVec3> {
     Ok(s)
 }
 
-/// Per facet, the least height above its plane at which a hit counts as a shadow, as
-/// the nearest `f32` not below it.
+/// Per facet, the least height above its plane at which a hit counts as a shadow, as an
+/// `f32` not below it.
 fn min_blocker_heights(body: &Body) -> Vec<f32> {
     let rounding = 256.0 * f64::EPSILON * body.bounding_radius_m;
     (0..body.mesh.len())
         .map(|i| {
             let [a, b, c] = body.mesh.corners(i);
             let longest = (b - a).length().max((c - b).length()).max((a - c).length());
-            let height = 1e-9 * longest + rounding;
-            let held = height as f32;
-            match f64::from(held) < height {
-                true => held.next_up(),
-                false => held,
-            }
+            round_up(1e-9 * longest + rounding)
         })
         .collect()
 }

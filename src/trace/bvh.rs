@@ -1190,7 +1190,7 @@ fn round_down(x: f64) -> f32 {
 }
 
 /// An `f32` not below `x`.
-fn round_up(x: f64) -> f32 {
+pub(crate) fn round_up(x: f64) -> f32 {
     -round_down(-x)
 }
 
