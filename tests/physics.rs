@@ -1717,6 +1717,41 @@ fn blocks_of_steps_light_every_facet_as_single_steps() {
     }
 }
 
+/// Walks from remembered blockers go on where they find blockers and stop where they do
+/// not (`StepCounts::walks`): with the Sun 0.5° apart from step to step most shadowed
+/// rays walk, and nearly all of those walks find one; 137.5° apart (no step near the one
+/// before), walks find few, and after the first steps only the probes walk (always
+/// walking, 0.63 of the shadowed rays would). Either way every facet gets the bits of the
+/// rays alone (Sunview, which remembers nothing).
+#[test]
+fn walks_from_remembered_blockers_stop_where_they_do_not_pay() {
+    let sectors = Shadows {
+        bound_detail: BoundDetail::Sectors,
+        ..Shadows::default()
+    };
+    for (turn_deg, pays) in [(0.5f64, true), (137.5, false)] {
+        let (_, world, states) = itokawa_and_moonlet(60, turn_deg.to_radians());
+        let walking = Direct::with_maps(&world, TracerKind::Bvh, vec![None, None], &sectors);
+        let by_rays = Direct::new(&world, TracerKind::Sunview);
+        let mut counts = StepCounts::default();
+        for (k, state) in states.iter().enumerate() {
+            let mut e = vec![f64::NAN; world.facet_count()];
+            let mut expected = e.clone();
+            counts += walking.compute(state, &mut e).expect("compute");
+            by_rays.compute(state, &mut expected).expect("compute");
+            for (i, (a, b)) in e.iter().zip(&expected).enumerate() {
+                assert_eq!(a.to_bits(), b.to_bits(), "{turn_deg}°: step {k} facet {i}");
+            }
+        }
+        let walked = counts.walks as f64 / counts.shadowed as f64;
+        let found = counts.remembered as f64 / counts.walks as f64;
+        match pays {
+            true => assert!(walked > 0.5 && found > 0.9, "{turn_deg}°: {counts:?}"),
+            false => assert!(walked < 0.1, "{turn_deg}°: {counts:?}"),
+        }
+    }
+}
+
 /// `Direct::compute_facets` (a few facets asked for, as the service's place queries do)
 /// gives each facet the bits the step loop gives it under a disk Sun: its own body's
 /// samples' rays (with the BVH's cones, and with the Sun-view tracer), or its map's
@@ -2458,16 +2493,25 @@ fn rays_recall_the_blockers_of_the_step_where_the_sun_returns() {
             "{detail:?}: a spin back {spin_back:?}, a step back {step_back:?}"
         );
     }
-    // A whole bound's rays, mostly lit, recall nothing when the Sun does not come back.
-    let far = Shadows {
-        recall: SunReturn {
-            lag: 1,
-            turn_deg: 30.0,
-        },
+    // Neither bound's rays recall anything when the Sun does not come back near where it
+    // stood; a whole bound's, mostly lit, nor when that is not known.
+    for bound_detail in [BoundDetail::Whole, BoundDetail::Sectors] {
+        let far = Shadows {
+            recall: SunReturn {
+                lag: 1,
+                turn_deg: 30.0,
+            },
+            bound_detail,
+            ..Shadows::default()
+        };
+        assert!(!far.remembers_blockers(false), "{bound_detail:?}");
+    }
+    assert!(!Shadows::default().remembers_blockers(false));
+    let unknown_sectors = Shadows {
+        bound_detail: BoundDetail::Sectors,
         ..Shadows::default()
     };
-    assert!(!far.remembers_blockers(false));
-    assert!(!Shadows::default().remembers_blockers(false));
+    assert!(unknown_sectors.remembers_blockers(false));
 }
 
 /// A block of no steps lights nothing and counts nothing (it once divided the steps into

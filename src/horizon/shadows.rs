@@ -119,11 +119,16 @@ pub const DEFAULT_AZIMUTHS: u32 = 128;
 /// share then comes in steps of 1/32 (see docs/accuracy.md).
 pub const DEFAULT_SUN_SAMPLES: u32 = 32;
 
-/// Under a whole horizon bound, rays remember their blockers when the Sun stands within
-/// this many degrees of where it stood at the step they recall. Measured on Itokawa 49k
-/// (`bench_peer --tracer bvh`, one thread, 2026-11-28), the walks changed the step by
-/// −22 % at 0.2°, −18 % at 1°, −13 % at 2°, 0 at 5°, +12 % at 10° and +17 % at 30°.
-pub const WHOLE_BOUND_RECALL_DEG: f64 = 3.0;
+/// Under a horizon bound, rays remember their blockers when the Sun stands within this
+/// many degrees of where it stood at the step they recall (with a bound by sectors, also
+/// when that is not known). Walks always against never (`bench_peer`, one thread): under
+/// a whole bound at 49k (2026-11-28) they changed the step by −22 % at 0.2°, −18 % at
+/// 1°, −13 % at 2°, 0 at 5°, +12 % at 10° and +17 % at 30°; under a bound by sectors
+/// (2026-11-29) at 10° by +25 % at 786k, +16 % on the folded shape and +12–40 % at 49k,
+/// at 5° by +23 %, −18 % and +7 %. Within it, each group of facets walks only while its
+/// walks pay (`illum`'s `WalkYield`); beyond it nothing is kept for them (16 bytes a
+/// facet).
+pub const RECALL_DEG: f64 = 5.0;
 
 /// The most steps back that shadow rays look for a Sun near their own: an hourly Phobos
 /// needs 23 (three of its 7.65 h spins), an hourly 12 h spin 12, Itokawa's 12.13 h spin
@@ -440,18 +445,20 @@ impl Shadows {
     /// Whether a body's own shadow rays toward a point Sun start from the blockers the
     /// same facets' rays met at an earlier step ([`SunReturn`]), walking the surface from
     /// there before the tracer (`map`: the body has a horizon map; else it has the BVH
-    /// tracer's bound). Where the rays traced are mostly shadowed, always: an exact map's
-    /// and a bound's by sectors. Under a whole bound most are lit, and a walk that finds
-    /// nothing costs more than the hits spare unless the Sun comes back close to where it
-    /// stood ([`WHOLE_BOUND_RECALL_DEG`]).
+    /// tracer's bound). An exact map's rays, mostly shadowed and in its uncertainty band,
+    /// always. A bound's when the Sun comes back within [`RECALL_DEG`] of where it stood;
+    /// a bound by sectors, whose rays are mostly shadowed, also when that is not known.
     pub fn remembers_blockers(&self, map: bool) -> bool {
         let point = self.sun == SunShape::Point;
-        let mostly_shadowed = match map {
+        let turn = self.recall.turn_deg;
+        let recalls = match map {
             true => self.mode == HorizonMode::Exact,
-            false => self.bound_detail == BoundDetail::Sectors,
+            false if self.bound_detail == BoundDetail::Sectors => {
+                turn <= RECALL_DEG || turn.is_infinite()
+            }
+            false => turn <= RECALL_DEG,
         };
-        let close = !map && self.recall.turn_deg <= WHOLE_BOUND_RECALL_DEG;
-        point && (mostly_shadowed || close) && !self.sweeps
+        point && recalls && !self.sweeps
     }
 
     /// A map's bytes per facet: its cells (4 per wedge) and its ceilings.
