@@ -124,7 +124,7 @@ pub const DEFAULT_SUN_SAMPLES: u32 = 32;
 /// when that is not known). Walks always against never (`bench_peer`, one thread): under
 /// a whole bound at 49k (2026-11-28) they changed the step by −22 % at 0.2°, −18 % at
 /// 1°, −13 % at 2°, 0 at 5°, +12 % at 10° and +17 % at 30°; under a bound by sectors
-/// (2026-11-29) at 10° by +25 % at 786k, +16 % on the folded shape and +12–40 % at 49k,
+/// (2026-11-29) at 10° by +25 % at 786k, +16 % on the folded shape and +6–40 % at 49k,
 /// at 5° by +23 %, −18 % and +7 %. Within it, each group of facets walks only while its
 /// walks pay (`illum`'s `WalkYield`); beyond it nothing is kept for them (16 bytes a
 /// facet).
