@@ -589,16 +589,19 @@ impl<'w> Direct<'w> {
             rays: rays.len() as u64,
             ..StepCounts::default()
         };
+        // Without remembered blockers every ray goes to the tracer as it came.
+        let left;
         let to_trace = match last {
             Some(row) => {
-                let (to_trace, walked) = walk_from_remembered(own, rays, row, values, facets);
+                let walked;
+                (left, walked) = walk_from_remembered(own, rays, row, values, facets);
                 counts += walked;
                 counts.shadowed += walked.remembered;
-                to_trace
+                &left[..]
             }
-            None => rays.to_vec(),
+            None => rays,
         };
-        for (r, blocker) in to_trace.iter().zip(own.blockers(&to_trace)) {
+        for (r, blocker) in to_trace.iter().zip(own.blockers(to_trace)) {
             if let Some(row) = last {
                 remember(row, r, blocker);
             }
