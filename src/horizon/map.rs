@@ -475,26 +475,27 @@ const SEEDED_RUN: usize = 64;
 /// Within a run, each facet's `seed` is what the facet before it handed on; the first
 /// gets `S::default()`. The results come in facet order. A seed can only speed a search
 /// up: it is one more candidate, taken first.
-pub(super) fn in_seeded_runs<T: Send, S: Default>(
+pub(super) fn in_seeded_runs<T: Send + Clone + Default, S: Default>(
     facets: std::ops::Range<usize>,
     each: impl Fn(usize, &S) -> (T, S) + Sync,
 ) -> Vec<T> {
-    facets
-        .clone()
-        .step_by(SEEDED_RUN)
-        .collect::<Vec<_>>()
-        .into_par_iter()
-        .flat_map_iter(|start| {
+    // Written in place, run by run: runs collected instead gather first in a list per
+    // thread that grows by doubling, and glibc keeps the memory those lists free at the
+    // top of each thread's arena resident (5.9 MB of a bound's build at 786k facets).
+    let mut results = vec![T::default(); facets.len()];
+    results
+        .par_chunks_mut(SEEDED_RUN)
+        .enumerate()
+        .for_each(|(run, slots)| {
             let mut seed = S::default();
-            (start..(start + SEEDED_RUN).min(facets.end))
-                .map(|i| {
-                    let (result, next) = each(i, &seed);
-                    seed = next;
-                    result
-                })
-                .collect::<Vec<_>>()
-        })
-        .collect()
+            let first = facets.start + run * SEEDED_RUN;
+            for (k, slot) in slots.iter_mut().enumerate() {
+                let (result, next) = each(first + k, &seed);
+                *slot = result;
+                seed = next;
+            }
+        });
+    results
 }
 
 /// One facet's row of the map, and the triangles that set its horizon. Triangles in
