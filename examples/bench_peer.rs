@@ -483,8 +483,9 @@ struct Summary<'a> {
 /// counted), `rays_per_s`, `traced_facet_steps` (n·s > 0), `shadowed_facet_steps`,
 /// `night_facet_steps`, `above_horizon_facet_steps` (answered by the horizon bound, no
 /// ray), `remembered_facet_steps` (shadowed rays whose blocker the walk from the step
-/// before's found, no tree), `walks` (rays that walked, finding a blocker or not); memory `before_loop` and `after_loop` (VmHWM = peak, VmRSS = current, MB),
-/// their growth, and the growth over the build (the tracer's structures built once):
+/// before's found, no tree), `walks` (rays that walked, finding a blocker or not);
+/// memory `before_loop` and `after_loop` (VmHWM = peak, VmRSS = current, MB), their
+/// growth, and the growth over the build (the tracer's structures built once):
 /// `build_rss_growth_mb`, resident, read after the build's freed temporaries went back
 /// to the system, and `build_heap_growth_mb`, the bytes allocated and held.
 fn summary(s: &Summary<'_>) -> serde_json::Value {
