@@ -61,38 +61,36 @@ struct Leaf {
     ids: [u32; 4],
 }
 
-/// One edge plane per lane, quantised to `i16`: the normal's components in units of
-/// `1/EDGE_UNITS`, the offset in units of `2·reach/EDGE_UNITS` (`reach` the tree's,
-/// which bounds every corner's coordinates about its centre, so `|d| ≤ √3·reach` fits).
-/// The edge planes only ever decide that a crossing lies *well* outside a facet (by the
-/// screen's `reach`, 3e-4 of the segment's `scale`), so they need not be exact:
-/// rounding moves a height at a point `p` by at most `|Δn|·|p| + |Δd|`, under
-/// `2.7e-5·|p| + 3.1e-5·reach`. A steep crossing the screen evaluates lies at most
-/// 1e-3 of the scale past a segment's ends, so within 1.8 scales of the centre (an
-/// error under 8e-5 of the scale, a quarter of the tolerance), and at most half a cone's
-/// length past its far end, within 7 scales (2.2e-4); the `f32` rounding of the
-/// crossing (2e-5 of the scale) still fits beside either. At 96 bytes instead of 192,
-/// a leaf is 176 bytes, which brings the tree under Embree's BVH in memory.
+/// One edge plane per lane, measured from its leaf's [`LeafFrame`] and quantised to
+/// `i16`: the normal's components in units of `1/EDGE_UNITS`, the offset in units of
+/// `2·half/EDGE_UNITS` (`half` the frame's, which bounds every corner's coordinates about
+/// its origin, so `|d| ≤ √3·half` fits). Rounding moves a height at a point `p` (from
+/// the origin) by at most `|Δn|·|p| + |Δd|`, under `2.7e-5·|p| + 3.1e-5·half`. The edge
+/// planes only ever decide that a crossing lies outside a facet, which lies within
+/// `√3·half` of the origin: a crossing within the screen's tolerance of it is within
+/// `1.8·half` plus that tolerance, where the error is under `8e-5·half` (the frame's
+/// `slack`) and 2.7e-5 of the tolerance. At 96 bytes instead of 192, a leaf is 176
+/// bytes, which brings the tree under Embree's BVH in memory.
 #[derive(Debug, Clone, Copy)]
 struct EdgeRows([[i16; 4]; 4]);
 
-/// Quantisation steps per unit of an [`EdgeRows`] normal component (and per `2·reach`
+/// Quantisation steps per unit of an [`EdgeRows`] normal component (and per `2·half`
 /// of its offset).
 const EDGE_UNITS: f64 = i16::MAX as f64;
 
 impl EdgeRows {
-    /// The plane of unit normal `n` through `p` (metres from the tree's centre) in lane
-    /// `lane`.
-    fn put(&mut self, lane: usize, n: DVec3, p: DVec3, reach: f64) {
+    /// The plane of unit normal `n` through `p` (metres from the frame's origin, each
+    /// coordinate within `half` of it) in lane `lane`.
+    fn put(&mut self, lane: usize, n: DVec3, p: DVec3, half: f64) {
         let quantise = |x: f64| (x * EDGE_UNITS).round().clamp(-EDGE_UNITS, EDGE_UNITS) as i16;
         for (k, v) in n.to_array().into_iter().enumerate() {
             self.0[k][lane] = quantise(v);
         }
-        self.0[3][lane] = quantise(n.dot(p) / (2.0 * reach).max(f64::MIN_POSITIVE));
+        self.0[3][lane] = quantise(n.dot(p) / (2.0 * half).max(f64::MIN_POSITIVE));
     }
 
-    /// The planes' heights at `p`, in lanes, in units of `1/EDGE_UNITS` metres, with the
-    /// offset's unit (`2·reach`) given.
+    /// The planes' heights at `p` (from the frame's origin), in lanes, in units of
+    /// `1/EDGE_UNITS` metres, with the offset's unit (`2·half`) given.
     #[inline(always)]
     fn scaled_height(&self, p: &[Vec4; 3], offset_unit: Vec4) -> Vec4 {
         let [x, y, z, d] = self.0.map(|row| Vec4::from_array(row.map(f32::from)));
@@ -100,10 +98,49 @@ impl EdgeRows {
     }
 }
 
+/// Where a leaf's edge planes are measured from: the centre of the leaf's box as its
+/// parent [`Quad`] holds it (metres from the tree's centre) and half the box's longest
+/// side, in all four lanes. Measured from the tree's centre instead, the quantised
+/// normals would err by 2.7e-5 of the distance to it, a tolerance of the tree's size
+/// rather than the leaf's. Read from the quad at every visit, by the same `f32`
+/// operations as at the build, the frame costs the leaf no memory.
+#[derive(Debug, Clone, Copy)]
+struct LeafFrame {
+    origin: [Vec4; 3],
+    /// The unit of the edge planes' offsets, `2·half` (m).
+    offset_unit: Vec4,
+    /// What quantising the edge planes may move a height by at a crossing near the
+    /// facets (m): `1e-4·half`, over the `8e-5·half` of [`EdgeRows`].
+    slack: Vec4,
+}
+
+impl LeafFrame {
+    /// The frame of the leaf in `quad`'s lane `lane`. The boxes' margin (1e-5 of the
+    /// tree's reach) keeps `half` over 80 times the rounding of the centre, so that every
+    /// corner lies within `1.01·√3·half` of the origin.
+    #[inline]
+    fn of(quad: &Quad, lane: usize) -> LeafFrame {
+        let (lo, hi) = (quad.lo.map(|v| v[lane]), quad.hi.map(|v| v[lane]));
+        let half = (0..3).fold(0.0f32, |h, k| h.max((hi[k] - lo[k]) * 0.5));
+        LeafFrame {
+            origin: [0, 1, 2].map(|k| Vec4::splat((lo[k] + hi[k]) * 0.5)),
+            offset_unit: Vec4::splat(2.0 * half),
+            slack: Vec4::splat(1e-4 * half),
+        }
+    }
+
+    /// The origin (metres from the tree's centre) and `half`, in `f64`.
+    fn origin_and_half(&self) -> (DVec3, f64) {
+        let origin = DVec3::from_array(self.origin.map(|v| v.x as f64));
+        (origin, self.offset_unit.x as f64 / 2.0)
+    }
+}
+
 impl Leaf {
-    /// The leaf over facets `ids` of a tree centred on `centre`, every corner within
-    /// `reach` of it on each axis (metres).
-    fn new(mesh: &Mesh, ids: &[u32], centre: DVec3, reach: f64) -> Leaf {
+    /// The leaf over facets `ids` of a tree centred on `centre` whose quad gives it the
+    /// frame `frame`.
+    fn new(mesh: &Mesh, ids: &[u32], centre: DVec3, frame: &LeafFrame) -> Leaf {
+        let (origin, half) = frame.origin_and_half();
         let mut leaf = Leaf {
             plane: [Vec4::ZERO, Vec4::ZERO, Vec4::ZERO, Vec4::NEG_INFINITY],
             edges: [EdgeRows([[0; 4]; 4]); 3],
@@ -119,7 +156,7 @@ impl Leaf {
             for (k, rows) in leaf.edges.iter_mut().enumerate() {
                 let edge = corners[(k + 1) % 3] - corners[k];
                 let inward = normal.cross(edge).normalize_or_zero();
-                rows.put(lane, inward, corners[k] - centre, reach);
+                rows.put(lane, inward, corners[k] - centre - origin, half);
             }
             leaf.ids[lane] = id;
         }
@@ -128,12 +165,12 @@ impl Leaf {
 
     /// Bit `k` clear when the segment clearly misses facet `k`: both ends lie on one side
     /// of its plane by more than the segment's `slack`, or it crosses the plane (at an
-    /// angle of at least 0.01 rad, where the crossing point is well conditioned) farther
-    /// than its `reach` outside an edge. A set bit leaves the decision to the exact
-    /// predicate.
+    /// angle of at least 0.01 rad) farther outside an edge than the crossing point's
+    /// error ([`Screened`]) and the edge planes' (`frame.slack`). A set bit leaves the
+    /// decision to the exact predicate.
     #[inline]
-    fn may_cross(&self, s: &Screened) -> u32 {
-        self.may_meet(s, None)
+    fn may_cross(&self, s: &Screened, frame: &LeafFrame) -> u32 {
+        self.may_meet(s, frame, None)
     }
 
     /// As [`Leaf::may_cross`] for the cone of directions around the segment `s` from its
@@ -146,16 +183,17 @@ impl Leaf {
     /// does and the far end does by the cone's radius there (`grow = T·tan h`) more.
     /// Where the cone meets the plane, `n·r = −(sa + t·n·d)` puts the point within
     /// `t·tan h·(1 + 1/|n·d|)` of the axis's crossing `t*`, and `t ≤ t*/(1 − tan h/|n·d|)`:
-    /// the crossing widened by that much more than a ray's `reach` (the axis steeper than
-    /// twice the cone's slope, so that the division stays well away from zero).
+    /// the crossing widened by that much more than a ray's tolerance (the axis steeper
+    /// than twice the cone's slope, so that the division stays well away from zero). The
+    /// widening falls as `|n·d|` grows, so it is taken at the steepness less its error.
     #[inline]
-    fn may_reach(&self, s: &Screened, spread: &Spread) -> u32 {
-        self.may_meet(s, Some(spread))
+    fn may_reach(&self, s: &Screened, frame: &LeafFrame, spread: &Spread) -> u32 {
+        self.may_meet(s, frame, Some(spread))
     }
 
     /// [`Leaf::may_cross`] and [`Leaf::may_reach`]: a segment is a cone without spread.
     #[inline(always)]
-    fn may_meet(&self, s: &Screened, spread: Option<&Spread>) -> u32 {
+    fn may_meet(&self, s: &Screened, frame: &LeafFrame, spread: Option<&Spread>) -> u32 {
         let height =
             |p: &[Vec4; 3], [x, y, z, d]: &[Vec4; 4]| *x * p[0] + *y * p[1] + *z * p[2] - *d;
         let (sa, sb) = (height(&s.a, &self.plane), height(&s.b, &self.plane));
@@ -167,19 +205,21 @@ impl Leaf {
         let one_side = (sa.cmpgt(s.slack) & sb_low.cmpgt(s.slack))
             | (sa.cmplt(-s.slack) & sb_high.cmplt(-s.slack));
         let rise = sa - sb;
-        let steep = rise.abs().cmpgt(s.steep);
-        let t = sa / rise;
-        let p = [0, 1, 2].map(|k| s.a[k] + s.d[k] * t);
-        let reach = match spread {
-            None => s.reach,
-            Some(c) => {
-                let steepness = rise.abs();
-                s.reach + t.max(Vec4::ZERO) * c.grow * (steepness + c.length) / (steepness - c.grow)
-            }
-        };
-        let scaled_reach = reach * EDGE_UNITS as f32;
+        let steepness = rise.abs();
+        let steep = steepness.cmpgt(s.steep);
+        let per_rise = Vec4::ONE / rise;
+        let t = sa * per_rise;
+        let p = [0, 1, 2].map(|k| s.a[k] + s.d[k] * t - frame.origin[k]);
+        let mut tolerance = s.reach + frame.slack + s.crossing * per_rise.abs();
+        if let Some(c) = spread {
+            let low = steepness - s.rise_error;
+            tolerance += t.max(Vec4::ZERO) * c.grow * (low + c.length) / (low - c.grow);
+        }
+        let scaled_tolerance = tolerance * EDGE_UNITS as f32;
         let outside = self.edges.iter().fold(BVec4A::splat(false), |out, e| {
-            out | e.scaled_height(&p, s.offset_unit).cmplt(-scaled_reach)
+            out | e
+                .scaled_height(&p, frame.offset_unit)
+                .cmplt(-scaled_tolerance)
         });
         (!(one_side | (steep & outside))).bitmask()
     }
@@ -193,26 +233,46 @@ struct Spread {
 }
 
 /// A segment's ends as the screen sees them, with its tolerances, each in all four lanes.
+///
+/// Where the screen puts a crossing, and how far off it may be: the ends `a`, `b` and the
+/// leaves' planes are `f32`, within the segment's `scale` of the tree's centre (each
+/// coordinate; corners within the tree's reach), so a plane's height at an end errs by
+/// at most `ε_h ≈ 9·2⁻²³·scale` (the ends' and the plane's rounding, three products and
+/// three sums: 1.1e-6 of the scale). The crossing's parameter `t = sa/(sa − sb)` then
+/// errs from the true one by `(ha·eb − hb·ea)/(rise·rise')`, at most `ε_h/|rise|` for a
+/// crossing between the ends (where `|ha| + |hb| = |rise'|`): the crossing point errs by
+/// `ε_h·|b − a|/|rise|`, `ε_h` over the sine of the crossing angle. The point's own
+/// arithmetic adds under 1e-6 of the scale. So a facet is screened out only when the
+/// crossing lies farther outside it than `reach + crossing/|rise|` (and the edge
+/// planes' allowance): one to a few millimetres on Itokawa (whose tree reaches 270 m),
+/// where one of 3e-4 of the scale (8 cm) had let the rays passing within a quarter of a
+/// facet's side of it through to the exact test at 3 million facets.
 struct Screened {
     /// The ends and `b - a`, by axis.
     a: [Vec4; 3],
     b: [Vec4; 3],
     d: [Vec4; 3],
-    /// Plane heights within this of zero count as either side (m): about 50× the `f32`
-    /// rounding of a height for points of the segment's and the tree's magnitude.
+    /// Plane heights within this of zero count as either side (m): about 10× `ε_h`.
     slack: Vec4,
-    /// Crossings within this outside an edge count as inside (m): about 15× the
-    /// rounding of the crossing point, which is at most 100 height roundings (the
-    /// crossing angle is at least 0.01 rad); the quantised edge planes' error
-    /// ([`EdgeRows`]) takes up to a quarter of it for a segment, three quarters for a
-    /// cone.
+    /// Crossings within this outside an edge count as inside (m), whatever the angle:
+    /// 3e-6 of the scale, three times the rounding of the crossing point's arithmetic.
     reach: Vec4,
+    /// Over `|rise|`, the further tolerance for the crossing point's error (m²): for a
+    /// segment `2·ε_h` times its length, `ε_h` taken as [`HEIGHT_ERROR`] of the scale.
+    /// For a cone four times that: its axis's true crossing may lie up to half its
+    /// length past the far end (then `|ha| + |hb| ≤ 2·|rise'|`), and its widening grows
+    /// with the crossing's parameter by up to twice the point's error again.
+    crossing: Vec4,
+    /// What the difference of the two ends' heights may err by (m): `2·ε_h`.
+    rise_error: Vec4,
     /// Differences of the two ends' heights above this (0.01 × the length) mean a
     /// crossing angle of at least 0.01 rad.
     steep: Vec4,
-    /// The unit of the leaves' edge offsets, twice the tree's reach (m).
-    offset_unit: Vec4,
 }
+
+/// `ε_h`, the bound on a plane height's `f32` error at either end of a [`Screened`]
+/// segment, relative to its scale, rounded up from 1.1e-6.
+const HEIGHT_ERROR: f32 = 1.5e-6;
 
 impl Screened {
     fn new(a: DVec3, b: DVec3, centre: DVec3, tree_reach: f64) -> Screened {
@@ -221,14 +281,16 @@ impl Screened {
             .max(a.abs().max_element())
             .max(b.abs().max_element()) as f32;
         let (a32, b32) = (a.as_vec3(), b.as_vec3());
+        let length = (b - a).length() as f32;
         Screened {
             a: a32.to_array().map(Vec4::splat),
             b: b32.to_array().map(Vec4::splat),
             d: (b32 - a32).to_array().map(Vec4::splat),
             slack: Vec4::splat(1e-5 * scale),
-            reach: Vec4::splat(3e-4 * scale),
-            steep: Vec4::splat(0.01 * (b - a).length() as f32),
-            offset_unit: Vec4::splat(2.0 * tree_reach as f32),
+            reach: Vec4::splat(3e-6 * scale),
+            crossing: Vec4::splat(2.0 * HEIGHT_ERROR * scale * length),
+            rise_error: Vec4::splat(2.0 * HEIGHT_ERROR * scale),
+            steep: Vec4::splat(0.01 * length),
         }
     }
 }
@@ -308,12 +370,12 @@ impl<'m> Bvh<'m> {
         let (quads, runs) = quads(&nodes, centre, BOX_MARGIN * reach as f32);
         let leaves = runs
             .iter()
-            .map(|&(first, count)| {
+            .map(|&(first, count, ref frame)| {
                 Leaf::new(
                     mesh,
                     &facets[first as usize..(first + count) as usize],
                     centre,
-                    reach,
+                    frame,
                 )
             })
             .collect();
@@ -340,8 +402,8 @@ impl<'m> Bvh<'m> {
         let mut found = None;
         self.walk(
             |quad| segment.slab.hits(quad),
-            |_, leaf| {
-                found = self.leaf_blocker(leaf, segment);
+            |_, leaf, frame| {
+                found = self.leaf_blocker(leaf, frame, segment);
                 found.is_some()
             },
         );
@@ -375,7 +437,7 @@ impl<'m> Bvh<'m> {
                 }
                 lanes
             },
-            |lane, leaf| {
+            |lane, leaf, frame| {
                 let each = reached.get();
                 let mut rays = open.get();
                 while rays != 0 {
@@ -384,7 +446,7 @@ impl<'m> Bvh<'m> {
                     if each[r] & (1 << lane) == 0 {
                         continue;
                     }
-                    if let Some(id) = self.leaf_blocker(leaf, &segments[r]) {
+                    if let Some(id) = self.leaf_blocker(leaf, frame, &segments[r]) {
                         found[r] = Some(id);
                         open.set(open.get() & !(1 << r));
                     }
@@ -405,12 +467,13 @@ impl<'m> Bvh<'m> {
     }
 
     /// Depth-first walk of the tree: into every child whose lane `hits` sets, handing
-    /// each leaf reached to `at_leaf`; stops, returning true, as soon as that does.
+    /// each leaf reached, with its lane and frame, to `at_leaf`; stops, returning true,
+    /// as soon as that does.
     #[inline]
     fn walk(
         &self,
         hits: impl Fn(&Quad) -> u32,
-        mut at_leaf: impl FnMut(usize, &Leaf) -> bool,
+        mut at_leaf: impl FnMut(usize, &Leaf, &LeafFrame) -> bool,
     ) -> bool {
         if self.quads.is_empty() {
             return false;
@@ -430,7 +493,8 @@ impl<'m> Bvh<'m> {
                         top += 1;
                     }
                     Child::Leaf(l) => {
-                        if at_leaf(k, &self.leaves[l as usize]) {
+                        let frame = LeafFrame::of(quad, k);
+                        if at_leaf(k, &self.leaves[l as usize], &frame) {
                             return true;
                         }
                     }
@@ -508,8 +572,8 @@ impl<'m> Bvh<'m> {
 
     /// A facet of `leaf` that blocks the segment, if any.
     #[inline]
-    fn leaf_blocker(&self, leaf: &Leaf, s: &Segment) -> Option<u32> {
-        let mut lanes = leaf.may_cross(&s.screened);
+    fn leaf_blocker(&self, leaf: &Leaf, frame: &LeafFrame, s: &Segment) -> Option<u32> {
+        let mut lanes = leaf.may_cross(&s.screened, frame);
         while lanes != 0 {
             let k = lanes.trailing_zeros() as usize;
             lanes &= lanes - 1;
@@ -881,8 +945,8 @@ impl Bvh<'_> {
         let (screened, spread) = self.screened_cone(apex, axis, slope, length);
         self.walk(
             |quad| slab.hits(quad),
-            |_, leaf| {
-                let mut lanes = leaf.may_reach(&screened, &spread);
+            |_, leaf, frame| {
+                let mut lanes = leaf.may_reach(&screened, frame, &spread);
                 while lanes != 0 {
                     let k = lanes.trailing_zeros() as usize;
                     lanes &= lanes - 1;
@@ -906,9 +970,10 @@ impl Bvh<'_> {
         length: f64,
     ) -> (Screened, Spread) {
         let mut screened = Screened::new(apex, apex + axis * length, self.centre, self.reach);
+        screened.crossing *= 4.0;
         // The cone's radius at the far end, rounded up with room for the widening's own
-        // few `f32` operations.
-        let grow = round_up(slope * length * (1.0 + 1e-5));
+        // few `f32` operations and for the edge planes' error across it (2.7e-5 of it).
+        let grow = round_up(slope * length * (1.0 + 1e-4));
         screened.steep = screened.steep.max(Vec4::splat(2.0 * grow));
         let spread = Spread {
             grow: Vec4::splat(grow),
@@ -1196,10 +1261,10 @@ pub(crate) fn round_up(x: f64) -> f32 {
 
 /// The traversal layout of the built `nodes`: one [`Quad`] per node that owns one (the
 /// root's first), with boxes relative to `centre` and widened by `margin` metres, and
-/// the leaves' runs of facets `(first, count)` in tree order. A quad holds a binary
+/// the leaves' runs of facets `(first, count)` with their frames, in tree order. A quad holds a binary
 /// node's children, with the largest inner ones replaced by theirs until there are four
 /// (a leaf root's quad holds just itself).
-fn quads(nodes: &[Node], centre: DVec3, margin: f32) -> (Vec<Quad>, Vec<(u32, u32)>) {
+fn quads(nodes: &[Node], centre: DVec3, margin: f32) -> (Vec<Quad>, Vec<(u32, u32, LeafFrame)>) {
     let mut quads = Vec::new();
     let mut runs = Vec::new();
     // Nodes owning a quad, in quad order.
@@ -1219,7 +1284,7 @@ fn quads(nodes: &[Node], centre: DVec3, margin: f32) -> (Vec<Quad>, Vec<(u32, u3
                 quad.hi[axis][lane] = hi[axis];
             }
             quad.child[lane] = if child.count > 0 {
-                runs.push((child.first, child.count));
+                runs.push((child.first, child.count, LeafFrame::of(&quad, lane)));
                 // Leaves hold at least one facet each, and facet ids are below 2³¹ in any
                 // mesh that fits in memory (44 bytes of leaf per facet alone).
                 assert!(
@@ -1804,31 +1869,121 @@ mod tests {
         );
     }
 
+    /// The facets whose lanes the leaf screen passes for the segment `a → b`, every leaf
+    /// of the tree visited.
+    fn screen_passes(bvh: &Bvh, a: DVec3, b: DVec3) -> Vec<usize> {
+        let screened = Screened::new(a, b, bvh.centre, bvh.reach);
+        let mut passed = Vec::new();
+        bvh.walk(
+            |quad| quad.lo[0].cmpne(Vec4::INFINITY).bitmask(),
+            |_, leaf, frame| {
+                let mut lanes = leaf.may_cross(&screened, frame);
+                while lanes != 0 {
+                    passed.push(leaf.ids[lanes.trailing_zeros() as usize] as usize);
+                    lanes &= lanes - 1;
+                }
+                false
+            },
+        );
+        passed
+    }
+
+    #[test]
+    fn the_screen_passes_every_crossing_at_an_edge_and_clears_near_misses() {
+        // Segments through points on facets' edges and corners, crossing at angles from
+        // just above the screen's 0.01 rad to square, short ones and ones reaching far past
+        // the tree, on metre terrain, on slivers 100 times longer than wide, and 4,000 km
+        // from the origin: every facet the exact predicate finds crossed must pass the
+        // screen. And passing a facet's edge 1e-4 of the segment's scale (its ends' or the
+        // tree's reach from the centre) outside at a steep angle, the segment must be
+        // screened out of it: the tolerance is that tight (it was 3e-4 of the scale).
+        let far = DVec3::new(4.0e6, -1.0e6, 2.5e6);
+        let sliver = |m: Mesh| {
+            let vertices = m.vertices.iter().map(|v| DVec3::new(v.x, 0.01 * v.y, v.z));
+            crate::mesh::in_metres(vertices.collect(), m.triangles)
+        };
+        for mesh in [
+            terrain(24, 1.0, DVec3::ZERO),
+            terrain(24, 1.0, far),
+            sliver(terrain(24, 1.0, far)),
+        ] {
+            let bvh = Bvh::build(&mesh);
+            let mut rng = crate::TestRng::new(0x5851_f42d_4c95_7f2d);
+            let mut next = || rng.unit();
+            let (mut crossings, mut misses) = (0, 0);
+            for k in 0..1500 {
+                let f = (next() * mesh.len() as f64) as usize;
+                let c = mesh.corners(f);
+                let edge = k % 3;
+                let along = [0.0, 1.0, next()][k / 3 % 3];
+                let target = c[edge] + (c[(edge + 1) % 3] - c[edge]) * along;
+                let n = mesh.normals[f];
+                let sine = [0.0101, 0.03, 0.2, 0.7, 1.0][k / 9 % 5];
+                let azimuth = std::f64::consts::TAU * next();
+                let (e1, e2) = (
+                    n.any_orthonormal_vector(),
+                    n.cross(n.any_orthonormal_vector()),
+                );
+                let level = e1 * azimuth.cos() + e2 * azimuth.sin();
+                let dir = (n * sine + level * (1.0 - sine * sine).sqrt()).normalize();
+                let (back, ahead) = [(0.3, 0.3), (5.0, 40.0), (0.5, 1e4)][k / 45 % 3];
+                let (a, b) = (target - dir * back, target + dir * ahead);
+                let passed = screen_passes(&bvh, a, b);
+                for g in crossed(&mesh, a, b, 0.0) {
+                    assert!(
+                        passed.contains(&g),
+                        "facet {g} crossed but screened out, {a} → {b}"
+                    );
+                    crossings += 1;
+                }
+                // The same steep segment moved off the edge, out of the facet in its plane.
+                if sine >= 0.7 {
+                    let e = c[(edge + 1) % 3] - c[edge];
+                    let outward = e.cross(n).normalize();
+                    let scale = [a, b].map(|p| (p - bvh.centre).abs().max_element());
+                    let off = outward * 1e-4 * bvh.reach.max(scale[0]).max(scale[1]);
+                    let (a, b) = (a + off, b + off);
+                    if !crossed(&mesh, a, b, 0.0).any(|g| g == f) {
+                        assert!(
+                            !screen_passes(&bvh, a, b).contains(&f),
+                            "{a} → {b} passes facet {f}"
+                        );
+                        misses += 1;
+                    }
+                }
+            }
+            assert!(
+                crossings > 1500 && misses > 200,
+                "{crossings} crossings, {misses} misses"
+            );
+        }
+    }
+
     #[test]
     fn quantised_edge_planes_stay_within_their_stated_error() {
         // Heights from the i16 rows against f64 ones, for planes through corners within
-        // the tree's reach and points up to 6.9 reaches out: the error must stay under
-        // the bound of `EdgeRows` (2.7e-5·|p| + 3.1e-5·reach), with 1e-6 for the f32
-        // arithmetic, or the screen could clear a facet the segment crosses.
-        let reach = 1234.5;
+        // `half` of the frame's origin and points up to 6.9 halves out: the error must
+        // stay under the bound of `EdgeRows` (2.7e-5·|p| + 3.1e-5·half), with 1e-6 for the
+        // f32 arithmetic, or the screen could clear a facet the segment crosses.
+        let half = 1234.5;
         let mut rng = crate::TestRng::new(0x9e37_79b9_7f4a_7c15);
         let mut cube = || DVec3::new(rng.unit(), rng.unit(), rng.unit()) * 2.0 - 1.0;
         let mut worst: f64 = 0.0;
         for _ in 0..2000 {
             let mut rows = EdgeRows([[0; 4]; 4]);
             let planes: Vec<(DVec3, DVec3)> = (0..4)
-                .map(|_| (cube().normalize(), cube() * reach))
+                .map(|_| (cube().normalize(), cube() * half))
                 .collect();
             for (lane, &(n, corner)) in planes.iter().enumerate() {
-                rows.put(lane, n, corner, reach);
+                rows.put(lane, n, corner, half);
             }
-            let p = cube() * 4.0 * reach;
+            let p = cube() * 4.0 * half;
             let p32 = p.as_vec3().to_array().map(Vec4::splat);
             let heights =
-                rows.scaled_height(&p32, Vec4::splat((2.0 * reach) as f32)) / EDGE_UNITS as f32;
+                rows.scaled_height(&p32, Vec4::splat((2.0 * half) as f32)) / EDGE_UNITS as f32;
             for (lane, &(n, corner)) in planes.iter().enumerate() {
                 let error = (heights[lane] as f64 - n.dot(p - corner)).abs();
-                let bound = 2.7e-5 * p.length() + 3.1e-5 * reach + 1e-6 * (p.length() + reach);
+                let bound = 2.7e-5 * p.length() + 3.1e-5 * half + 1e-6 * (p.length() + half);
                 assert!(
                     error <= bound,
                     "{error} m above {bound} m at {p}, plane {n} through {corner}"
