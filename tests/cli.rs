@@ -8,30 +8,12 @@
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
+#[path = "common/temp_dir.rs"]
+mod temp_dir;
+use temp_dir::TempDir;
+
 // ---------------------------------------------------------------------------------------
 // Helpers
-
-/// A fresh directory for one test, removed on drop.
-struct TempDir(PathBuf);
-
-impl TempDir {
-    fn new(test: &str) -> TempDir {
-        let dir = std::env::temp_dir().join(format!("slim-cli-test-{}-{test}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&dir);
-        std::fs::create_dir_all(&dir).expect("create temp dir");
-        TempDir(dir)
-    }
-
-    fn join(&self, name: &str) -> PathBuf {
-        self.0.join(name)
-    }
-}
-
-impl Drop for TempDir {
-    fn drop(&mut self) {
-        let _ = std::fs::remove_dir_all(&self.0);
-    }
-}
 
 fn itokawa() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("data/shapes/itokawa/itokawa_8.obj")
@@ -105,7 +87,7 @@ const SUMMARY_TABLE: &str = if cfg!(feature = "parquet") {
 
 #[test]
 fn run_succeeds_writes_run_json_and_draws_no_bar_when_not_a_terminal() {
-    let dir = TempDir::new("run-ok");
+    let dir = TempDir::new("cli", "run-ok");
     let scene = write_scene(&dir, "ito.toml");
     let out_dir = dir.join("out");
     let out = slim(
@@ -142,7 +124,7 @@ fn run_succeeds_writes_run_json_and_draws_no_bar_when_not_a_terminal() {
 /// period's rays were traced; one period alone says neither.
 #[test]
 fn a_repeating_spin_says_so_in_the_plan_and_in_its_closing_line() {
-    let dir = TempDir::new("repeats");
+    let dir = TempDir::new("cli", "repeats");
     let base = std::fs::read_to_string(write_scene(&dir, "ito.toml")).unwrap();
     let scene = dir.join("three.toml");
     let three = base.replace(
@@ -176,7 +158,7 @@ fn a_repeating_spin_says_so_in_the_plan_and_in_its_closing_line() {
 /// nothing nearer) says neither.
 #[test]
 fn the_plan_says_when_rays_recall_the_blockers_of_a_spin_before() {
-    let dir = TempDir::new("recall");
+    let dir = TempDir::new("cli", "recall");
     let base = std::fs::read_to_string(write_scene(&dir, "ito.toml")).unwrap();
     let run = "[run]\nsun = \"point\"\ntracer = \"bvh\"\ncache_dir = \"cache\"\n\n";
     let hourly = base.replace(
@@ -184,7 +166,7 @@ fn the_plan_says_when_rays_recall_the_blockers_of_a_spin_before() {
         "steps_per_period = 12\nperiods = 4.02\n",
     );
     for (name, scene, recalls) in [("hourly", hourly, true), ("one", base, false)] {
-        let path = dir.join(&format!("{name}.toml"));
+        let path = dir.join(format!("{name}.toml"));
         std::fs::write(&path, format!("{run}{scene}")).unwrap();
         let out = slim(&["run", s(&path), "-o", s(&dir.join(name))], &dir.0);
         let stderr = text(&out.stderr);
@@ -204,13 +186,13 @@ fn the_plan_says_when_rays_recall_the_blockers_of_a_spin_before() {
 /// line, with the rays the map leaves, instead of promising a ray per facet.
 #[test]
 fn the_plan_says_when_a_horizon_map_decides_a_bodys_own_shadows() {
-    let dir = TempDir::new("plan-map");
+    let dir = TempDir::new("cli", "plan-map");
     let base = std::fs::read_to_string(write_scene(&dir, "ito.toml")).unwrap();
     for (mode, says) in [
         ("exact", "only where the map is not certain"),
         ("approximate", "without rays"),
     ] {
-        let scene = dir.join(&format!("{mode}.toml"));
+        let scene = dir.join(format!("{mode}.toml"));
         let run = format!(
             "[run]\nsun = \"point\"\nshadows = \"horizon\"\nhorizon_mode = \"{mode}\"\n\
              cache_dir = \"cache\"\n\n"
@@ -238,7 +220,7 @@ fn the_plan_says_when_a_horizon_map_decides_a_bodys_own_shadows() {
 
 #[test]
 fn quiet_run_prints_nothing() {
-    let dir = TempDir::new("quiet");
+    let dir = TempDir::new("cli", "quiet");
     let scene = write_scene(&dir, "ito.toml");
     let out_dir = dir.join("out");
     let out = slim(&["run", s(&scene), "-o", s(&out_dir), "--quiet"], &dir.0);
@@ -250,7 +232,7 @@ fn quiet_run_prints_nothing() {
 
 #[test]
 fn default_output_folder_is_results_slash_scene_name_in_the_working_directory() {
-    let dir = TempDir::new("default-out");
+    let dir = TempDir::new("cli", "default-out");
     let scene = write_scene(&dir, "my-run.toml");
     let out = slim(&["run", "my-run.toml", "-q"], &dir.0);
     assert!(out.status.success(), "failed: {}", text(&out.stderr));
@@ -260,7 +242,7 @@ fn default_output_folder_is_results_slash_scene_name_in_the_working_directory() 
 
 #[test]
 fn results_do_not_depend_on_the_number_of_threads() {
-    let dir = TempDir::new("threads");
+    let dir = TempDir::new("cli", "threads");
     let scene = write_scene(&dir, "ito.toml");
     let one = dir.join("one");
     let two = dir.join("two");
@@ -297,7 +279,7 @@ fn results_do_not_depend_on_the_number_of_threads() {
 #[cfg(not(feature = "parquet"))]
 #[test]
 fn without_parquet_every_table_is_written_as_csv() {
-    let dir = TempDir::new("lean");
+    let dir = TempDir::new("cli", "lean");
     let scene = write_scene(&dir, "ito.toml");
     let toml = std::fs::read_to_string(&scene).unwrap();
     std::fs::write(&scene, toml.replace("csv = true", "csv = false")).unwrap();
@@ -319,7 +301,7 @@ fn without_parquet_every_table_is_written_as_csv() {
 
 #[test]
 fn missing_scene_file_is_a_one_line_error_naming_it() {
-    let dir = TempDir::new("missing-scene");
+    let dir = TempDir::new("cli", "missing-scene");
     let out = slim(&["run", "nowhere.toml", "-o", "out"], &dir.0);
     assert_one_line_error(&out, &["nowhere.toml"]);
     assert!(
@@ -330,7 +312,7 @@ fn missing_scene_file_is_a_one_line_error_naming_it() {
 
 #[test]
 fn unknown_scene_key_is_a_one_line_error_naming_file_and_key() {
-    let dir = TempDir::new("bad-scene");
+    let dir = TempDir::new("cli", "bad-scene");
     let scene = write_scene(&dir, "bad.toml");
     let text = std::fs::read_to_string(&scene)
         .unwrap()
@@ -342,7 +324,7 @@ fn unknown_scene_key_is_a_one_line_error_naming_file_and_key() {
 
 #[test]
 fn toml_syntax_error_is_a_one_line_error_with_the_line() {
-    let dir = TempDir::new("syntax");
+    let dir = TempDir::new("cli", "syntax");
     let scene = write_scene(&dir, "syntax.toml");
     let text = std::fs::read_to_string(&scene)
         .unwrap()
@@ -354,7 +336,7 @@ fn toml_syntax_error_is_a_one_line_error_with_the_line() {
 
 #[test]
 fn broken_mesh_is_a_one_line_error_naming_the_mesh() {
-    let dir = TempDir::new("broken-mesh");
+    let dir = TempDir::new("cli", "broken-mesh");
     std::fs::write(
         dir.join("broken.obj"),
         "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 9\n",
@@ -370,7 +352,7 @@ fn broken_mesh_is_a_one_line_error_naming_the_mesh() {
 
 #[test]
 fn missing_mesh_is_a_one_line_error_naming_the_mesh() {
-    let dir = TempDir::new("missing-mesh");
+    let dir = TempDir::new("cli", "missing-mesh");
     let scene = "[ephemeris]\nmode = \"fixed\"\n[[ephemeris.sun]]\ndirection = [1, 0, 0]\nflux_w_m2 = 100\n\n\
                  [[body]]\nname = \"x\"\nmesh = \"absent.obj\"\nunits = \"m\"\n";
     std::fs::write(dir.join("scene.toml"), scene).unwrap();
@@ -380,7 +362,7 @@ fn missing_mesh_is_a_one_line_error_naming_the_mesh() {
 
 #[test]
 fn zero_threads_is_a_one_line_error() {
-    let dir = TempDir::new("zero-threads");
+    let dir = TempDir::new("cli", "zero-threads");
     let scene = write_scene(&dir, "ito.toml");
     let out = slim(&["run", s(&scene), "-o", "out", "--threads", "0"], &dir.0);
     assert_one_line_error(&out, &["--threads"]);
@@ -391,7 +373,7 @@ fn zero_threads_is_a_one_line_error() {
 /// to change (they used to panic: "chunk_size must not be zero").
 #[test]
 fn absurd_bins_and_fluxes_are_one_line_errors_naming_the_bin_width() {
-    let dir = TempDir::new("absurd-bins");
+    let dir = TempDir::new("cli", "absurd-bins");
     let scene = write_scene(&dir, "ito.toml");
     let toml = std::fs::read_to_string(&scene).unwrap();
     let cases = [
@@ -403,7 +385,7 @@ fn absurd_bins_and_fluxes_are_one_line_errors_naming_the_bin_width() {
             + &format!("{:?}\n", itokawa().display().to_string()),
     ];
     for (k, case) in cases.iter().enumerate() {
-        let path = dir.join(&format!("absurd{k}.toml"));
+        let path = dir.join(format!("absurd{k}.toml"));
         std::fs::write(&path, case).unwrap();
         let out = slim(&["run", s(&path), "-o", "out", "-q"], &dir.0);
         assert_one_line_error(&out, &["run.bin_width_w_m2", "at most 1000000"]);
@@ -417,7 +399,7 @@ fn absurd_bins_and_fluxes_are_one_line_errors_naming_the_bin_width() {
 /// first). The plan in `run.json` carries the estimate.
 #[test]
 fn a_run_above_its_memory_limit_is_refused_and_the_earlier_results_stay() {
-    let dir = TempDir::new("budget");
+    let dir = TempDir::new("cli", "budget");
     let scene = write_scene(&dir, "ito.toml");
     assert!(slim(&["run", s(&scene), "-o", "out", "-q"], &dir.0)
         .status
@@ -456,7 +438,7 @@ fn a_run_above_its_memory_limit_is_refused_and_the_earlier_results_stay() {
 /// mesh's folder (it used to be replaced by the result and deleted by the next run).
 #[test]
 fn a_file_slim_did_not_write_is_never_overwritten() {
-    let dir = TempDir::new("foreign");
+    let dir = TempDir::new("cli", "foreign");
     let mesh = dir.join("itokawa.ply");
     let original = b"ply\nformat ascii 1.0\nthis is the user's own file\n";
     std::fs::write(&mesh, original).unwrap();
@@ -471,7 +453,7 @@ fn a_file_slim_did_not_write_is_never_overwritten() {
 /// list checked for foreign files before a run starts.
 #[test]
 fn the_predicted_output_names_are_the_files_a_run_writes() {
-    let dir = TempDir::new("names");
+    let dir = TempDir::new("cli", "names");
     let scene = write_scene(&dir, "ito.toml");
     let out_dir = dir.join("out");
     let out = slim(&["run", s(&scene), "-o", s(&out_dir), "-q"], &dir.0);
@@ -495,7 +477,7 @@ fn the_predicted_output_names_are_the_files_a_run_writes() {
 /// threads without end), with the largest count this machine allows.
 #[test]
 fn a_huge_thread_count_is_a_one_line_error() {
-    let dir = TempDir::new("huge-threads");
+    let dir = TempDir::new("cli", "huge-threads");
     let scene = write_scene(&dir, "ito.toml");
     let out = slim(
         &["run", s(&scene), "-o", "out", "--threads", "100000"],
@@ -510,7 +492,7 @@ fn a_huge_thread_count_is_a_one_line_error() {
 /// (clap's own message was several lines and exit code 2); help still prints and exits 0.
 #[test]
 fn command_line_mistakes_are_one_line_errors_with_the_usage() {
-    let dir = TempDir::new("usage");
+    let dir = TempDir::new("cli", "usage");
     let line = assert_one_line_error(&slim(&["run", "--bogus"], &dir.0), &["--bogus"]);
     assert!(line.contains("usage: slim run"), "{line}");
     assert_one_line_error(&slim(&["frobnicate"], &dir.0), &["frobnicate", "--help"]);
@@ -528,7 +510,7 @@ fn command_line_mistakes_are_one_line_errors_with_the_usage() {
 /// (it used to panic on the broken pipe).
 #[test]
 fn info_into_a_closed_pipe_ends_quietly() {
-    let dir = TempDir::new("pipe");
+    let dir = TempDir::new("cli", "pipe");
     let mut child = Command::new(env!("CARGO_BIN_EXE_slim"))
         .args(["info", s(&itokawa())])
         .current_dir(&dir.0)
@@ -547,7 +529,7 @@ fn info_into_a_closed_pipe_ends_quietly() {
 
 #[test]
 fn info_reports_facets_and_vertices() {
-    let dir = TempDir::new("info");
+    let dir = TempDir::new("cli", "info");
     let out = slim(&["info", s(&itokawa())], &dir.0);
     let stdout = text(&out.stdout);
     assert!(out.status.success(), "failed: {}", text(&out.stderr));
@@ -573,7 +555,7 @@ fn extents(stdout: &str) -> [f64; 3] {
 
 #[test]
 fn info_units_scale_the_report() {
-    let dir = TempDir::new("info-units");
+    let dir = TempDir::new("cli", "info-units");
     let km = slim(&["info", s(&itokawa())], &dir.0);
     let m = slim(&["info", "--units", "m", s(&itokawa())], &dir.0);
     assert!(km.status.success() && m.status.success());
@@ -587,14 +569,14 @@ fn info_units_scale_the_report() {
 
 #[test]
 fn info_on_a_missing_file_is_a_one_line_error() {
-    let dir = TempDir::new("info-missing");
+    let dir = TempDir::new("cli", "info-missing");
     let out = slim(&["info", "no-such-mesh.obj"], &dir.0);
     assert_one_line_error(&out, &["no-such-mesh.obj"]);
 }
 
 #[test]
 fn info_on_a_broken_file_is_a_one_line_error_with_the_line() {
-    let dir = TempDir::new("info-broken");
+    let dir = TempDir::new("cli", "info-broken");
     std::fs::write(
         dir.join("bad.obj"),
         "v 0 0 0\nv 1 0 0\nv 0 1 zero\nf 1 2 3\n",
@@ -608,7 +590,7 @@ fn info_on_a_broken_file_is_a_one_line_error_with_the_line() {
 /// nor break the one-line error (they used to be echoed as they were).
 #[test]
 fn control_bytes_of_a_bad_file_are_escaped_in_the_error() {
-    let dir = TempDir::new("info-control");
+    let dir = TempDir::new("cli", "info-control");
     std::fs::write(
         dir.join("bad.obj"),
         "v 0 0 0\nv 1 0 0\nv 0 1 \x1b[2J\x07zero\nf 1 2 3\n",
@@ -621,7 +603,7 @@ fn control_bytes_of_a_bad_file_are_escaped_in_the_error() {
 
 #[test]
 fn unknown_ephemeris_key_is_a_one_line_error_naming_the_key() {
-    let dir = TempDir::new("bad-ephemeris");
+    let dir = TempDir::new("cli", "bad-ephemeris");
     let scene = write_scene(&dir, "eph.toml");
     let text = std::fs::read_to_string(&scene)
         .unwrap()
@@ -633,7 +615,7 @@ fn unknown_ephemeris_key_is_a_one_line_error_naming_the_key() {
 
 #[test]
 fn missing_body_key_is_a_one_line_error_naming_the_key() {
-    let dir = TempDir::new("missing-body-key");
+    let dir = TempDir::new("cli", "missing-body-key");
     let scene = write_scene(&dir, "nokey.toml");
     let text = std::fs::read_to_string(&scene)
         .unwrap()
@@ -648,7 +630,7 @@ fn missing_body_key_is_a_one_line_error_naming_the_key() {
 #[cfg(feature = "serve")]
 #[test]
 fn place_answers_a_query_on_a_scene_file_and_refuses_places_off_the_mesh() {
-    let dir = TempDir::new("place");
+    let dir = TempDir::new("cli", "place");
     write_scene(&dir, "s.toml");
     let query = dir.join("q.json");
     std::fs::write(
@@ -703,7 +685,7 @@ fn read_csv_rows(path: &Path) -> (Vec<String>, Vec<Vec<String>>) {
 #[cfg(feature = "serve")]
 #[test]
 fn route_plans_on_a_scene_file_with_the_runs_own_light() {
-    let dir = TempDir::new("route");
+    let dir = TempDir::new("cli", "route");
     write_scene(&dir, "s.toml");
     let rover = r#""rover": {"speed_m_s": 0.05, "max_slope_deg": 89,
         "panel": {"area_m2": 2, "efficiency": 0.25},
@@ -825,7 +807,7 @@ fn route_plans_on_a_scene_file_with_the_runs_own_light() {
 #[cfg(feature = "serve")]
 #[test]
 fn place_adds_the_light_a_sunlit_plain_scatters_onto_a_panel() {
-    let dir = TempDir::new("place-terrain");
+    let dir = TempDir::new("cli", "place-terrain");
     // The plain at x = 1,000 km facing +x, 40 × 40 squares of 50 m; from the place, up
     // is +x, north +z and east +y.
     let (n, side, radius) = (40, 50.0, 1.0e6);
@@ -892,7 +874,7 @@ fn place_adds_the_light_a_sunlit_plain_scatters_onto_a_panel() {
 #[cfg(feature = "serve")]
 #[test]
 fn other_bodies_shadow_panels() {
-    let dir = TempDir::new("panel-eclipse");
+    let dir = TempDir::new("cli", "panel-eclipse");
     for sun in ["point", "disk"] {
         let scene = format!(
             "[run]\nsun = \"{sun}\"\n\n[output]\nhistory = false\n\n\
@@ -930,7 +912,7 @@ fn other_bodies_shadow_panels() {
 #[cfg(feature = "serve")]
 #[test]
 fn route_errors_name_the_mesh_and_the_bad_field() {
-    let dir = TempDir::new("route-errors");
+    let dir = TempDir::new("cli", "route-errors");
     let missing = dir.join("sub/missing.obj");
     std::fs::write(
         dir.join("s.toml"),
@@ -963,7 +945,7 @@ fn route_errors_name_the_mesh_and_the_bad_field() {
 /// run (same results); `slim cache` lists it and deletes it once unused.
 #[test]
 fn a_runs_bound_is_cached_listed_and_pruned() {
-    let dir = TempDir::new("cache");
+    let dir = TempDir::new("cli", "cache");
     let scene = write_scene(&dir, "s.toml");
     let body = std::fs::read_to_string(&scene).unwrap();
     std::fs::write(

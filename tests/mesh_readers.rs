@@ -10,36 +10,12 @@ use slim::mesh::inspect::{inspect, MeshReport};
 use slim::mesh::{read_mesh, LengthUnit, Mesh, MeshFormat, RawMesh};
 use std::path::{Path, PathBuf};
 
+#[path = "common/temp_dir.rs"]
+mod temp_dir;
+use temp_dir::TempDir;
+
 // ---------------------------------------------------------------------------------------
 // Helpers
-
-/// A fresh directory for one test (so tests can run in parallel), removed on drop.
-struct TempDir(PathBuf);
-
-impl TempDir {
-    fn join(&self, name: &str) -> PathBuf {
-        self.0.join(name)
-    }
-}
-
-impl std::ops::Deref for TempDir {
-    type Target = Path;
-    fn deref(&self) -> &Path {
-        &self.0
-    }
-}
-
-impl Drop for TempDir {
-    fn drop(&mut self) {
-        let _ = std::fs::remove_dir_all(&self.0);
-    }
-}
-
-fn temp_dir(test: &str) -> TempDir {
-    let dir = std::env::temp_dir().join(format!("slim-mesh-readers-{}-{test}", std::process::id()));
-    std::fs::create_dir_all(&dir).expect("create temp dir");
-    TempDir(dir)
-}
 
 fn write(dir: &Path, name: &str, bytes: impl AsRef<[u8]>) -> PathBuf {
     let path = dir.join(name);
@@ -155,7 +131,7 @@ fn obj_text(mesh: &RawMesh) -> String {
 
 #[test]
 fn obj_reads_face_forms_negative_indices_quads_and_crlf() {
-    let dir = temp_dir("obj");
+    let dir = TempDir::new("mesh-readers", "obj");
     let text = "# a tetrahedron and a quad\r\n\
                 mtllib shape.mtl\r\n\
                 o body\r\n\
@@ -183,7 +159,7 @@ fn obj_reads_face_forms_negative_indices_quads_and_crlf() {
 
 #[test]
 fn obj_rejects_index_zero_short_faces_and_bad_numbers() {
-    let dir = temp_dir("obj-errors");
+    let dir = TempDir::new("mesh-readers", "obj-errors");
     let tetra = obj_text(&tetrahedron());
     expect_error(
         &dir,
@@ -324,7 +300,7 @@ const PLY_FORMATS: [&str; 3] = ["ascii", "binary_little_endian", "binary_big_end
 
 #[test]
 fn ply_reads_all_encodings_skipping_extra_properties_and_elements() {
-    let dir = temp_dir("ply");
+    let dir = TempDir::new("mesh-readers", "ply");
     for format in PLY_FORMATS {
         let mesh = read(&write(
             &dir,
@@ -337,7 +313,7 @@ fn ply_reads_all_encodings_skipping_extra_properties_and_elements() {
 
 #[test]
 fn ply_fan_triangulates_polygons() {
-    let dir = temp_dir("ply-quad");
+    let dir = TempDir::new("mesh-readers", "ply-quad");
     let text = "ply\nformat ascii 1.0\nelement vertex 4\nproperty int x\nproperty int y\n\
                 property int z\nelement face 1\nproperty list uchar int vertex_index\n\
                 end_header\n0 0 0\n1 0 0\n1 1 0\n0 1 0\n4 0 1 2 3\n";
@@ -348,7 +324,7 @@ fn ply_fan_triangulates_polygons() {
 
 #[test]
 fn ply_errors_name_line_or_byte() {
-    let dir = temp_dir("ply-errors");
+    let dir = TempDir::new("mesh-readers", "ply-errors");
     let header = "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n\
                   property float z\nelement face 1\nproperty list uchar int vertex_indices\n\
                   end_header\n";
@@ -472,7 +448,7 @@ fn assert_same_welded_tetrahedron(mesh: &RawMesh, name: &str) {
 
 #[test]
 fn stl_reads_ascii_and_merges_equal_corners() {
-    let dir = temp_dir("stl-ascii");
+    let dir = TempDir::new("mesh-readers", "stl-ascii");
     let mesh = read(&write(&dir, "tetra.stl", stl_ascii(&tetrahedron())));
     assert_same_welded_tetrahedron(&mesh, "tetra.stl");
     assert_eq!(
@@ -488,14 +464,14 @@ fn stl_reads_ascii_and_merges_equal_corners() {
 
 #[test]
 fn stl_merges_negative_and_positive_zero() {
-    let dir = temp_dir("stl-zero");
+    let dir = TempDir::new("mesh-readers", "stl-zero");
     let text = stl_ascii(&tetrahedron()).replacen("vertex 0e0 0e0 0e0", "vertex -0e0 0e0 -0e0", 1);
     assert_same_welded_tetrahedron(&read(&write(&dir, "zero.stl", text)), "zero.stl");
 }
 
 #[test]
 fn stl_reads_binary_even_when_the_header_starts_with_solid() {
-    let dir = temp_dir("stl-binary");
+    let dir = TempDir::new("mesh-readers", "stl-binary");
     for (name, header) in [
         ("plain.stl", &b"binary tetra"[..]),
         ("solid.stl", b"solid tetra exported by a CAD tool"),
@@ -507,7 +483,7 @@ fn stl_reads_binary_even_when_the_header_starts_with_solid() {
 
 #[test]
 fn stl_errors() {
-    let dir = temp_dir("stl-errors");
+    let dir = TempDir::new("mesh-readers", "stl-errors");
     let text = stl_ascii(&tetrahedron());
     expect_error(
         &dir,
@@ -545,7 +521,7 @@ fn stl_errors() {
 
 #[test]
 fn pds_reads_tagged_layout_zero_and_one_based() {
-    let dir = temp_dir("pds-tagged");
+    let dir = TempDir::new("mesh-readers", "pds-tagged");
     let one_based = obj_text(&tetrahedron());
     assert_eq!(read(&write(&dir, "one.tab", &one_based)), tetrahedron());
     let mut zero_based = String::from("# zero-based plates\r\n");
@@ -585,7 +561,7 @@ fn pds_rows(ids: bool, base: u32) -> (String, String) {
 
 #[test]
 fn pds_reads_counted_layout_with_and_without_ids() {
-    let dir = temp_dir("pds-counted");
+    let dir = TempDir::new("mesh-readers", "pds-counted");
     for ids in [false, true] {
         for base in [0, 1] {
             let (vertices, plates) = pds_rows(ids, base);
@@ -598,7 +574,7 @@ fn pds_reads_counted_layout_with_and_without_ids() {
 
 #[test]
 fn pds_reads_classic_layout() {
-    let dir = temp_dir("pds-classic");
+    let dir = TempDir::new("mesh-readers", "pds-classic");
     for base in [0, 1] {
         let (vertices, plates) = pds_rows(true, base);
         let name = format!("classic-{base}.tab");
@@ -609,7 +585,7 @@ fn pds_reads_classic_layout() {
 
 #[test]
 fn pds_errors() {
-    let dir = temp_dir("pds-errors");
+    let dir = TempDir::new("mesh-readers", "pds-errors");
     let (vertices, plates) = pds_rows(false, 1);
     let counted = format!("4 4\n{vertices}{plates}");
     expect_error(
@@ -683,7 +659,7 @@ fn valid_files() -> Vec<(&'static str, Vec<u8>)> {
 
 #[test]
 fn every_reader_rejects_empty_files() {
-    let dir = temp_dir("empty");
+    let dir = TempDir::new("mesh-readers", "empty");
     for name in ["empty.obj", "empty.ply", "empty.stl", "empty.tab"] {
         expect_error(&dir, name, b"", &[]);
     }
@@ -691,7 +667,7 @@ fn every_reader_rejects_empty_files() {
 
 #[test]
 fn every_reader_rejects_files_cut_in_the_middle() {
-    let dir = temp_dir("cut");
+    let dir = TempDir::new("mesh-readers", "cut");
     for (name, bytes) in valid_files() {
         let cut = &bytes[..bytes.len() * 2 / 3];
         let message = expect_error(&dir, &format!("cut-{name}"), cut, &[]);
@@ -719,7 +695,7 @@ fn no_reader_panics_on_prefixes_or_corrupted_bytes() {
     // Writing files is the slow part, so a sample of prefixes and corruptions is tried.
     const PREFIXES: usize = 40;
     const CORRUPTIONS: usize = 25;
-    let dir = temp_dir("prefixes");
+    let dir = TempDir::new("mesh-readers", "prefixes");
     let mut random = XorShift(0x2545_f491_4f6c_dd1d);
     for (name, bytes) in valid_files() {
         let path = dir.join(name);
@@ -741,7 +717,7 @@ fn no_reader_panics_on_prefixes_or_corrupted_bytes() {
 
 #[test]
 fn every_reader_rejects_garbage() {
-    let dir = temp_dir("garbage");
+    let dir = TempDir::new("mesh-readers", "garbage");
     let mut random = XorShift(88172645463325252);
     let garbage: Vec<u8> = (0..3000).map(|_| (random.next() >> 24) as u8).collect();
     for name in ["garbage.obj", "garbage.ply", "garbage.stl", "garbage.tab"] {
@@ -751,7 +727,7 @@ fn every_reader_rejects_garbage() {
 
 #[test]
 fn every_reader_rejects_non_finite_coordinates() {
-    let dir = temp_dir("non-finite");
+    let dir = TempDir::new("mesh-readers", "non-finite");
     let tetra = obj_text(&tetrahedron());
     expect_error(
         &dir,
@@ -785,7 +761,7 @@ fn every_reader_rejects_non_finite_coordinates() {
 
 #[test]
 fn every_reader_rejects_out_of_range_indices() {
-    let dir = temp_dir("range");
+    let dir = TempDir::new("mesh-readers", "range");
     let tetra = obj_text(&tetrahedron());
     let bad = tetra.replacen("f 2 3 4", "f 2 3 812", 1);
     expect_error(
@@ -819,7 +795,7 @@ fn every_reader_rejects_out_of_range_indices() {
 
 #[test]
 fn huge_header_counts_fail_fast_without_allocating() {
-    let dir = temp_dir("huge");
+    let dir = TempDir::new("mesh-readers", "huge");
     let started = std::time::Instant::now();
     let ply = "ply\nformat binary_little_endian 1.0\nelement vertex 4000000000\nproperty float x\n\
                property float y\nproperty float z\nelement face 4000000000\n\
@@ -877,7 +853,7 @@ fn huge_header_counts_fail_fast_without_allocating() {
 
 #[test]
 fn format_can_be_forced_and_unknown_extensions_fail() {
-    let dir = temp_dir("format");
+    let dir = TempDir::new("mesh-readers", "format");
     let path = write(&dir, "shape.mesh", obj_text(&tetrahedron()));
     assert!(read_mesh(&path, None)
         .unwrap_err()
@@ -1165,7 +1141,7 @@ fn real_shapes_have_the_measured_topology() {
 /// without it: an OBJ used to lose its first vertex line and run with the wrong geometry.
 #[test]
 fn every_text_mesh_reads_the_same_with_a_byte_order_mark() {
-    let dir = temp_dir("bom");
+    let dir = TempDir::new("mesh-readers", "bom");
     let (vertices, plates) = pds_rows(false, 0);
     let texts = [
         ("obj", obj_text(&tetrahedron()).into_bytes()),
@@ -1187,7 +1163,7 @@ fn every_text_mesh_reads_the_same_with_a_byte_order_mark() {
 /// the vertex, instead of a mesh with NaN areas and normals that runs to exit 0.
 #[test]
 fn coordinates_whose_squares_overflow_are_refused() {
-    let dir = temp_dir("huge-coordinates");
+    let dir = TempDir::new("mesh-readers", "huge-coordinates");
     let mut mesh = tetrahedron();
     mesh.vertices[2].y = 1e200;
     let message = expect_error(&dir, "far.obj", obj_text(&mesh), &["vertex 3", "1e100"]);

@@ -21,31 +21,12 @@ use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
 
+#[path = "common/temp_dir.rs"]
+mod temp_dir;
+use temp_dir::{shared_dir, TempDir};
+
 // ---------------------------------------------------------------------------------------
 // Helpers
-
-/// A fresh directory for one test (unique per process and test), removed on drop.
-struct TempDir(PathBuf);
-
-impl TempDir {
-    fn new(test: &str) -> TempDir {
-        let dir =
-            std::env::temp_dir().join(format!("slim-outputs-test-{}-{test}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&dir);
-        std::fs::create_dir_all(&dir).expect("create temp dir");
-        TempDir(dir)
-    }
-
-    fn path(&self) -> &Path {
-        &self.0
-    }
-}
-
-impl Drop for TempDir {
-    fn drop(&mut self) {
-        let _ = std::fs::remove_dir_all(&self.0);
-    }
-}
 
 /// OBJ text of a mesh (1-based indices, full precision).
 fn obj_text(mesh: &RawMesh) -> String {
@@ -117,44 +98,13 @@ fn run_into(scene_path: &Path, out: &Path) -> slim::Result<slim::output::record:
     run_scene(&scene, out, &Default::default(), &Silent)
 }
 
-/// Removes shared run folders left by earlier test processes that have ended (statics are
-/// never dropped, so each process leaves its shared folders behind).
-fn remove_stale_shared_dirs() {
-    let Ok(entries) = std::fs::read_dir(std::env::temp_dir()) else {
-        return;
-    };
-    for entry in entries.flatten() {
-        let name = entry.file_name().to_string_lossy().into_owned();
-        let Some(rest) = name.strip_prefix("slim-outputs-test-") else {
-            continue;
-        };
-        let Some((pid, tail)) = rest.split_once('-') else {
-            continue;
-        };
-        let alive = Path::new("/proc").join(pid).exists();
-        if tail.starts_with("shared-")
-            && pid.parse::<u32>().is_ok()
-            && !alive
-            && Path::new("/proc/self").exists()
-        {
-            let _ = std::fs::remove_dir_all(entry.path());
-        }
-    }
-}
-
 fn shared_run(
     name: &str,
     cell: &'static OnceLock<Finished>,
     write: fn(&Path) -> PathBuf,
 ) -> &'static Finished {
     cell.get_or_init(|| {
-        remove_stale_shared_dirs();
-        let dir = std::env::temp_dir().join(format!(
-            "slim-outputs-test-{}-shared-{name}",
-            std::process::id()
-        ));
-        let _ = std::fs::remove_dir_all(&dir);
-        std::fs::create_dir_all(&dir).unwrap();
+        let dir = shared_dir("outputs", name);
         let scene = write(&dir);
         let out = dir.join("out");
         run_into(&scene, &out).unwrap_or_else(|e| panic!("{name} run failed: {e}"));
@@ -1087,9 +1037,9 @@ fn run_json_plan_reflects_the_scene() {
 #[test]
 fn the_same_scene_twice_gives_identical_files() {
     let first = spin_run();
-    let dir = TempDir::new("twice");
-    let scene = write_spin_scene(dir.path());
-    let out = dir.path().join("out");
+    let dir = TempDir::new("outputs", "twice");
+    let scene = write_spin_scene(&dir);
+    let out = dir.join("out");
     run_into(&scene, &out).expect("second run");
     // run.json is left out: it records timings.
     for name in SPIN_DATA_FILES {
@@ -1104,16 +1054,16 @@ fn the_same_scene_twice_gives_identical_files() {
 
 #[test]
 fn missing_mesh_fails_naming_the_mesh_path() {
-    let dir = TempDir::new("missing-mesh");
-    let scene = write_fixed_scene(dir.path());
-    std::fs::remove_file(dir.path().join("b.obj")).unwrap();
-    let err = run_into(&scene, &dir.path().join("out")).expect_err("missing mesh");
+    let dir = TempDir::new("outputs", "missing-mesh");
+    let scene = write_fixed_scene(&dir);
+    std::fs::remove_file(dir.join("b.obj")).unwrap();
+    let err = run_into(&scene, &dir.join("out")).expect_err("missing mesh");
     let msg = err.to_string();
     assert!(
-        msg.contains(&dir.path().join("b.obj").display().to_string()),
+        msg.contains(&dir.join("b.obj").display().to_string()),
         "{msg}"
     );
-    assert!(!dir.path().join("out/run.json").exists());
+    assert!(!dir.join("out/run.json").exists());
 }
 
 /// A run that fails before its first step (here on a broken mesh) loses nothing: the
@@ -1121,9 +1071,9 @@ fn missing_mesh_fails_naming_the_mesh_path() {
 /// each other. (Runs used to clear the folder first, so a typo cost the earlier results.)
 #[test]
 fn a_run_that_fails_before_it_starts_leaves_the_earlier_run_as_it_was() {
-    let dir = TempDir::new("stale-record");
-    let scene = write_fixed_scene(dir.path());
-    let out = dir.path().join("out");
+    let dir = TempDir::new("outputs", "stale-record");
+    let scene = write_fixed_scene(&dir);
+    let out = dir.join("out");
     run_into(&scene, &out).expect("first run");
     let before: Vec<(std::path::PathBuf, Vec<u8>)> = std::fs::read_dir(&out)
         .unwrap()
@@ -1132,7 +1082,7 @@ fn a_run_that_fails_before_it_starts_leaves_the_earlier_run_as_it_was() {
         .collect();
     assert!(before.iter().any(|(p, _)| p.ends_with("run.json")));
     // Break a mesh: the next run fails while reading it.
-    std::fs::write(dir.path().join("b.obj"), "v 0 0 0\nv 1 0 0\nf 1 2 7\n").unwrap();
+    std::fs::write(dir.join("b.obj"), "v 0 0 0\nv 1 0 0\nf 1 2 7\n").unwrap();
     let msg = run_into(&scene, &out).expect_err("broken mesh").to_string();
     assert!(msg.contains("b.obj"), "{msg}");
     for (path, bytes) in &before {
@@ -1144,11 +1094,11 @@ fn a_run_that_fails_before_it_starts_leaves_the_earlier_run_as_it_was() {
 /// the record of a run that succeeds.
 #[test]
 fn a_planted_run_json_is_replaced_only_by_a_finished_run() {
-    let dir = TempDir::new("planted-record");
-    let scene = write_fixed_scene(dir.path());
-    let good = std::fs::read(dir.path().join("a.obj")).unwrap();
-    std::fs::write(dir.path().join("a.obj"), "this is not a mesh\n").unwrap();
-    let out = dir.path().join("out");
+    let dir = TempDir::new("outputs", "planted-record");
+    let scene = write_fixed_scene(&dir);
+    let good = std::fs::read(dir.join("a.obj")).unwrap();
+    std::fs::write(dir.join("a.obj"), "this is not a mesh\n").unwrap();
+    let out = dir.join("out");
     std::fs::create_dir_all(&out).unwrap();
     std::fs::write(out.join("run.json"), "{\"old\": true}").unwrap();
     run_into(&scene, &out).expect_err("broken mesh");
@@ -1156,7 +1106,7 @@ fn a_planted_run_json_is_replaced_only_by_a_finished_run() {
         std::fs::read(out.join("run.json")).unwrap(),
         b"{\"old\": true}"
     );
-    std::fs::write(dir.path().join("a.obj"), good).unwrap();
+    std::fs::write(dir.join("a.obj"), good).unwrap();
     run_into(&scene, &out).expect("fixed mesh");
     let record = std::fs::read_to_string(out.join("run.json")).unwrap();
     assert!(record.contains("\"outputs\""), "{record}");
@@ -1166,20 +1116,20 @@ fn a_planted_run_json_is_replaced_only_by_a_finished_run() {
 fn body_names_cannot_write_outside_the_output_folder() {
     // A body name is used as a file name (BODY.ply). A name with a path in it must either
     // be rejected or stay inside the output folder.
-    let dir = TempDir::new("escape");
-    let scene_path = write_fixed_scene(dir.path());
+    let dir = TempDir::new("outputs", "escape");
+    let scene_path = write_fixed_scene(&dir);
     let text = std::fs::read_to_string(&scene_path).unwrap().replacen(
         "name = \"B\"",
         "name = \"../escaped\"",
         1,
     );
     std::fs::write(&scene_path, text).unwrap();
-    let out = dir.path().join("out");
+    let out = dir.join("out");
     let _ = run_into(&scene_path, &out);
     assert!(
-        !dir.path().join("escaped.ply").exists(),
+        !dir.join("escaped.ply").exists(),
         "a body named '../escaped' wrote {}",
-        dir.path().join("escaped.ply").display()
+        dir.join("escaped.ply").display()
     );
 }
 
@@ -1187,9 +1137,9 @@ fn body_names_cannot_write_outside_the_output_folder() {
 fn a_rerun_with_fewer_outputs_leaves_no_stale_files_beside_run_json() {
     // First run with history, CSV and PLY; second run into the same folder without them.
     // The folder then holds run.json: every file in it should belong to that run.
-    let dir = TempDir::new("rerun");
-    let scene = write_fixed_scene(dir.path());
-    let out = dir.path().join("out");
+    let dir = TempDir::new("outputs", "rerun");
+    let scene = write_fixed_scene(&dir);
+    let out = dir.join("out");
     run_into(&scene, &out).expect("first run");
     let text = std::fs::read_to_string(&scene).unwrap().replacen(
         "csv = true\nply = true\nhistory = true",
@@ -1221,16 +1171,16 @@ fn a_rerun_with_fewer_outputs_leaves_no_stale_files_beside_run_json() {
 /// light: the run warns, naming both; two bodies apart do not.
 #[test]
 fn coincident_bodies_are_a_warning() {
-    let dir = TempDir::new("coincident");
-    let scene = write_fixed_scene(dir.path());
-    let apart = run_into(&scene, &dir.path().join("apart")).expect("run");
+    let dir = TempDir::new("outputs", "coincident");
+    let scene = write_fixed_scene(&dir);
+    let apart = run_into(&scene, &dir.join("apart")).expect("run");
     assert!(!apart.warnings.iter().any(|w| w.contains("coincide")));
     let text = std::fs::read_to_string(&scene).unwrap().replace(
         "mesh = \"b.obj\"\nunits = \"km\"\nposition_km = [-3.0, 0.0, 0.0]",
         "mesh = \"a.obj\"\nunits = \"km\"",
     );
     std::fs::write(&scene, text).unwrap();
-    let twice = run_into(&scene, &dir.path().join("twice")).expect("run");
+    let twice = run_into(&scene, &dir.join("twice")).expect("run");
     let warning = twice.warnings.iter().find(|w| w.contains("coincide"));
     let warning = warning.expect("a warning for bodies listed twice");
     assert!(
@@ -1244,10 +1194,7 @@ fn a_body_without_outputs_shades_others_but_writes_no_rows_of_its_own() {
     // The pair scene with B only casting shadows: A's rows must equal, byte for byte,
     // those of the run in which both bodies report; B appears only in the geometry.
     let both = fixed_run();
-    let dir =
-        std::env::temp_dir().join(format!("slim-outputs-test-{}-occluder", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
+    let dir = TempDir::new("outputs", "occluder");
     let scene = write_fixed_scene(&dir);
     let text = std::fs::read_to_string(&scene).unwrap();
     std::fs::write(
@@ -1287,7 +1234,6 @@ fn a_body_without_outputs_shades_others_but_writes_no_rows_of_its_own() {
     }
     let geometry = std::fs::read_to_string(out.join("geometry.csv")).unwrap();
     assert!(geometry.contains(",B,"), "B's geometry rows are kept");
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]
@@ -1295,9 +1241,7 @@ fn planet_shine_gets_its_own_columns_and_is_all_a_convex_moons_scattered_light()
     // A convex moon scatters nothing onto itself, so all its scattered light is the
     // planet's: `planet_*` must equal `scattered_*` facet by facet, and be positive on
     // the side facing the planet.
-    let dir = std::env::temp_dir().join(format!("slim-outputs-test-{}-planet", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
+    let dir = TempDir::new("outputs", "planet");
     std::fs::write(
         dir.join("moon.obj"),
         obj_text(&icosphere(2, 11.0, DVec3::ZERO)),
@@ -1327,5 +1271,4 @@ fn planet_shine_gets_its_own_columns_and_is_all_a_convex_moons_scattered_light()
     }
     let (cdf_header, _) = read_csv(&out.join("cdf.csv"));
     assert!(cdf_header.contains(&"cdf_planet".to_string()));
-    let _ = std::fs::remove_dir_all(&dir);
 }

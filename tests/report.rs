@@ -26,19 +26,15 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::sync::OnceLock;
 
+#[path = "common/temp_dir.rs"]
+mod temp_dir;
+use temp_dir::{shared_dir, TempDir};
+
 const LEVELS: u32 = 3; // 1280 facets
 const STEPS: usize = 48;
 const SUBSOLAR_DEG: f64 = 20.0;
 const DISTANCE_AU: f64 = 1.0;
 const FLUX_W_M2: f64 = 1361.0;
-
-/// A folder for this process and `name`, emptied first.
-fn fresh_dir(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("slim-report-test-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).expect("create temp dir");
-    dir
-}
 
 /// Writes the icosphere scene into `dir`; returns the scene path.
 fn write_scene(dir: &Path) -> PathBuf {
@@ -68,7 +64,7 @@ fn write_scene(dir: &Path) -> PathBuf {
 fn shared() -> &'static (PathBuf, PathBuf) {
     static CELL: OnceLock<(PathBuf, PathBuf)> = OnceLock::new();
     CELL.get_or_init(|| {
-        let dir = fresh_dir("shared");
+        let dir = shared_dir("report", "run");
         let scene = Scene::load(&write_scene(&dir)).expect("scene");
         let out = dir.join("out");
         run_scene(&scene, &out, &Default::default(), &Silent).expect("run");
@@ -308,7 +304,7 @@ fn mean_map_shows_the_closed_form_mean_by_latitude() {
 #[test]
 fn requested_facets_are_plotted_and_bad_requests_are_refused() {
     let (run, _) = shared();
-    let out = fresh_dir("requested");
+    let out = TempDir::new("report", "requested");
     let options = ReportOptions {
         facets: vec!["ball:7".parse::<FacetRef>().unwrap()],
         near: vec!["30,-45".parse::<LatLon>().unwrap()],
@@ -346,7 +342,6 @@ fn requested_facets_are_plotted_and_bad_requests_are_refused() {
     let err = write_report(run, Some(&out), &bad).unwrap_err().to_string();
     assert!(err.contains("1280 facets"), "{err}");
     assert!("ball".parse::<FacetRef>().is_err() && "95,0".parse::<LatLon>().is_err());
-    let _ = std::fs::remove_dir_all(&out);
 }
 
 /// A route file (as `slim route` writes it) along the equator from 80° W to 80° E is
@@ -355,7 +350,7 @@ fn requested_facets_are_plotted_and_bad_requests_are_refused() {
 #[test]
 fn routes_are_drawn_on_their_bodys_map() {
     let (run, _) = shared();
-    let out = fresh_dir("route");
+    let out = TempDir::new("report", "route");
     let data = slim::output::read::RunData::read(run).unwrap();
     let centroids = &data.bodies[0].facets.centroid_m;
     let mut equator: Vec<(f64, usize)> = centroids
@@ -400,13 +395,12 @@ fn routes_are_drawn_on_their_bodys_map() {
         err.contains("route.json") && err.contains("'eros' is not in this run"),
         "{err}"
     );
-    let _ = std::fs::remove_dir_all(&out);
 }
 
 #[test]
 fn missing_tables_are_errors_naming_the_file() {
     let (run, _) = shared();
-    let copy = fresh_dir("missing");
+    let copy = TempDir::new("report", "missing");
     for name in ["run.json", "cdf.parquet", "geometry.parquet"] {
         std::fs::copy(run.join(name), copy.join(name)).unwrap();
     }
@@ -419,7 +413,6 @@ fn missing_tables_are_errors_naming_the_file() {
         .unwrap_err()
         .to_string();
     assert!(err.contains("summary.parquet"), "{err}");
-    let _ = std::fs::remove_dir_all(&copy);
 }
 
 fn slim() -> Command {
@@ -428,8 +421,8 @@ fn slim() -> Command {
 
 #[test]
 fn report_on_a_folder_without_run_json_fails_with_one_line() {
-    let dir = fresh_dir("not-a-run");
-    let out = slim().arg("report").arg(&dir).output().unwrap();
+    let dir = TempDir::new("report", "not-a-run");
+    let out = slim().arg("report").arg(&*dir).output().unwrap();
     assert!(!out.status.success());
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert_eq!(stderr.trim_end().lines().count(), 1, "{stderr}");
@@ -438,12 +431,11 @@ fn report_on_a_folder_without_run_json_fails_with_one_line() {
         "{stderr}"
     );
     assert!(!dir.join("report").exists(), "nothing written");
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]
 fn run_with_report_writes_a_self_contained_index() {
-    let dir = fresh_dir("cli");
+    let dir = TempDir::new("report", "cli");
     let scene = write_scene(&dir);
     let out = dir.join("out");
     let status = slim()
@@ -489,7 +481,6 @@ fn run_with_report_writes_a_self_contained_index() {
     ] {
         assert!(html.contains(section), "{section}");
     }
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]
@@ -497,7 +488,7 @@ fn a_run_with_a_generated_ellipsoid_and_two_bodies_reports_on_the_first() {
     // A generated body has no mesh file (run.json: "mesh": null). The report must still
     // read the run, name the generated shape, and pick default CDF facets on the first
     // body (the body of interest), not on the larger occluder.
-    let dir = fresh_dir("ellipsoid");
+    let dir = TempDir::new("report", "ellipsoid");
     let scene = write_scene(&dir);
     let text = std::fs::read_to_string(&scene).unwrap()
         + "\n[[body]]\nname = \"big\"\nellipsoid = { radii_km = [5.0, 4.0, 3.0], levels = 2 }\n\
@@ -530,7 +521,7 @@ fn runs_with_scattered_light_map_each_part_of_the_light() {
     // A convex ball scatters nothing onto itself: its direct light read back must equal
     // the total and its scattered light be zero, facet by facet; the direct map spans the
     // total's range; with no planet there is no planet map.
-    let dir = fresh_dir("parts");
+    let dir = TempDir::new("report", "parts");
     let scene_path = write_scene(&dir);
     let text = std::fs::read_to_string(&scene_path).unwrap();
     std::fs::write(&scene_path, format!("{text}\n[scatter]\nalbedo = 0.1\n")).unwrap();
@@ -563,5 +554,4 @@ fn runs_with_scattered_light_map_each_part_of_the_light() {
         assert_eq!(facets.part_means_w_m2[0].1[k], facets.mean_w_m2[k]);
         assert_eq!(facets.part_means_w_m2[1].1[k], 0.0);
     }
-    let _ = std::fs::remove_dir_all(&dir);
 }

@@ -648,24 +648,6 @@ fn a_moving_block_kept_within_inter_body_reuse_misses_no_more_than_its_bound() {
 // ---------------------------------------------------------------------------------------
 // Scene, pipeline and outputs
 
-/// A fresh directory for one test, removed on drop.
-struct TempDir(std::path::PathBuf);
-
-impl TempDir {
-    fn new(test: &str) -> TempDir {
-        let dir = std::env::temp_dir().join(format!("slim-scatter-{}-{test}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&dir);
-        std::fs::create_dir_all(&dir).expect("create temp dir");
-        TempDir(dir)
-    }
-}
-
-impl Drop for TempDir {
-    fn drop(&mut self) {
-        let _ = std::fs::remove_dir_all(&self.0);
-    }
-}
-
 /// A bowl crater scene (600 facets, metres) with two listed Suns; `scatter` is appended.
 fn bowl_scene(dir: &std::path::Path, scatter: &str) -> std::path::PathBuf {
     let raw = bowl_mesh(100.0, 40f64.to_radians(), 10);
@@ -725,7 +707,7 @@ fn column(header: &[String], rows: &[Vec<String>], name: &str) -> Vec<f64> {
 
 #[test]
 fn scene_keys_are_checked_with_their_paths() {
-    let dir = TempDir::new("keys");
+    let dir = TempDir::new("scatter", "keys");
     let bad = |scatter: &str, key: &str| {
         let path = bowl_scene(&dir.0, scatter);
         let err = slim::scene::Scene::load(&path).unwrap_err().to_string();
@@ -758,7 +740,7 @@ fn scene_keys_are_checked_with_their_paths() {
 
 #[test]
 fn run_writes_direct_scattered_and_total_columns() {
-    let dir = TempDir::new("run");
+    let dir = TempDir::new("scatter", "run");
     // Per-facet albedo file: 0.3 everywhere, as one of the ways to give it.
     std::fs::write(dir.0.join("albedo.txt"), "0.3\n".repeat(600)).unwrap();
     let path = bowl_scene(
@@ -817,7 +799,7 @@ fn run_writes_direct_scattered_and_total_columns() {
 
 #[test]
 fn without_a_scatter_section_outputs_are_unchanged() {
-    let dir = TempDir::new("off");
+    let dir = TempDir::new("scatter", "off");
     let path = bowl_scene(&dir.0, "");
     let scene = slim::scene::Scene::load(&path).unwrap();
     let record = run_into(&scene, &dir.0.join("out")).unwrap();
@@ -837,6 +819,10 @@ use slim::photometry::lommel_seeliger::LommelSeeliger;
 use slim::photometry::Material;
 use slim::scatter::photometric::Photometric;
 use slim::scatter::{Block, Blocks, FirstOrderInput, FirstScatter};
+
+#[path = "common/temp_dir.rs"]
+mod temp_dir;
+use temp_dir::TempDir;
 
 /// First-order scattered irradiance of `first` on a one-body world.
 fn first_order(
@@ -963,7 +949,7 @@ fn bowl_means(dir: &TempDir, tag: &str, extra: &str, names: &[&str]) -> Vec<Vec<
 
 #[test]
 fn bands_take_their_share_of_the_flux_and_scatter_with_their_own_albedo() {
-    let dir = TempDir::new("bands");
+    let dir = TempDir::new("scatter", "bands");
     let solve = "[scatter]\nsolver = \"cg\"\ntolerance = 1e-12\n";
     let bands = "[[band]]\nname = \"blue\"\nsolar_constant_w_m2 = 400.0\n\
                  [[band]]\nname = \"red\"\nsolar_constant_w_m2 = 961.0\n";
@@ -1010,7 +996,7 @@ fn bands_take_their_share_of_the_flux_and_scatter_with_their_own_albedo() {
 
 #[test]
 fn without_scattering_a_band_is_its_share_of_the_direct_light() {
-    let dir = TempDir::new("bands-direct");
+    let dir = TempDir::new("scatter", "bands-direct");
     let bands = "[[band]]\nname = \"blue\"\nsolar_constant_w_m2 = 400.0\n";
     let got = bowl_means(
         &dir,
@@ -1026,7 +1012,7 @@ fn without_scattering_a_band_is_its_share_of_the_direct_light() {
 
 #[test]
 fn band_albedos_must_name_a_band() {
-    let dir = TempDir::new("band-keys");
+    let dir = TempDir::new("scatter", "band-keys");
     let path = bowl_scene(
         &dir.0,
         "albedo = 0.3\nalbedo_bands = { green = 0.6 }\n[scatter]\n",
@@ -1042,7 +1028,7 @@ fn band_albedos_must_name_a_band() {
 /// without it (its first value used to be "not a number").
 #[test]
 fn an_albedo_file_with_a_byte_order_mark_reads_the_same() {
-    let dir = TempDir::new("albedo-bom");
+    let dir = TempDir::new("scatter", "albedo-bom");
     let path = dir.0.join("albedo.txt");
     std::fs::write(&path, "\u{feff}0.25\n# comment\n0.5\n").unwrap();
     let albedo = slim::scatter::albedo::read_albedo_file(&path, 2).expect("reads");
@@ -1053,7 +1039,7 @@ fn an_albedo_file_with_a_byte_order_mark_reads_the_same() {
 /// residual (in run.json and on the terminal), not only as a count in the record.
 #[test]
 fn solves_that_stop_above_the_tolerance_are_a_warning() {
-    let dir = TempDir::new("not-converged");
+    let dir = TempDir::new("scatter", "not-converged");
     let path = bowl_scene(
         &dir.0,
         "albedo = 0.9\n[scatter]\nsolver = \"jacobi\"\nmax_orders = 1\ntolerance = 1e-9",

@@ -6,7 +6,11 @@
 //! wrong — not only where.
 
 use slim::scene::{EphemerisSection, Scene};
-use std::path::{Path, PathBuf};
+use std::path::Path;
+
+#[path = "common/temp_dir.rs"]
+mod temp_dir;
+use temp_dir::TempDir;
 
 // ---------------------------------------------------------------------------------------
 // Helpers
@@ -83,25 +87,6 @@ fn assert_rejected(text: &str, needles: &[&str]) {
         assert!(msg.contains(n), "error does not mention {n:?}: {msg}");
     }
     assert!(!msg.contains('\n'), "error is not one line: {msg:?}");
-}
-
-/// A fresh directory for one test, removed on drop.
-struct TempDir(PathBuf);
-
-impl TempDir {
-    fn new(test: &str) -> TempDir {
-        let dir =
-            std::env::temp_dir().join(format!("slim-scene-test-{}-{test}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&dir);
-        std::fs::create_dir_all(&dir).expect("create temp dir");
-        TempDir(dir)
-    }
-}
-
-impl Drop for TempDir {
-    fn drop(&mut self) {
-        let _ = std::fs::remove_dir_all(&self.0);
-    }
 }
 
 // ---------------------------------------------------------------------------------------
@@ -676,7 +661,7 @@ fn syntax_error_on_last_line_without_newline() {
 
 #[test]
 fn non_utf8_scene_file_is_rejected_naming_the_file() {
-    let dir = TempDir::new("non-utf8");
+    let dir = TempDir::new("scene", "non-utf8");
     let path = dir.0.join("latin1.toml");
     let mut bytes = SPIN.as_bytes().to_vec();
     bytes.extend_from_slice(b"# caf\xe9\n");
@@ -690,7 +675,7 @@ fn non_utf8_scene_file_is_rejected_naming_the_file() {
 
 #[test]
 fn missing_scene_file_is_reported_naming_the_file() {
-    let dir = TempDir::new("missing");
+    let dir = TempDir::new("scene", "missing");
     let path = dir.0.join("nowhere.toml");
     let msg = Scene::load(&path).expect_err("missing file").to_string();
     assert!(msg.contains("nowhere.toml"), "{msg}");
@@ -702,7 +687,7 @@ fn missing_scene_file_is_reported_naming_the_file() {
 
 #[test]
 fn loaded_scene_keeps_its_bytes_and_path() {
-    let dir = TempDir::new("bytes");
+    let dir = TempDir::new("scene", "bytes");
     let path = dir.0.join("keep.toml");
     std::fs::write(&path, FIXED).unwrap();
     let scene = Scene::load(&path).expect("loads");

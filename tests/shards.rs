@@ -9,27 +9,9 @@ use serde_json::Value;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-/// A fresh directory for one test, removed on drop.
-struct TempDir(PathBuf);
-
-impl TempDir {
-    fn new(test: &str) -> TempDir {
-        let dir = std::env::temp_dir().join(format!("slim-shards-{}-{test}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&dir);
-        std::fs::create_dir_all(&dir).expect("create temp dir");
-        TempDir(dir)
-    }
-
-    fn join(&self, name: &str) -> PathBuf {
-        self.0.join(name)
-    }
-}
-
-impl Drop for TempDir {
-    fn drop(&mut self) {
-        let _ = std::fs::remove_dir_all(&self.0);
-    }
-}
+#[path = "common/temp_dir.rs"]
+mod temp_dir;
+use temp_dir::TempDir;
 
 fn data(path: &str) -> String {
     Path::new(env!("CARGO_MANIFEST_DIR"))
@@ -62,7 +44,7 @@ fn phobos_scene(dir: &TempDir, name: &str, steps: usize, mesh: &str, extra: &str
         cache = dir.join("cache").display().to_string(),
         mesh = data(mesh),
     );
-    let path = dir.join(&format!("{name}.toml"));
+    let path = dir.join(format!("{name}.toml"));
     std::fs::write(&path, text).unwrap();
     path
 }
@@ -96,7 +78,7 @@ fn s(p: &Path) -> &str {
 
 /// Runs `scene` in `n` parts by `by` into `dir/by-n/K`, merges them into `dir/by-n/merged`.
 fn run_in_parts(scene: &Path, dir: &TempDir, n: usize, by: &str) -> PathBuf {
-    let root = dir.join(&format!("{by}-{n}"));
+    let root = dir.join(format!("{by}-{n}"));
     let mut parts = Vec::new();
     // Run the parts out of order: a part does not depend on the others.
     for k in (1..=n).rev() {
@@ -184,7 +166,7 @@ fn assert_identical(one: &Path, merged: &Path, what: &str) {
 
 #[test]
 fn parts_by_time_and_by_facet_merge_into_the_files_of_one_run() {
-    let dir = TempDir::new("direct");
+    let dir = TempDir::new("shards", "direct");
     let scene = phobos_scene(&dir, "phobos", 28, "shapes/phobos/m1phobos.obj", "");
     let one = dir.join("one");
     ok(&["run", s(&scene), "-o", s(&one)]);
@@ -202,7 +184,7 @@ fn parts_by_time_and_by_facet_merge_into_the_files_of_one_run() {
 /// computed) the same.
 #[test]
 fn parts_of_a_spin_that_repeats_merge_into_the_files_of_one_run() {
-    let dir = TempDir::new("repeats");
+    let dir = TempDir::new("shards", "repeats");
     let text = format!(
         "[run]\nname = \"repeats\"\ntracer = \"bvh\"\ncache_dir = {cache:?}\n\n\
          [output]\ncsv = true\nply = true\nhistory = true\n\n\
@@ -230,7 +212,7 @@ fn parts_of_a_spin_that_repeats_merge_into_the_files_of_one_run() {
 
 #[test]
 fn parts_with_scattered_light_planet_shine_and_bands_merge_exactly() {
-    let dir = TempDir::new("scatter");
+    let dir = TempDir::new("shards", "scatter");
     // Itokawa's 3,072-facet shape in Phobos's place keeps the form factors small; Mars's
     // planet-shine weights are kept while it moves less than planet_reuse, so a time part
     // must start from the weights one run would hold (Scatter::prime).
@@ -262,10 +244,10 @@ fn parts_with_scattered_light_planet_shine_and_bands_merge_exactly() {
 
 #[test]
 fn broken_sets_of_parts_are_refused_naming_the_folder() {
-    let dir = TempDir::new("broken");
+    let dir = TempDir::new("shards", "broken");
     let scene = phobos_scene(&dir, "small", 6, "shapes/itokawa/itokawa_8.obj", "");
     let part = |k: usize, n: usize| {
-        let p = dir.join(&format!("p{k}of{n}"));
+        let p = dir.join(format!("p{k}of{n}"));
         ok(&[
             "run",
             s(&scene),
@@ -327,7 +309,7 @@ fn broken_sets_of_parts_are_refused_naming_the_folder() {
 
 #[test]
 fn slurm_scripts_are_written_and_a_dry_run_estimates_a_part_without_writing() {
-    let dir = TempDir::new("slurm");
+    let dir = TempDir::new("shards", "slurm");
     let scene = phobos_scene(&dir, "small", 40, "shapes/itokawa/itokawa_8.obj", "");
     let batch = dir.join("batch");
     let out = Command::new(env!("CARGO_BIN_EXE_slim"))

@@ -236,7 +236,8 @@ mod tests {
 
     #[test]
     fn an_encoders_error_reaches_the_caller_and_names_the_file() {
-        let dir = folder("missing").join("not-there");
+        let parent = folder("missing");
+        let dir = parent.join("not-there");
         let mut writer = TableWriter::new(&dir, "t", true);
         let batch = Table::default().with("x", Values::F64(vec![1.0]));
         // The error comes from the write that meets a stopped encoder, or from finish.
@@ -248,5 +249,6 @@ mod tests {
             },
         };
         assert!(error.to_string().contains("not-there/t."), "{error}");
+        let _ = std::fs::remove_dir_all(&parent);
     }
 }
