@@ -499,9 +499,7 @@ mod tests {
 
     #[test]
     fn pruning_deletes_only_slims_files_unused_since_then_and_no_held_journal() {
-        let dir = std::env::temp_dir().join(format!("slim-cache-prune-{}", std::process::id()));
-        std::fs::remove_dir_all(&dir).ok();
-        std::fs::create_dir_all(&dir).expect("dir");
+        let dir = crate::TestDir::new("cache-prune");
         let day = std::time::Duration::from_secs(86_400);
         let now = SystemTime::now();
         let (old_key, new_key, held_key) = ([1u8; 32], [2u8; 32], [3u8; 32]);
@@ -545,12 +543,11 @@ mod tests {
         assert_eq!(prune(&dir, now - day * 30).expect("prune").len(), 1);
         assert!(!journal.exists() && new.exists());
         assert!(entries(&dir.join("absent")).expect("absent").is_empty());
-        std::fs::remove_dir_all(&dir).ok();
     }
 
     #[test]
     fn a_stored_payload_reads_back_and_any_damage_or_other_key_is_refused() {
-        let dir = std::env::temp_dir().join(format!("slim-cache-{}", std::process::id()));
+        let dir = crate::TestDir::new("cache");
         let key = [7u8; 32];
         let file = file_for(&dir, &KIND, &key);
         assert!(matches!(load(&file, &KIND, &key), Lookup::Missing));
@@ -581,6 +578,5 @@ mod tests {
         refused("checksum");
         std::fs::write(&file, b"").expect("write");
         refused("truncated");
-        std::fs::remove_dir_all(&dir).ok();
     }
 }

@@ -203,12 +203,6 @@ mod tests {
         prefix: "test",
     };
 
-    fn target(name: &str) -> PathBuf {
-        let dir = std::env::temp_dir().join(format!("slim-journal-{}-{name}", std::process::id()));
-        std::fs::remove_dir_all(&dir).ok();
-        dir.join("result.bin")
-    }
-
     /// Opens the journal and collects the parts it hands back.
     fn reopen(path: &Path, key: &[u8; 32]) -> (Journal, Vec<Vec<u8>>) {
         let mut got = Vec::new();
@@ -233,7 +227,8 @@ mod tests {
 
     #[test]
     fn parts_written_come_back_in_order_after_the_writer_is_gone() {
-        let path = target("order");
+        let dir = crate::TestDir::new("journal-order");
+        let path = dir.join("result.bin");
         let key = [1u8; 32];
         let (mut journal, got) = reopen(&path, &key);
         assert!(got.is_empty());
@@ -258,12 +253,12 @@ mod tests {
         assert_eq!(parts_held(&path, 100), 5);
         journal.append(&[9u8; 40]).expect("append");
         assert_eq!(parts_held(&path, 100), 5);
-        std::fs::remove_dir_all(path.parent().expect("dir")).ok();
     }
 
     #[test]
     fn a_damaged_or_unfinished_part_and_all_after_it_are_dropped() {
-        let path = target("damage");
+        let dir = crate::TestDir::new("journal-damage");
+        let path = dir.join("result.bin");
         let key = [2u8; 32];
         let (mut journal, _) = reopen(&path, &key);
         for p in parts(4) {
@@ -303,12 +298,12 @@ mod tests {
         swapped.extend_from_slice(&whole[part_end(0)..part_end(1)]);
         std::fs::write(&at, &swapped).expect("write");
         assert!(reopen(&path, &key).1.is_empty());
-        std::fs::remove_dir_all(path.parent().expect("dir")).ok();
     }
 
     #[test]
     fn a_journal_of_other_content_or_a_refused_part_starts_over_there() {
-        let path = target("other");
+        let dir = crate::TestDir::new("journal-other");
+        let path = dir.join("result.bin");
         let (mut journal, _) = reopen(&path, &[3u8; 32]);
         for p in parts(2) {
             journal.append(&p).expect("append");
@@ -339,12 +334,12 @@ mod tests {
         .expect("open");
         assert!(matches!(opened, Opened::Ready { parts: 1, .. }));
         assert_eq!(seen, 2);
-        std::fs::remove_dir_all(path.parent().expect("dir")).ok();
     }
 
     #[test]
     fn a_journal_held_by_one_build_is_busy_for_another() {
-        let path = target("busy");
+        let dir = crate::TestDir::new("journal-busy");
+        let path = dir.join("result.bin");
         let key = [6u8; 32];
         let (journal, _) = reopen(&path, &key);
         // File locks are per open file description: a second open in this process
@@ -358,6 +353,5 @@ mod tests {
             Journal::open(&path, &KIND, &key, |_, _| true).expect("open"),
             Opened::Ready { .. }
         ));
-        std::fs::remove_dir_all(path.parent().expect("dir")).ok();
     }
 }

@@ -461,7 +461,7 @@ mod tests {
 
     #[test]
     fn a_stored_map_reads_back_and_any_damage_or_other_content_is_refused() {
-        let dir = std::env::temp_dir().join(format!("slim-horizon-cache-{}", std::process::id()));
+        let dir = crate::TestDir::new("horizon-cache");
         let mesh = Mesh::from_raw(icosphere(1, 1.0, glam::DVec3::ZERO), LengthUnit::Km);
         let map = HorizonMap::build(&mesh, mesh.len(), &Bvh::build(&mesh), 16);
         let key = content_key(&mesh, mesh.len(), 16);
@@ -497,20 +497,17 @@ mod tests {
             load(&file, &key, mesh.len(), 16),
             Lookup::Rejected(_)
         ));
-        std::fs::remove_dir_all(&dir).ok();
     }
 
     #[test]
     fn a_helpers_part_reads_back_only_as_the_part_it_is_and_is_claimed_once() {
-        let dir = std::env::temp_dir().join(format!("slim-horizon-part-{}", std::process::id()));
-        std::fs::remove_dir_all(&dir).ok();
+        let dir = crate::TestDir::new("horizon-part");
         let mesh = Mesh::from_raw(icosphere(2, 1.0, glam::DVec3::ZERO), LengthUnit::Km);
         let bvh = Bvh::build(&mesh);
         let parts = MapParts::new(&mesh, mesh.len(), &bvh, 16, 128);
         let key = content_key(&mesh, mesh.len(), 16);
         let file = file_for(&dir, &key);
         assert!(matches!(load_part(&file, &key, &parts, 1), Lookup::Missing));
-        std::fs::create_dir_all(&dir).expect("dir");
         assert!(!part_taken(&file, 1));
         assert!(claim_part(&file, 1).expect("claim"));
         assert!(!claim_part(&file, 1).expect("claim"), "claimed once");
@@ -541,6 +538,5 @@ mod tests {
         ));
         clear_parts(&file, parts.count());
         assert_eq!(std::fs::read_dir(&dir).expect("dir").count(), 0);
-        std::fs::remove_dir_all(&dir).ok();
     }
 }

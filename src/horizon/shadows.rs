@@ -1146,7 +1146,8 @@ mod tests {
         // Bumps with a ring of surroundings: the estimate must be what the map holds,
         // plus, for an exact map under a point Sun, the last blocker of every facet of
         // the patch and the neighbours of every facet that casts shadows.
-        let (body, shadows) = bumps_in(&scratch("bytes"));
+        let dir = crate::TestDir::new("map-journal-bytes");
+        let (body, shadows) = bumps_in(&dir);
         let ring = height_field((8, 8), (-24.0, 24.0), (-24.0, 24.0), |x, y| {
             0.05 * (x * x + y * y)
         });
@@ -1183,16 +1184,9 @@ mod tests {
         HorizonMap::build(mesh, mesh.len(), &Bvh::build(mesh), shadows.azimuths)
     }
 
-    fn scratch(name: &str) -> PathBuf {
-        let dir =
-            std::env::temp_dir().join(format!("slim-map-journal-{}-{name}", std::process::id()));
-        std::fs::remove_dir_all(&dir).ok();
-        dir
-    }
-
     #[test]
     fn a_build_stopped_part_way_goes_on_from_its_journal_to_the_same_map() {
-        let dir = scratch("resume");
+        let dir = crate::TestDir::new("map-journal-resume");
         let (body, shadows) = bumps_in(&dir);
         let whole = whole_build(&body, &shadows);
         // Cancelled before the fourth part of eight: three parts are in the journal.
@@ -1225,14 +1219,13 @@ mod tests {
             .obtain_in_parts(&body, &StopAfter::new(usize::MAX), 64)
             .expect("cached");
         assert_eq!((again, record.source.as_str()), (whole, "cache"));
-        std::fs::remove_dir_all(&dir).ok();
     }
 
     /// The BVH's horizon bound is stored once built and read back as it was; a damaged
     /// file is built again, never used.
     #[test]
     fn a_bound_is_kept_in_the_cache_and_read_back_as_built() {
-        let dir = scratch("bound");
+        let dir = crate::TestDir::new("map-journal-bound");
         let (body, shadows) = bumps_in(&dir);
         let bvh = Bvh::build(body.shadow_mesh());
         let world = World {
@@ -1277,12 +1270,11 @@ mod tests {
         std::fs::write(&file, &damaged).expect("write");
         assert_eq!(obtained(), (sines(&fresh), "built".to_string()));
         assert_eq!(std::fs::read(&file).expect("rewritten"), stored);
-        std::fs::remove_dir_all(&dir).ok();
     }
 
     #[test]
     fn a_journal_of_parts_of_another_size_is_not_taken() {
-        let dir = scratch("other");
+        let dir = crate::TestDir::new("map-journal-other");
         let (body, shadows) = bumps_in(&dir);
         assert!(shadows
             .obtain_in_parts(&body, &StopAfter::new(2), 64)
@@ -1295,7 +1287,6 @@ mod tests {
             (map, record.source.as_str()),
             (whole_build(&body, &shadows), "built")
         );
-        std::fs::remove_dir_all(&dir).ok();
     }
 
     /// Another build holding the journal with its first `parts` parts.
@@ -1317,7 +1308,7 @@ mod tests {
 
     #[test]
     fn a_run_waits_for_another_build_of_its_map_and_reads_it_or_goes_on_from_it() {
-        let dir = scratch("wait");
+        let dir = crate::TestDir::new("map-journal-wait");
         let (body, shadows) = bumps_in(&dir);
         let whole = whole_build(&body, &shadows);
         let key = cache::content_key(body.shadow_mesh(), body.mesh.len(), 32);
@@ -1362,7 +1353,6 @@ mod tests {
         assert!(progress.noted("128 of 512 facets done"));
         assert!(progress.noted("5 of its 8 parts were built by other runs"));
         assert_eq!(cache_files(&dir), ["horizon"]);
-        std::fs::remove_dir_all(&dir).ok();
     }
 
     /// What the files of the cache folder `dir` hold (`slim cache`'s names).
@@ -1376,7 +1366,7 @@ mod tests {
     /// damaged one itself.
     #[test]
     fn a_build_takes_the_parts_that_helpers_stored_and_rebuilds_damaged_ones() {
-        let dir = scratch("helped");
+        let dir = crate::TestDir::new("map-journal-helped");
         let (body, shadows) = bumps_in(&dir);
         let whole = whole_build(&body, &shadows);
         let mesh = body.shadow_mesh();
@@ -1409,7 +1399,6 @@ mod tests {
             }
         }
         assert!(!part_6.exists() && !cache::part_file(&file, 5).exists());
-        std::fs::remove_dir_all(&dir).ok();
     }
     use crate::mesh::generate::{floor_and_wall, height_field};
     use crate::mesh::{LengthUnit, Mesh};

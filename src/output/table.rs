@@ -163,13 +163,6 @@ mod tests {
     use super::super::columns::Values;
     use super::*;
 
-    fn folder(name: &str) -> PathBuf {
-        let dir = std::env::temp_dir().join(format!("slim-table-{name}-{}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&dir);
-        std::fs::create_dir_all(&dir).unwrap();
-        dir
-    }
-
     fn csv_of(dir: &Path, batches: Vec<Table>) -> String {
         std::fs::create_dir_all(dir).unwrap();
         let mut writer = TableWriter::new(dir, "t", true);
@@ -183,7 +176,7 @@ mod tests {
 
     #[test]
     fn text_in_runs_writes_as_one_string_per_row() {
-        let dir = folder("runs");
+        let dir = crate::TestDir::new("table-runs");
         let names = |v: &[&str]| v.iter().map(|s| s.to_string()).collect::<Vec<_>>();
         let runs = Table::default()
             .with(
@@ -214,12 +207,11 @@ mod tests {
             std::fs::read(dir.join("a/t.parquet")).unwrap(),
             std::fs::read(dir.join("b/t.parquet")).unwrap()
         );
-        let _ = std::fs::remove_dir_all(&dir);
     }
 
     #[test]
     fn a_writer_dropped_unfinished_leaves_only_partial_files() {
-        let dir = folder("dropped");
+        let dir = crate::TestDir::new("table-dropped");
         let mut writer = TableWriter::new(&dir, "t", true);
         writer
             .write(Table::default().with("x", Values::F64(vec![1.0])))
@@ -231,12 +223,11 @@ mod tests {
             .collect();
         assert!(names.iter().all(|n| n.ends_with(".partial")), "{names:?}");
         assert!(names.contains(&"t.csv.partial".to_string()), "{names:?}");
-        let _ = std::fs::remove_dir_all(&dir);
     }
 
     #[test]
     fn an_encoders_error_reaches_the_caller_and_names_the_file() {
-        let parent = folder("missing");
+        let parent = crate::TestDir::new("table-missing");
         let dir = parent.join("not-there");
         let mut writer = TableWriter::new(&dir, "t", true);
         let batch = Table::default().with("x", Values::F64(vec![1.0]));
@@ -249,6 +240,5 @@ mod tests {
             },
         };
         assert!(error.to_string().contains("not-there/t."), "{error}");
-        let _ = std::fs::remove_dir_all(&parent);
     }
 }

@@ -348,15 +348,9 @@ impl HistoryReader {
 mod tests {
     use super::*;
 
-    fn folder(name: &str) -> PathBuf {
-        let dir = std::env::temp_dir().join(format!("slim-part-{name}-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
-        dir
-    }
-
     #[test]
     fn a_part_file_reads_back_and_damage_is_named() {
-        let dir = folder("roundtrip");
+        let dir = crate::TestDir::new("part-roundtrip");
         let bins = Bins::covering(10.0, 50.0);
         let mut total = FacetStats::new(3, bins);
         let mut direct = FacetStats::new(3, bins);
@@ -388,6 +382,5 @@ mod tests {
         std::fs::write(&path, b"PAR1 not ours").unwrap();
         let e = read_part(&dir).unwrap_err().to_string();
         assert!(e.contains("not a slim part file"), "{e}");
-        std::fs::remove_dir_all(&dir).unwrap();
     }
 }
