@@ -266,7 +266,9 @@ struct Screened {
     /// What the difference of the two ends' heights may err by (m): `2·ε_h`.
     rise_error: Vec4,
     /// Differences of the two ends' heights above this (0.01 × the length) mean a
-    /// crossing angle of at least 0.01 rad.
+    /// crossing angle of at least 0.01 rad; kept above twice `rise_error`, so that a
+    /// segment judged steep is not one lying in the plane (a short one, under 6e-4 of
+    /// the scale).
     steep: Vec4,
 }
 
@@ -290,7 +292,7 @@ impl Screened {
             reach: Vec4::splat(3e-6 * scale),
             crossing: Vec4::splat(2.0 * HEIGHT_ERROR * scale * length),
             rise_error: Vec4::splat(2.0 * HEIGHT_ERROR * scale),
-            steep: Vec4::splat(0.01 * length),
+            steep: Vec4::splat((0.01 * length).max(4.0 * HEIGHT_ERROR * scale)),
         }
     }
 }
