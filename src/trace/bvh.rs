@@ -13,7 +13,9 @@
 //! other tracers would be. The tree is built with the binned surface-area heuristic;
 //! leaves hold at most `LEAF_SIZE` facets. The tree borrows the mesh, whose `f64`
 //! facets the exact tests read; it keeps only its `f32` boxes and leaf screens (their
-//! edge planes in `i16`). For traversal the binary tree is collapsed into one of four
+//! edge planes in `i16`, measured from each leaf's centre, so that a screen's tolerance
+//! is the `f32` crossing point's own error, millimetres on a body of hundreds of metres).
+//! For traversal the binary tree is collapsed into one of four
 //! children per node, whose boxes are stored in `f32` by axis (one child per SIMD lane),
 //! relative to the mesh's centre and rounded outward with a margin far above `f32`
 //! rounding, so the box tests can only let through more, never fewer, segments than
