@@ -499,7 +499,7 @@ mod tests {
 
     #[test]
     fn pruning_deletes_only_slims_files_unused_since_then_and_no_held_journal() {
-        let dir = crate::TestDir::new("cache-prune");
+        let dir = crate::TempDir::new("unit", "cache-prune");
         let day = std::time::Duration::from_secs(86_400);
         let now = SystemTime::now();
         let (old_key, new_key, held_key) = ([1u8; 32], [2u8; 32], [3u8; 32]);
@@ -547,7 +547,7 @@ mod tests {
 
     #[test]
     fn a_stored_payload_reads_back_and_any_damage_or_other_key_is_refused() {
-        let dir = crate::TestDir::new("cache");
+        let dir = crate::TempDir::new("unit", "cache");
         let key = [7u8; 32];
         let file = file_for(&dir, &KIND, &key);
         assert!(matches!(load(&file, &KIND, &key), Lookup::Missing));

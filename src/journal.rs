@@ -227,7 +227,7 @@ mod tests {
 
     #[test]
     fn parts_written_come_back_in_order_after_the_writer_is_gone() {
-        let dir = crate::TestDir::new("journal-order");
+        let dir = crate::TempDir::new("unit", "journal-order");
         let path = dir.join("result.bin");
         let key = [1u8; 32];
         let (mut journal, got) = reopen(&path, &key);
@@ -257,7 +257,7 @@ mod tests {
 
     #[test]
     fn a_damaged_or_unfinished_part_and_all_after_it_are_dropped() {
-        let dir = crate::TestDir::new("journal-damage");
+        let dir = crate::TempDir::new("unit", "journal-damage");
         let path = dir.join("result.bin");
         let key = [2u8; 32];
         let (mut journal, _) = reopen(&path, &key);
@@ -302,7 +302,7 @@ mod tests {
 
     #[test]
     fn a_journal_of_other_content_or_a_refused_part_starts_over_there() {
-        let dir = crate::TestDir::new("journal-other");
+        let dir = crate::TempDir::new("unit", "journal-other");
         let path = dir.join("result.bin");
         let (mut journal, _) = reopen(&path, &[3u8; 32]);
         for p in parts(2) {
@@ -338,7 +338,7 @@ mod tests {
 
     #[test]
     fn a_journal_held_by_one_build_is_busy_for_another() {
-        let dir = crate::TestDir::new("journal-busy");
+        let dir = crate::TempDir::new("unit", "journal-busy");
         let path = dir.join("result.bin");
         let key = [6u8; 32];
         let (journal, _) = reopen(&path, &key);

@@ -130,43 +130,13 @@ pub(crate) fn without_bom(bytes: &[u8]) -> &[u8] {
     bytes.strip_prefix(b"\xEF\xBB\xBF").unwrap_or(bytes)
 }
 
-/// A fresh, empty folder for one unit test (`slim-unit-{process id}-{name}` in the
-/// system's temporary folder), removed when dropped, a failed test's too; it reads as
-/// the [`Path`](std::path::Path) it is.
+/// Fresh folders for unit tests, removed when dropped: the integration tests' own
+/// ([`TempDir`]), shared rather than written again.
 #[cfg(test)]
-pub(crate) struct TestDir(std::path::PathBuf);
-
+#[path = "../tests/common/temp_dir.rs"]
+mod temp_dir;
 #[cfg(test)]
-impl TestDir {
-    pub(crate) fn new(name: &str) -> TestDir {
-        let dir = std::env::temp_dir().join(format!("slim-unit-{}-{name}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&dir);
-        std::fs::create_dir_all(&dir).expect("create a test folder");
-        TestDir(dir)
-    }
-}
-
-#[cfg(test)]
-impl std::ops::Deref for TestDir {
-    type Target = std::path::Path;
-    fn deref(&self) -> &std::path::Path {
-        &self.0
-    }
-}
-
-#[cfg(test)]
-impl AsRef<std::path::Path> for TestDir {
-    fn as_ref(&self) -> &std::path::Path {
-        &self.0
-    }
-}
-
-#[cfg(test)]
-impl Drop for TestDir {
-    fn drop(&mut self) {
-        let _ = std::fs::remove_dir_all(&self.0);
-    }
-}
+pub(crate) use temp_dir::TempDir;
 
 /// A seeded xorshift generator for unit tests' random cases: reproducible, and not the
 /// code under test.

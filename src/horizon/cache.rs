@@ -461,7 +461,7 @@ mod tests {
 
     #[test]
     fn a_stored_map_reads_back_and_any_damage_or_other_content_is_refused() {
-        let dir = crate::TestDir::new("horizon-cache");
+        let dir = crate::TempDir::new("unit", "horizon-cache");
         let mesh = Mesh::from_raw(icosphere(1, 1.0, glam::DVec3::ZERO), LengthUnit::Km);
         let map = HorizonMap::build(&mesh, mesh.len(), &Bvh::build(&mesh), 16);
         let key = content_key(&mesh, mesh.len(), 16);
@@ -501,7 +501,7 @@ mod tests {
 
     #[test]
     fn a_helpers_part_reads_back_only_as_the_part_it_is_and_is_claimed_once() {
-        let dir = crate::TestDir::new("horizon-part");
+        let dir = crate::TempDir::new("unit", "horizon-part");
         let mesh = Mesh::from_raw(icosphere(2, 1.0, glam::DVec3::ZERO), LengthUnit::Km);
         let bvh = Bvh::build(&mesh);
         let parts = MapParts::new(&mesh, mesh.len(), &bvh, 16, 128);

@@ -1146,7 +1146,7 @@ mod tests {
         // Bumps with a ring of surroundings: the estimate must be what the map holds,
         // plus, for an exact map under a point Sun, the last blocker of every facet of
         // the patch and the neighbours of every facet that casts shadows.
-        let dir = crate::TestDir::new("map-journal-bytes");
+        let dir = crate::TempDir::new("unit", "map-journal-bytes");
         let (body, shadows) = bumps_in(&dir);
         let ring = height_field((8, 8), (-24.0, 24.0), (-24.0, 24.0), |x, y| {
             0.05 * (x * x + y * y)
@@ -1186,7 +1186,7 @@ mod tests {
 
     #[test]
     fn a_build_stopped_part_way_goes_on_from_its_journal_to_the_same_map() {
-        let dir = crate::TestDir::new("map-journal-resume");
+        let dir = crate::TempDir::new("unit", "map-journal-resume");
         let (body, shadows) = bumps_in(&dir);
         let whole = whole_build(&body, &shadows);
         // Cancelled before the fourth part of eight: three parts are in the journal.
@@ -1225,7 +1225,7 @@ mod tests {
     /// file is built again, never used.
     #[test]
     fn a_bound_is_kept_in_the_cache_and_read_back_as_built() {
-        let dir = crate::TestDir::new("map-journal-bound");
+        let dir = crate::TempDir::new("unit", "map-journal-bound");
         let (body, shadows) = bumps_in(&dir);
         let bvh = Bvh::build(body.shadow_mesh());
         let world = World {
@@ -1274,7 +1274,7 @@ mod tests {
 
     #[test]
     fn a_journal_of_parts_of_another_size_is_not_taken() {
-        let dir = crate::TestDir::new("map-journal-other");
+        let dir = crate::TempDir::new("unit", "map-journal-other");
         let (body, shadows) = bumps_in(&dir);
         assert!(shadows
             .obtain_in_parts(&body, &StopAfter::new(2), 64)
@@ -1308,7 +1308,7 @@ mod tests {
 
     #[test]
     fn a_run_waits_for_another_build_of_its_map_and_reads_it_or_goes_on_from_it() {
-        let dir = crate::TestDir::new("map-journal-wait");
+        let dir = crate::TempDir::new("unit", "map-journal-wait");
         let (body, shadows) = bumps_in(&dir);
         let whole = whole_build(&body, &shadows);
         let key = cache::content_key(body.shadow_mesh(), body.mesh.len(), 32);
@@ -1366,7 +1366,7 @@ mod tests {
     /// damaged one itself.
     #[test]
     fn a_build_takes_the_parts_that_helpers_stored_and_rebuilds_damaged_ones() {
-        let dir = crate::TestDir::new("map-journal-helped");
+        let dir = crate::TempDir::new("unit", "map-journal-helped");
         let (body, shadows) = bumps_in(&dir);
         let whole = whole_build(&body, &shadows);
         let mesh = body.shadow_mesh();

@@ -176,7 +176,7 @@ mod tests {
 
     #[test]
     fn text_in_runs_writes_as_one_string_per_row() {
-        let dir = crate::TestDir::new("table-runs");
+        let dir = crate::TempDir::new("unit", "table-runs");
         let names = |v: &[&str]| v.iter().map(|s| s.to_string()).collect::<Vec<_>>();
         let runs = Table::default()
             .with(
@@ -211,7 +211,7 @@ mod tests {
 
     #[test]
     fn a_writer_dropped_unfinished_leaves_only_partial_files() {
-        let dir = crate::TestDir::new("table-dropped");
+        let dir = crate::TempDir::new("unit", "table-dropped");
         let mut writer = TableWriter::new(&dir, "t", true);
         writer
             .write(Table::default().with("x", Values::F64(vec![1.0])))
@@ -227,7 +227,7 @@ mod tests {
 
     #[test]
     fn an_encoders_error_reaches_the_caller_and_names_the_file() {
-        let parent = crate::TestDir::new("table-missing");
+        let parent = crate::TempDir::new("unit", "table-missing");
         let dir = parent.join("not-there");
         let mut writer = TableWriter::new(&dir, "t", true);
         let batch = Table::default().with("x", Values::F64(vec![1.0]));

@@ -96,7 +96,7 @@ mod tests {
 
     #[test]
     fn a_stored_block_reads_back_bit_for_bit_and_other_content_is_refused() {
-        let dir = crate::TestDir::new("ff-cache");
+        let dir = crate::TempDir::new("unit", "ff-cache");
         // A rough field, so that facets see each other.
         let raw = height_field((6, 6), (0.0, 6.0), (0.0, 6.0), |x, y| {
             (x * 1.7).sin() + (y * 2.3).cos()

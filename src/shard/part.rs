@@ -350,7 +350,7 @@ mod tests {
 
     #[test]
     fn a_part_file_reads_back_and_damage_is_named() {
-        let dir = crate::TestDir::new("part-roundtrip");
+        let dir = crate::TempDir::new("unit", "part-roundtrip");
         let bins = Bins::covering(10.0, 50.0);
         let mut total = FacetStats::new(3, bins);
         let mut direct = FacetStats::new(3, bins);

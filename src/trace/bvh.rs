@@ -15,11 +15,11 @@
 //! facets the exact tests read; it keeps only its `f32` boxes and leaf screens (their
 //! edge planes in `i16`, measured from each leaf's centre, so that a screen's tolerance
 //! is the `f32` crossing point's own error, millimetres on a body of hundreds of metres).
-//! For traversal the binary tree is collapsed into one of four
-//! children per node, whose boxes are stored in `f32` by axis (one child per SIMD lane),
-//! relative to the mesh's centre and rounded outward with a margin far above `f32`
-//! rounding, so the box tests can only let through more, never fewer, segments than
-//! exact ones would; facets are then screened in `f32` and tested in `f64`.
+//! For traversal the binary tree is collapsed into one of four children per node, whose
+//! boxes are stored in `f32` by axis (one child per SIMD lane), relative to the mesh's
+//! centre and rounded outward with a margin far above `f32` rounding, so the box tests
+//! can only let through more, never fewer, segments than exact ones would; facets are
+//! then screened in `f32` and tested in `f64`.
 
 use super::ray::{inside, DepthPlane, RayFrame};
 use super::{caster_facets, casts_shadows, Blocker, ShadowQuery, ShadowRay, Tracer, WALK_FACETS};

@@ -1,12 +1,13 @@
-//! Folders for the integration tests: one per test, removed when it is dropped, and one
-//! per process for a run that several tests share from a static (which is never dropped),
-//! removed by a later test process once the process that made it has ended.
+//! Folders for the tests, the integration tests' and (through `src/lib.rs`) the crate's
+//! unit tests': one per test, removed when it is dropped, and one per process for a run
+//! that several tests share from a static (which is never dropped), removed by a later
+//! test process once the process that made it has ended.
 //!
 //! In: the suite's name (its test file's) and the test's. Out: a fresh, empty folder
 //! `slim-test-{suite}-{process id}-{test}` in the system's temporary folder.
 //!
-//! Each test file includes this with `#[path]` and uses its part of it, so the parts
-//! another file uses would read as dead code here.
+//! Each test crate includes this with `#[path]` and uses its part of it, so the parts
+//! another uses would read as dead code here.
 #![allow(dead_code)]
 
 use std::path::{Path, PathBuf};
@@ -24,6 +25,12 @@ impl TempDir {
 impl std::ops::Deref for TempDir {
     type Target = Path;
     fn deref(&self) -> &Path {
+        &self.0
+    }
+}
+
+impl AsRef<Path> for TempDir {
+    fn as_ref(&self) -> &Path {
         &self.0
     }
 }
