@@ -3,15 +3,17 @@
 //! ```text
 //! cargo run --release --example bench_direct -- [MESH] [--subdivide N] [--steps N]
 //!     [--tracer sunview|bvh|grid|both|all] [--threads N] [--sun point|disk]
-//!     [--horizon exact|approximate [--azimuths A]] [--cache DIR] [--block K]
+//!     [--horizon exact|approximate [--azimuths A] [--whole-map]] [--cache DIR] [--block K]
 //! ```
 //! Steps are computed in blocks of K (`Direct::compute_steps`), as `slim run` does:
 //! by default the block `slim run` takes for this mesh (16 steps up to a million facets);
 //! `--block 1` computes one step at a time.
 //! With `--horizon`, the step loop looks the Sun up in the body's horizon map (A wedges,
 //! default 128) instead of tracing every ray: `exact` traces only where the Sun is not
-//! above the wedge's upper bound, `approximate` traces nothing. The map is read from
-//! `--cache DIR` when there, else built (and stored there); its time is the `build s`.
+//! above the wedge's upper bound, `approximate` traces nothing. The map is built for the
+//! band of the steps' Suns, as `slim run` builds it (`--whole-map`: for every direction),
+//! read from `--cache DIR` when there, else built (and stored there); its time is the
+//! `build s`.
 //! Without `--horizon`, `--cache DIR` keeps the `bvh` tracer's horizon bound the same
 //! way, so that only its first run builds it.
 //! `--sun disk` takes the Sun as a disk: its visible share from the map, or without
@@ -87,10 +89,13 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     );
     match options.optional::<String>("--horizon")? {
         Some(mode) => {
-            let shadows = Shadows {
+            let mut shadows = Shadows {
                 recall,
                 ..horizon_shadows(&options, &mode)?
             };
+            if !options.has("--whole-map") {
+                shadows.bands = shadows.bands_for_run(&world, &states);
+            }
             let t0 = Instant::now();
             let direct = common::mapped_direct(&world, &shadows)?;
             let name = format!("map {mode}");

@@ -4,7 +4,7 @@
 //! ```text
 //! cargo run --release --example bench_peer -- [MESH] [--subdivide N] [--folded]
 //!     [--steps N] [--threads N] [--tracer sunview|bvh|map-exact|map-approximate]
-//!     [--cache DIR] [--bound-cache DIR] [--block K|run] --out DIR
+//!     [--cache DIR] [--bound-cache DIR] [--block K|run] [--whole-map] --out DIR
 //! ```
 //! In: a mesh file in km (default: the 49,152-facet Itokawa model) or `--folded` (the
 //! bilobed test shape of `examples/common/folded.rs`), optionally subdivided (×4 facets
@@ -15,7 +15,9 @@
 //! `--tracer bvh-sectors`, read from `--bound-cache DIR` when it is there), or a
 //! horizon map of 128 wedges looked up instead of tracing (`map-exact`: rays only where
 //! the map is not certain, the same classification as the tracers; `map-approximate`:
-//! no rays), its build (or its read from `--cache DIR`) in `direct_new_s`. The
+//! no rays), built as `slim run` builds it, for the band of the steps' Suns
+//! (`slim::horizon::band`; `--whole-map`: for every direction), its build (or its read
+//! from `--cache DIR`) in `direct_new_s`. The
 //! exports happen after the loop. Steps are computed one at a time, or with `--block K`
 //! in blocks of K (`Direct::compute_steps`), with `--block run` in the blocks `slim run`
 //! takes for the mesh (`slim::simulate::steps_per_batch`: 64 steps up to 262,144 facets,
@@ -42,7 +44,7 @@ mod common;
 
 use glam::DVec3;
 use slim::budget::Budget;
-use slim::ephemeris::SunReturn;
+use slim::ephemeris::{EpochState, SunReturn};
 use slim::horizon::bound::BoundDetail;
 use slim::horizon::shadows::{recall_for_run, HorizonMode, ShadowMethod, Shadows};
 use slim::illum::{Direct, StepCounts};
@@ -62,7 +64,7 @@ const VALUE_FLAGS: &[&str] = &[
     "--bound-cache",
     "--block",
 ];
-const SWITCHES: &[&str] = &["--folded"];
+const SWITCHES: &[&str] = &["--folded", "--whole-map"];
 
 /// Memory figures of this process at one moment, MB.
 #[derive(Clone, Copy)]
@@ -187,21 +189,24 @@ fn vec3_bytes(values: &[DVec3]) -> Vec<u8> {
     f64_bytes(values.iter().flat_map(|v| v.to_array()))
 }
 
-/// The direct stage with a horizon map of the body in `mode` (built, or read from
-/// `--cache DIR`).
+/// The direct stage with a horizon map of the body in `mode` for the Suns of `states`
+/// (built, or read from `--cache DIR`).
 fn with_map<'w>(
     world: &'w World,
-    mode: HorizonMode,
+    (mode, states): (HorizonMode, &[EpochState]),
     recall: SunReturn,
     options: &common::Options,
 ) -> Result<Direct<'w>, Box<dyn std::error::Error>> {
-    let shadows = Shadows {
+    let mut shadows = Shadows {
         method: ShadowMethod::Horizon,
         mode,
         cache_dir: options.optional("--cache")?,
         recall,
         ..Shadows::default()
     };
+    if !options.has("--whole-map") {
+        shadows.bands = shadows.bands_for_run(world, states);
+    }
     Ok(common::mapped_direct(world, &shadows)?)
 }
 
@@ -309,8 +314,13 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
             let none = world.bodies.iter().map(|_| None).collect();
             Direct::with_maps(&world, TracerKind::Bvh, none, &shadows)
         }
-        "map-exact" => with_map(&world, HorizonMode::Exact, recall, &options)?,
-        "map-approximate" => with_map(&world, HorizonMode::Approximate, recall, &options)?,
+        "map-exact" => with_map(&world, (HorizonMode::Exact, &states), recall, &options)?,
+        "map-approximate" => with_map(
+            &world,
+            (HorizonMode::Approximate, &states),
+            recall,
+            &options,
+        )?,
         t => {
             return Err(format!(
                 "unknown --tracer {t} (sunview, bvh, bvh-sectors, map-exact, \

@@ -880,10 +880,12 @@ impl<'w> Direct<'w> {
             let cleared = match horizon {
                 OwnHorizon::Map { map, exact } => {
                     // A point Sun above the facet's whole horizon, or above the octant of
-                    // azimuth it stands in, needs no lookup.
+                    // azimuth it stands in, needs no lookup; nor does a disk wholly above
+                    // every horizon its map gives.
                     let at = match sun {
                         SunShape::Point if map.above_all(i, cos) => None,
                         SunShape::Point => map.locate(i, normals[k], sky.sun, cos),
+                        SunShape::Disk if map.disk_above_all(i, cos, sky.radius) => None,
                         SunShape::Disk => Some(map.position(normals[k], sky.sun, cos)),
                     };
                     match at {
@@ -892,7 +894,7 @@ impl<'w> Direct<'w> {
                             pending.push((k, at));
                             continue;
                         }
-                        None if *exact => counts.above_horizon += 1,
+                        None if *exact && sun == SunShape::Point => counts.above_horizon += 1,
                         None => counts.horizon_lookups += 1,
                     }
                     *e = sky.flux * cos;

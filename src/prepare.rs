@@ -136,6 +136,8 @@ pub fn prepare(scene: &Scene, budget: &Budget, timings: &mut Timings) -> Result<
     let computed = repetition.computed();
     demand.repeat_values = (computed < states.len()) as u8 as f64 * computed as f64;
     let mut shadows = scene.shadows();
+    // A map serves the directions the Sun takes over the steps computed.
+    shadows.bands = shadows.bands_for_run(world, &states[..computed]);
     shadows.recall = recall_for_run(
         world,
         &states[..computed],

@@ -381,7 +381,7 @@ fn obtain_maps(
             maps.push(None);
             continue;
         }
-        let (map, record) = shadows.obtain(body, progress)?;
+        let (map, record) = shadows.obtain(body, shadows.band(b), progress)?;
         records.push(record);
         maps.push(Some(map));
     }

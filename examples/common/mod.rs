@@ -153,14 +153,13 @@ pub fn spin_states(steps: usize, sun_dir: DVec3) -> Result<Vec<EpochState>, slim
 }
 
 /// The direct stage with a horizon map of every body, built or read from the cache as
-/// `shadows` says; the few rays a map leaves go to the BVH, as in `slim run`.
+/// `shadows` says (each for its body's band in `shadows.bands`, as `slim run` sets them
+/// from its steps); the few rays a map leaves go to the BVH, as in `slim run`.
 pub fn mapped_direct<'w>(world: &'w World, shadows: &Shadows) -> Result<Direct<'w>, slim::Error> {
-    let maps = world
-        .bodies
-        .iter()
-        .map(|b| {
+    let maps = (world.bodies.iter().enumerate())
+        .map(|(b, body)| {
             shadows
-                .obtain(b, &slim::progress::Silent)
+                .obtain(body, shadows.band(b), &slim::progress::Silent)
                 .map(|(map, _)| Some(map))
         })
         .collect::<Result<Vec<_>, _>>()?;

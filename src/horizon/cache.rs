@@ -26,6 +26,7 @@
 //! out, so that changed code never reads an old map), A, the receiving facets, every
 //! vertex (f64 m) and every triangle.
 
+use super::band::SunBand;
 use super::bound::{BoundDetail, HorizonBound};
 use super::map::{HorizonMap, MapParts};
 use crate::cache::{self, Kind, Lookup, Reader};
@@ -71,6 +72,7 @@ pub const PART_KIND: Kind = Kind {
 fn map_sources() -> Vec<(&'static str, &'static str)> {
     let own = [
         ("map.rs", include_str!("map.rs")),
+        ("band.rs", include_str!("band.rs")),
         ("outline.rs", include_str!("outline.rs")),
         ("geometry.rs", include_str!("geometry.rs")),
         ("cache.rs", include_str!("cache.rs")),
@@ -131,10 +133,14 @@ pub fn store_bound(path: &Path, key: &[u8; 32], bound: &HorizonBound) -> Result<
     store_streamed(path, &BOUND_KIND, key, head, sines, <[u8]>::to_vec)
 }
 
-/// The content key of `mesh`'s map with `azimuths` wedges.
-pub fn content_key(mesh: &Mesh, receivers: usize, azimuths: u32) -> [u8; 32] {
+/// The content key of `mesh`'s map with `azimuths` wedges for Suns of `band`.
+pub fn content_key(mesh: &Mesh, receivers: usize, (azimuths, band): (u32, SunBand)) -> [u8; 32] {
     let mut h = cache::key_hasher(b"slim horizon map", &KIND, &texts(&map_sources()));
     h.update(azimuths.to_le_bytes());
+    if !band.is_whole() {
+        h.update(b"band");
+        h.update(band.key_bytes());
+    }
     if receivers < mesh.len() {
         // Facets after the first `receivers` only cast shadows (surrounding terrain).
         h.update(b"receivers");
@@ -463,8 +469,8 @@ mod tests {
     fn a_stored_map_reads_back_and_any_damage_or_other_content_is_refused() {
         let dir = crate::TempDir::new("unit", "horizon-cache");
         let mesh = Mesh::from_raw(icosphere(1, 1.0, glam::DVec3::ZERO), LengthUnit::Km);
-        let map = HorizonMap::build(&mesh, mesh.len(), &Bvh::build(&mesh), 16);
-        let key = content_key(&mesh, mesh.len(), 16);
+        let map = HorizonMap::build(&mesh, mesh.len(), &Bvh::build(&mesh), (16, SunBand::WHOLE));
+        let key = content_key(&mesh, mesh.len(), (16, SunBand::WHOLE));
         let file = file_for(&dir, &key);
         assert!(matches!(load(&file, &key, mesh.len(), 16), Lookup::Missing));
         store(&file, &key, &map).expect("store");
@@ -472,9 +478,21 @@ mod tests {
             Lookup::Hit(read) => assert_eq!(read, map),
             other => panic!("{other:?}"),
         }
-        // Another wedge count or mesh gives another key; the same file under it is refused.
-        let other = content_key(&mesh, mesh.len(), 32);
+        // Another wedge count, band or mesh gives another key; the same file under it is
+        // refused.
+        let other = content_key(&mesh, mesh.len(), (32, SunBand::WHOLE));
         assert_ne!(other, key);
+        let band = SunBand::of_suns([glam::DVec3::X], 0.0);
+        let banded = content_key(&mesh, mesh.len(), (16, band));
+        assert_ne!(banded, key);
+        assert_ne!(
+            banded,
+            content_key(
+                &mesh,
+                mesh.len(),
+                (16, SunBand::of_suns([glam::DVec3::Z], 0.0))
+            )
+        );
         assert!(matches!(
             load(&file, &other, mesh.len(), 16),
             Lookup::Rejected(_)
@@ -504,8 +522,8 @@ mod tests {
         let dir = crate::TempDir::new("unit", "horizon-part");
         let mesh = Mesh::from_raw(icosphere(2, 1.0, glam::DVec3::ZERO), LengthUnit::Km);
         let bvh = Bvh::build(&mesh);
-        let parts = MapParts::new(&mesh, mesh.len(), &bvh, 16, 128);
-        let key = content_key(&mesh, mesh.len(), 16);
+        let parts = MapParts::new(&mesh, mesh.len(), &bvh, (16, SunBand::WHOLE), 128);
+        let key = content_key(&mesh, mesh.len(), (16, SunBand::WHOLE));
         let file = file_for(&dir, &key);
         assert!(matches!(load_part(&file, &key, &parts, 1), Lookup::Missing));
         assert!(!part_taken(&file, 1));
@@ -524,7 +542,7 @@ mod tests {
             Lookup::Rejected(why) => assert!(why.contains("expected part 2"), "{why}"),
             other => panic!("{other:?}"),
         }
-        let other = content_key(&mesh, mesh.len(), 32);
+        let other = content_key(&mesh, mesh.len(), (32, SunBand::WHOLE));
         assert!(matches!(
             load_part(&file, &other, &parts, 1),
             Lookup::Rejected(_)

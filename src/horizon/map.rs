@@ -16,6 +16,11 @@
 //!   facet in that vertical half-plane (exact, rounded to the nearest quantum). Linear
 //!   interpolation between wedge centres is the approximate horizon.
 //!
+//! A map may be built for a [`SunBand`], the zone of directions a run's Sun takes: then
+//! only the facets that meet the cone of those directions from the centroid count, and
+//! the cells hold for Suns of the band alone (the band's module says why that is exact);
+//! [`SunBand::WHOLE`] gives the map of every direction.
+//!
 //! Folded shapes: under an overhang the blocked elevations at one azimuth are not one
 //! interval (sky below an arch, rock above it). The map keeps only the top of the
 //! blocked set, so the approximate horizon calls a Sun seen under an overhang dark; the
@@ -28,6 +33,7 @@
 //! a panel or a mast at a height, around the local vertical), with elevations below the
 //! horizontal kept (a point on a ridge sees down its flanks) and no facet left out.
 
+use super::band::SunBand;
 use super::geometry::{
     arc_max_sin, atan2_within, directions_max_sin, distance_to_triangle, polygon_max_sin,
     pseudo_angle, rounding_widening, signed_box_bound, tangent_frame, touches, ANGLE_ERROR,
@@ -97,16 +103,17 @@ pub struct MapParts<'a> {
     part: usize,
     wedges: Wedges,
     widening: f64,
+    band: SunBand,
 }
 
 impl<'a> MapParts<'a> {
-    /// The parts of the map of the first `receivers` facets of `mesh` (as
-    /// [`HorizonMap::build`]), `part` facets each (a multiple of 64, the seeded runs).
+    /// The parts of the map of the first `receivers` facets of `mesh` for Suns of `band`
+    /// (as [`HorizonMap::build`]), `part` facets each (a multiple of 64, the seeded runs).
     pub fn new(
         mesh: &'a Mesh,
         receivers: usize,
         bvh: &'a Bvh<'a>,
-        azimuths: u32,
+        (azimuths, band): (u32, SunBand),
         part: usize,
     ) -> MapParts<'a> {
         assert!(
@@ -121,12 +128,18 @@ impl<'a> MapParts<'a> {
             part,
             wedges: Wedges::new(azimuths as usize),
             widening: rounding_widening(mesh),
+            band,
         }
     }
 
     /// Wedges per facet (the count asked for, clamped).
     pub fn azimuths(&self) -> u32 {
         self.wedges.count as u32
+    }
+
+    /// The Suns the map serves.
+    pub fn band(&self) -> SunBand {
+        self.band
     }
 
     /// Cells of the whole map: `azimuths` per facet.
@@ -148,7 +161,10 @@ impl<'a> MapParts<'a> {
     pub fn rows(&self, p: usize) -> Vec<[u16; 2]> {
         // Each facet is seeded with the triangles that set its neighbour's horizon.
         let rows = in_seeded_runs(self.facets(p), |i, seeds: &Vec<u32>| {
-            facet_horizon(self.mesh, self.bvh, i, &self.wedges, self.widening, seeds)
+            let sky = FacetSky::new(self.mesh.centroids[i], self.mesh.normals[i], &self.wedges)
+                .widened_by(self.widening)
+                .for_band(self.band);
+            facet_horizon(self.mesh, self.bvh, i, sky, seeds)
         });
         let mut cells = Vec::with_capacity(self.facets(p).len() * self.wedges.count);
         rows.into_iter().for_each(|row| cells.extend(row));
@@ -163,10 +179,16 @@ impl<'a> MapParts<'a> {
 
 impl HorizonMap {
     /// Builds the map of the first `receivers` facets of `mesh` with `azimuths` wedges
-    /// (within [`AZIMUTHS_MIN`]..=[`AZIMUTHS_MAX`]), searching `bvh` (built over the same
-    /// mesh), in one go; runs build it part by part ([`MapParts`]) with a journal.
-    pub fn build(mesh: &Mesh, receivers: usize, bvh: &Bvh, azimuths: u32) -> HorizonMap {
-        let parts = MapParts::new(mesh, receivers, bvh, azimuths, MAP_PART);
+    /// (within [`AZIMUTHS_MIN`]..=[`AZIMUTHS_MAX`]) for Suns of `band`, searching `bvh`
+    /// (built over the same mesh), in one go; runs build it part by part ([`MapParts`])
+    /// with a journal.
+    pub fn build(
+        mesh: &Mesh,
+        receivers: usize,
+        bvh: &Bvh,
+        (azimuths, band): (u32, SunBand),
+    ) -> HorizonMap {
+        let parts = MapParts::new(mesh, receivers, bvh, (azimuths, band), MAP_PART);
         let mut cells = Vec::with_capacity(parts.cell_count());
         for p in 0..parts.count() {
             cells.extend(parts.rows(p));
@@ -505,22 +527,14 @@ fn facet_horizon(
     mesh: &Mesh,
     bvh: &Bvh,
     i: usize,
-    wedges: &Wedges,
-    widening: f64,
+    sky: FacetSky,
     seeds: &[u32],
 ) -> (Vec<[u16; 2]>, Vec<u32>) {
-    let (c, n) = (mesh.centroids[i], mesh.normals[i]);
-    if n == DVec3::ZERO || mesh.areas[i] <= 0.0 {
+    if mesh.normals[i] == DVec3::ZERO || mesh.areas[i] <= 0.0 {
         // Never lit (n·s = 0): any horizon will do; the highest is the safe one.
-        return (vec![[u16::MAX; 2]; wedges.count], Vec::new());
+        return (vec![[u16::MAX; 2]; sky.wedges.count], Vec::new());
     }
-    let sky = search_sky(
-        mesh,
-        bvh,
-        FacetSky::new(c, n, wedges, widening, 0.0),
-        Some(i as u32),
-        seeds,
-    );
+    let sky = search_sky(mesh, bvh, sky, Some(i as u32), seeds);
     let mut setters: Vec<u32> = sky
         .setter
         .iter()
@@ -584,8 +598,9 @@ impl PointHorizon {
     /// built over `mesh`. A point on the mesh itself sees every wedge blocked.
     pub fn build(mesh: &Mesh, bvh: &Bvh, point: DVec3, up: DVec3, azimuths: u32) -> PointHorizon {
         let wedges = Wedges::new(azimuths.clamp(AZIMUTHS_MIN, AZIMUTHS_MAX) as usize);
-        let widening = rounding_widening(mesh);
-        let sky = FacetSky::new(point, up, &wedges, widening, -1.0);
+        let sky = FacetSky::new(point, up, &wedges)
+            .widened_by(rounding_widening(mesh))
+            .above_floor(-1.0);
         let sky = search_sky(mesh, bvh, sky, None, &[]);
         let elevation = |sin: f64| sin.clamp(-1.0, 1.0).asin();
         PointHorizon {
@@ -630,10 +645,14 @@ struct FacetSky<'a> {
     /// The lowest elevation sine kept: 0 for a facet (its own plane hides what is below),
     /// −1 for a point above the surface.
     floor: f64,
+    /// The Suns the horizon serves: boxes and triangles outside their cone are left out.
+    band: SunBand,
 }
 
 impl<'a> FacetSky<'a> {
-    fn new(c: DVec3, n: DVec3, wedges: &'a Wedges, widening: f64, floor: f64) -> FacetSky<'a> {
+    /// The sky of a facet at `c` with unit normal `n`, before any triangle: nothing above
+    /// its plane, for Suns from every direction, triangles taken as they are.
+    fn new(c: DVec3, n: DVec3, wedges: &'a Wedges) -> FacetSky<'a> {
         let (t1, t2) = tangent_frame(n);
         FacetSky {
             c,
@@ -642,14 +661,37 @@ impl<'a> FacetSky<'a> {
             t2,
             zenith: ZenithLine::new(c, n),
             wedges,
-            widening,
-            upper: vec![floor; wedges.count],
-            centre: vec![floor; wedges.count],
+            widening: 0.0,
+            upper: vec![0.0; wedges.count],
+            centre: vec![0.0; wedges.count],
             setter: vec![u32::MAX; wedges.count],
+            lowest_anywhere: 0.0,
+            highest_anywhere: 0.0,
+            floor: 0.0,
+            band: SunBand::WHOLE,
+        }
+    }
+
+    /// Every triangle widened by `widening` (m), the exact predicate's rounding.
+    fn widened_by(self, widening: f64) -> FacetSky<'a> {
+        FacetSky { widening, ..self }
+    }
+
+    /// Elevations kept down to the sine `floor` (−1 for a point above the surface).
+    fn above_floor(self, floor: f64) -> FacetSky<'a> {
+        FacetSky {
+            upper: vec![floor; self.wedges.count],
+            centre: vec![floor; self.wedges.count],
             lowest_anywhere: floor,
             highest_anywhere: floor,
             floor,
+            ..self
         }
+    }
+
+    /// Only what can stand in front of Suns of `band`.
+    fn for_band(self, band: SunBand) -> FacetSky<'a> {
+        FacetSky { band, ..self }
     }
 
     /// The highest elevation sine of a box's points, never below the floor.
@@ -664,11 +706,14 @@ impl<'a> FacetSky<'a> {
         if bound <= self.lowest_anywhere {
             return None;
         }
+        let (lo, hi) = child.corners();
+        if !self.band.meets_box(self.c, lo, hi, self.widening) {
+            return None;
+        }
         if bound > self.highest_anywhere {
             // Above every wedge's centre horizon: whatever azimuths the box spans.
             return Some(bound);
         }
-        let (lo, hi) = child.corners();
         let (lo, hi) = (lo - self.widening, hi + self.widening);
         let corners: [DVec3; 8] = std::array::from_fn(|k| {
             DVec3::new(
@@ -727,6 +772,9 @@ impl<'a> FacetSky<'a> {
             tri[0].min(tri[1]).min(tri[2]),
             tri[0].max(tri[1]).max(tri[2]),
         );
+        if !self.band.meets_box(self.c, lo, hi, self.widening) {
+            return;
+        }
         let rise = rel
             .iter()
             .map(|p| p.dot(self.n))
@@ -1006,7 +1054,12 @@ mod tests {
     use crate::TestRng;
 
     fn build(mesh: &Mesh, azimuths: u32) -> HorizonMap {
-        HorizonMap::build(mesh, mesh.len(), &Bvh::build(mesh), azimuths)
+        HorizonMap::build(
+            mesh,
+            mesh.len(),
+            &Bvh::build(mesh),
+            (azimuths, SunBand::WHOLE),
+        )
     }
 
     #[test]

@@ -8,11 +8,13 @@
 //!   step loop instead of rays when it pays;
 //!   [`sky`] holds the step loop's side of it: where the Sun stands in a facet's sky
 //!   and what the map says there;
-//! - [`disk::SolarDisk`]: the share of a limb-darkened solar disk above a horizon.
+//! - [`disk::SolarDisk`]: the share of a limb-darkened solar disk above a horizon;
+//! - [`band::SunBand`]: the directions a run's Sun takes, to which a map may be limited.
 //!
 //! `geometry` holds the elevation bounds of boxes and triangles they are built from;
 //! `outline` a triangle's highest point per azimuth, from which a map's cells are filled.
 
+pub mod band;
 pub mod bound;
 pub mod cache;
 pub mod disk;

@@ -11,6 +11,7 @@
 //! traced, so the choice never changes a result; the approximate mode and the Sun as a
 //! disk read the horizon from the map alone.
 
+use super::band::SunBand;
 use super::bound::{BoundDetail, HorizonBound};
 use super::cache;
 use super::disk::SolarDisk;
@@ -91,6 +92,10 @@ pub struct Shadows {
     /// `prepare`), so that no ray recalls blockers. Before the maps are chosen: whether
     /// it would without a map, which a map must then beat.
     pub sweeps: bool,
+    /// Per body (in the world's order), the directions its Sun takes over the steps a map
+    /// serves ([`Shadows::bands_for_run`], set before the maps are chosen): a map is built for
+    /// them alone. A body past the end of the list takes [`SunBand::WHOLE`].
+    pub bands: Vec<SunBand>,
 }
 
 impl Default for Shadows {
@@ -108,9 +113,21 @@ impl Default for Shadows {
             bound_detail: BoundDetail::Whole,
             recall: SunReturn::UNKNOWN,
             sweeps: false,
+            bands: Vec::new(),
         }
     }
 }
+
+/// Where a map's centre horizons are read, its band is widened by this share of a wedge's
+/// width ([`Shadows::bands_for_run`]). A Sun's horizon is interpolated between the
+/// centres of the wedges either side of it, up to a wedge away, where the band stands at
+/// other elevations: a centre the band leaves lower than the whole mesh's (below or above
+/// the band there) moves the interpolated horizon. With a third of a wedge the
+/// approximate mode errs against rays as often as with the map of every direction
+/// (`a_map_for_the_suns_band_classifies_as_the_grid` in tests/physics.rs: Haworth, Suns
+/// circling 4° up, 64 wedges: on 2,786 facet–Suns of 443,411 against 2,787; without the
+/// widening on 3,766).
+pub const CENTRES_HEADROOM: f64 = 1.0 / 3.0;
 
 /// Azimuth wedges of a map unless the scene says otherwise (2.8° each).
 pub const DEFAULT_AZIMUTHS: u32 = 128;
@@ -183,18 +200,42 @@ pub const SUN_SAMPLES_MAX: u32 = 1024;
 /// of 2026-11-26, where its year's patch with 9,528 facets of surroundings took 1.52,
 /// the fit 1.37). The saving: what a map spares over Sun-view rays per facet and step in
 /// the exact mode (m1phobos, 360 steps: 0.37 µs).
-fn build_s_per_facet(body: &Body) -> f64 {
+///
+/// A map for a band of Sun directions ([`SunBand`]) searches only what meets the band's
+/// cone, so its growing part shrinks by [`band_share`].
+fn build_s_per_facet(body: &Body, band: SunBand) -> f64 {
     let casters = body.shadow_mesh().len() as f64;
     let growing = match body.open {
         true => 10.8e-6 * casters.sqrt(),
         false => 0.29e-6 * casters.powf(2.0 / 3.0),
     };
-    0.05e-3 + growing
+    0.05e-3 + growing * band_share(band, casters)
 }
 
-/// CPU seconds the map of `body` takes to build (its facets against all it casts from).
-fn build_seconds(body: &Body) -> f64 {
-    body.mesh.len() as f64 * build_s_per_facet(body)
+/// The share of a whole map's search that a map for `band` over `casters` facets takes:
+/// `(N / 49,152)^(−1/3) × (0.2 + 0.06 × w)`, `w` the band's half-width in degrees, never
+/// above one. The cone a thin band leaves meets the surface along a line through each
+/// facet, not all around it, and the finer the mesh, the smaller its part of the facets
+/// a whole search opens. A bound above the builds of 2026-12-03 (one thread unless said, Intel
+/// Xeon; band / whole): Itokawa 49,152 facets at 0.1° 3.0 / 17.2 s (share 0.18; the bound
+/// says 0.21), at 1.0° 3.9 s (0.23; 0.26), at 5° 7.2 s (0.42; 0.50), at 15° 13.4 s
+/// (0.78; 1); 786,432 facets at 1.0° 170 s of CPU on two threads against about 2,000
+/// (0.09; 0.11); m1phobos at 1.0° 2.6 / 8.2 s (0.32; 0.31 against the fit's whole build,
+/// which stands 1.3× above its own); Haworth's year (14,940 facets with its surroundings)
+/// at 2.8°, about 3.8 s of CPU against the fit's 7.4 (0.51; 0.55).
+fn band_share(band: SunBand, casters: f64) -> f64 {
+    if band.is_whole() {
+        return 1.0;
+    }
+    let (lo, hi) = band.degrees();
+    let half_width = 0.5 * (hi - lo);
+    ((casters / 49152.0).powf(-1.0 / 3.0) * (0.2 + 0.06 * half_width)).min(1.0)
+}
+
+/// CPU seconds the map of `body` for `band` takes to build (its facets against all it
+/// casts from).
+fn build_seconds(body: &Body, band: SunBand) -> f64 {
+    body.mesh.len() as f64 * build_s_per_facet(body, band)
 }
 
 const SAVED_S_PER_FACET_STEP: f64 = 0.37e-6;
@@ -215,11 +256,13 @@ const SAVED_OVER_BVH: (f64, f64) = (0.032e-6, 0.33e-6);
 /// steps facet by facet ([`Shadows::sweeps`]), for a point Sun and for a disk Sun of 32
 /// samples (CPU seconds). Whole runs of the true-hour year of Itokawa (12.132371 h spin,
 /// `bench/common.sh`'s `hourly_scene`) on 2 threads, the map cached against
-/// `shadows = "rays"` (2026-11-29, early morning): a disk Sun at 49k facets 8.13–8.14 s
-/// against 12.09–12.28 s, 0.019 µs; at 786k 114.1 s against 449.5 s, 0.097 µs; the
-/// smaller is taken. A point Sun's sweep of that year at 786k took 55.6 s in all, less
-/// than the disk's map lookups alone: a map spares it next to nothing.
-const SAVED_OVER_SWEEP: (f64, f64) = (0.002e-6, 0.019e-6);
+/// `shadows = "rays"`: a disk Sun at 49k facets 5.2 s against 15.8 s, 0.049 µs; at 786k
+/// 75.0 s against 508.6 s, 0.126 µs (2026-12-03, Intel Xeon, one run each, the disk's
+/// lookups sparing a disk wholly above a facet's cells, [`HorizonMap::disk_above_all`]);
+/// the smaller is taken. A point Sun's sweep of that year at 786k took 55.6 s in all
+/// (2026-11-29), less than the disk's map lookups alone then: a map spares it next to
+/// nothing.
+const SAVED_OVER_SWEEP: (f64, f64) = (0.002e-6, 0.049e-6);
 
 impl Shadows {
     /// Checks the settings, naming the key at fault.
@@ -246,14 +289,49 @@ impl Shadows {
     /// Per body, whether it uses a horizon map, and why (for the plan); without one its
     /// own shadows take rays through `tracer`.
     pub fn choose(&self, world: &World, steps: usize, tracer: TracerKind) -> Vec<(bool, String)> {
-        world
-            .bodies
-            .iter()
-            .map(|b| self.choose_for(b, steps, tracer))
+        (world.bodies.iter().enumerate())
+            .map(|(b, body)| self.choose_for(body, self.band(b), steps, tracer))
             .collect()
     }
 
-    fn choose_for(&self, body: &Body, steps: usize, tracer: TracerKind) -> (bool, String) {
+    /// Body `b`'s band: the directions its map must serve.
+    pub fn band(&self, b: usize) -> SunBand {
+        self.bands.get(b).copied().unwrap_or(SunBand::WHOLE)
+    }
+
+    /// Per body of `world`, the band its map needs to serve its Sun over `states` (the
+    /// steps the map serves): a disk Sun widened by the largest angular radius it takes
+    /// there, and where the map's centre horizons are read (the approximate mode, a disk
+    /// Sun) by [`CENTRES_HEADROOM`] of a wedge more.
+    pub fn bands_for_run(&self, world: &World, states: &[EpochState]) -> Vec<SunBand> {
+        let centres_read = self.mode == HorizonMode::Approximate || self.sun == SunShape::Disk;
+        let headroom = match centres_read {
+            true => CENTRES_HEADROOM * std::f64::consts::TAU / self.azimuths as f64,
+            false => 0.0,
+        };
+        (0..world.bodies.len())
+            .map(|b| {
+                let radius = match self.sun {
+                    SunShape::Point => 0.0,
+                    SunShape::Disk => (states.iter())
+                        .map(|s| SolarDisk::angular_radius(s.bodies[b].sun_distance_m))
+                        .fold(0.0, f64::max),
+                };
+                SunBand::of_suns(
+                    states.iter().map(|s| s.bodies[b].sun_dir),
+                    radius + headroom,
+                )
+            })
+            .collect()
+    }
+
+    fn choose_for(
+        &self,
+        body: &Body,
+        band: SunBand,
+        steps: usize,
+        tracer: TracerKind,
+    ) -> (bool, String) {
         if body.convex {
             return (
                 false,
@@ -263,7 +341,7 @@ impl Shadows {
         let facets = body.mesh.len();
         let bytes = facets as f64 * self.map_bytes_per_facet();
         let size = format!(
-            "{facets} facets × {} wedges, {:.1} MB",
+            "{facets} facets × {} wedges, {:.1} MB, for {band}",
             self.azimuths,
             bytes / 1e6
         );
@@ -284,13 +362,13 @@ impl Shadows {
             ShadowMethod::Rays => (false, format!("run.shadows = \"rays\": {rays}")),
             ShadowMethod::Horizon => (true, format!("run.shadows = \"horizon\" ({mode}); {size}")),
             ShadowMethod::Auto => {
-                if let Some(file) = self.cached_file(body) {
+                if let Some(file) = self.cached_file(body, band) {
                     return (
                         true,
                         format!("cached in {} ({mode}); {size}", file.display()),
                     );
                 }
-                let per_facet = build_s_per_facet(body);
+                let per_facet = build_s_per_facet(body, band);
                 let saved = self.saved_s_per_facet_step(tracer);
                 let break_even = (per_facet / saved).ceil() as usize;
                 if steps >= break_even {
@@ -299,7 +377,7 @@ impl Shadows {
                         format!(
                             "{steps} steps ≥ {break_even}, where building it (about {:.0} s on \
                              one core) costs less than the rays it spares ({mode}); {size}",
-                            build_seconds(body)
+                            build_seconds(body, band)
                         ),
                     )
                 } else {
@@ -348,12 +426,28 @@ impl Shadows {
         }
     }
 
-    /// The cache file of `body`'s map when one is there (not yet checked).
-    fn cached_file(&self, body: &Body) -> Option<PathBuf> {
+    /// The cache file of a map of `body` that serves `band` when one is there (not yet
+    /// checked): the band's own, else the map of every direction.
+    fn cached_file(&self, body: &Body, band: SunBand) -> Option<PathBuf> {
         let dir = self.cache_dir.as_deref()?;
-        let key = cache::content_key(body.shadow_mesh(), body.mesh.len(), self.azimuths);
-        let file = cache::file_for(dir, &key);
-        file.is_file().then_some(file)
+        (self.map_keys(body, band).into_iter())
+            .map(|(key, _)| cache::file_for(dir, &key))
+            .find(|file| file.is_file())
+    }
+
+    /// The content keys of the maps of `body` that serve `band`, with the band each is
+    /// built for: the band's own first, then (for a band short of every direction) the
+    /// map of every direction, which serves any band.
+    fn map_keys(&self, body: &Body, band: SunBand) -> Vec<([u8; 32], SunBand)> {
+        let key = |band| {
+            let key =
+                cache::content_key(body.shadow_mesh(), body.mesh.len(), (self.azimuths, band));
+            (key, band)
+        };
+        match band.is_whole() {
+            true => vec![key(band)],
+            false => vec![key(band), key(SunBand::WHOLE)],
+        }
     }
 
     /// The BVH tracer's horizon bound of `body` (over `bvh`, built on its shadow mesh):
@@ -466,54 +560,78 @@ impl Shadows {
         self.azimuths as f64 * 4.0 + CEILING_BYTES as f64
     }
 
-    /// The map of `body`: read from the cache when an intact one is there, built (and
+    /// The map of `body` for Suns of `band`: read from the cache when an intact one that
+    /// serves the band is there (its own, or the map of every direction), built (and
     /// stored) otherwise. A build keeps its finished parts in a journal beside the cache
     /// file and goes on from the parts an earlier, stopped build left there; while
     /// another process builds the same map, this one waits for it.
-    pub fn obtain(&self, body: &Body, progress: &dyn Progress) -> Result<(HorizonMap, MapRecord)> {
-        self.obtain_in_parts(body, progress, MAP_PART)
+    pub fn obtain(
+        &self,
+        body: &Body,
+        band: SunBand,
+        progress: &dyn Progress,
+    ) -> Result<(HorizonMap, MapRecord)> {
+        self.obtain_in_parts(body, band, progress, MAP_PART)
     }
 
     /// [`Shadows::obtain`], a build going by parts of `part` facets.
     fn obtain_in_parts(
         &self,
         body: &Body,
+        band: SunBand,
         progress: &dyn Progress,
         part: usize,
     ) -> Result<(HorizonMap, MapRecord)> {
-        let key = cache::content_key(body.shadow_mesh(), body.mesh.len(), self.azimuths);
+        let keys = self.map_keys(body, band);
+        let key = keys[0].0;
         let file = self.cache_dir.as_deref().map(|d| cache::file_for(d, &key));
         let mut record = MapRecord {
             body: body.name.clone(),
             azimuths: self.azimuths,
+            band_deg: (!band.is_whole()).then(|| band.degrees().into()),
             bytes: 0,
             source: "cache".into(),
             file: file.clone(),
             build_s: 0.0,
             helped_parts: 0,
         };
-        let cached = |map: HorizonMap, record: MapRecord| {
+        let cached = |map: HorizonMap, (file, band): (&Path, SunBand), record: MapRecord| {
             progress.note(&format!(
                 "horizon map of '{}': read from {}",
                 body.name,
-                file.as_deref().unwrap_or(Path::new("")).display()
+                file.display()
             ));
             let bytes = map.bytes();
-            Ok((map, MapRecord { bytes, ..record }))
+            Ok((
+                map,
+                MapRecord {
+                    bytes,
+                    file: Some(file.to_path_buf()),
+                    band_deg: (!band.is_whole()).then(|| band.degrees().into()),
+                    ..record
+                },
+            ))
         };
-        if let Some(file) = &file {
-            match self.load(body, file, &key) {
-                Lookup::Hit(map) => return cached(map, record),
-                Lookup::Missing => {}
-                Lookup::Rejected(why) => progress.note(&format!(
-                    "warning: horizon map cache {} not used ({why}); rebuilding it",
-                    file.display()
-                )),
+        if let Some(dir) = &self.cache_dir {
+            for &(key, served) in &keys {
+                let file = cache::file_for(dir, &key);
+                match self.load(body, &file, &key) {
+                    Lookup::Hit(map) => return cached(map, (&file, served), record),
+                    Lookup::Missing => {}
+                    Lookup::Rejected(why) => progress.note(&format!(
+                        "warning: horizon map cache {} not used ({why}); {}",
+                        file.display(),
+                        match served == band {
+                            true => "rebuilding it",
+                            false => "building the band's own",
+                        }
+                    )),
+                }
             }
         }
         let casters = body.shadow_mesh();
         let bvh = Bvh::build(casters);
-        let parts = MapParts::new(casters, body.mesh.len(), &bvh, self.azimuths, part);
+        let parts = MapParts::new(casters, body.mesh.len(), &bvh, (self.azimuths, band), part);
         let journal = match &file {
             Some(file) => {
                 let start = self.journal_or_wait(
@@ -524,7 +642,7 @@ impl Shadows {
                     &mut record.helped_parts,
                 )?;
                 match start {
-                    Start::Cached(map) => return cached(map, record),
+                    Start::Cached(map) => return cached(map, (file, band), record),
                     Start::Journal(j) => Some(j),
                     Start::Alone => None,
                 }
@@ -681,7 +799,8 @@ fn build_parts(
         None => (None, Vec::with_capacity(parts.cell_count()), 0),
     };
     let done_before = parts.facets(first).start.min(facets);
-    let left_s = build_seconds(body) * (facets - done_before) as f64 / facets.max(1) as f64;
+    let left_s =
+        build_seconds(body, parts.band()) * (facets - done_before) as f64 / facets.max(1) as f64;
     progress.note(&if done_before > 0 {
         format!(
             "resuming the horizon map of '{}' from its build journal: {done_before} of \
@@ -962,6 +1081,10 @@ pub struct BoundRecord {
 pub struct MapRecord {
     pub body: String,
     pub azimuths: u32,
+    /// The least and greatest Sun declination (degrees, about the body's z axis) the map
+    /// serves; `None`: every direction.
+    #[serde(default)]
+    pub band_deg: Option<[f64; 2]>,
     /// Memory the map holds, bytes.
     pub bytes: usize,
     /// "cache", "built", or "resumed" (built on from the parts its build journal held,
@@ -1153,7 +1276,12 @@ mod tests {
         });
         let body = body.with_surroundings(&Mesh::from_raw(ring, LengthUnit::M));
         let casters = body.shadow_mesh();
-        let map = HorizonMap::build(casters, body.mesh.len(), &Bvh::build(casters), 32);
+        let map = HorizonMap::build(
+            casters,
+            body.mesh.len(),
+            &Bvh::build(casters),
+            (32, SunBand::WHOLE),
+        );
         let walks = body.mesh.len() * std::mem::size_of::<std::sync::atomic::AtomicU32>()
             + crate::mesh::inspect::edge_neighbours(casters).len()
                 * std::mem::size_of::<[u32; 3]>();
@@ -1181,7 +1309,12 @@ mod tests {
 
     fn whole_build(body: &Body, shadows: &Shadows) -> HorizonMap {
         let mesh = body.shadow_mesh();
-        HorizonMap::build(mesh, mesh.len(), &Bvh::build(mesh), shadows.azimuths)
+        HorizonMap::build(
+            mesh,
+            mesh.len(),
+            &Bvh::build(mesh),
+            (shadows.azimuths, SunBand::WHOLE),
+        )
     }
 
     #[test]
@@ -1192,18 +1325,18 @@ mod tests {
         // Cancelled before the fourth part of eight: three parts are in the journal.
         let stopped = StopAfter::new(3);
         assert!(matches!(
-            shadows.obtain_in_parts(&body, &stopped, 64),
+            shadows.obtain_in_parts(&body, SunBand::WHOLE, &stopped, 64),
             Err(Error::Cancelled)
         ));
-        let file = shadows.cached_file(&body);
+        let file = shadows.cached_file(&body, SunBand::WHOLE);
         assert!(file.is_none(), "no map file after a stop");
-        let key = cache::content_key(body.shadow_mesh(), body.mesh.len(), 32);
+        let key = cache::content_key(body.shadow_mesh(), body.mesh.len(), (32, SunBand::WHOLE));
         let journal = crate::journal::path_for(&cache::file_for(&dir, &key));
         assert!(journal.is_file());
 
         let resumed = StopAfter::new(usize::MAX);
         let (map, record) = shadows
-            .obtain_in_parts(&body, &resumed, 64)
+            .obtain_in_parts(&body, SunBand::WHOLE, &resumed, 64)
             .expect("resumed");
         assert_eq!(map, whole, "the map of one whole build, bit for bit");
         assert_eq!(record.source, "resumed");
@@ -1212,11 +1345,11 @@ mod tests {
             !journal.exists(),
             "the journal is deleted once the map is stored"
         );
-        assert!(shadows.cached_file(&body).is_some());
+        assert!(shadows.cached_file(&body, SunBand::WHOLE).is_some());
 
         // Read back from the cache now.
         let (again, record) = shadows
-            .obtain_in_parts(&body, &StopAfter::new(usize::MAX), 64)
+            .obtain_in_parts(&body, SunBand::WHOLE, &StopAfter::new(usize::MAX), 64)
             .expect("cached");
         assert_eq!((again, record.source.as_str()), (whole, "cache"));
     }
@@ -1277,11 +1410,11 @@ mod tests {
         let dir = crate::TempDir::new("unit", "map-journal-other");
         let (body, shadows) = bumps_in(&dir);
         assert!(shadows
-            .obtain_in_parts(&body, &StopAfter::new(2), 64)
+            .obtain_in_parts(&body, SunBand::WHOLE, &StopAfter::new(2), 64)
             .is_err());
         let progress = StopAfter::new(usize::MAX);
         let (map, record) = shadows
-            .obtain_in_parts(&body, &progress, 128)
+            .obtain_in_parts(&body, SunBand::WHOLE, &progress, 128)
             .expect("built");
         assert_eq!(
             (map, record.source.as_str()),
@@ -1292,9 +1425,9 @@ mod tests {
     /// Another build holding the journal with its first `parts` parts.
     fn another_build(body: &Body, dir: &Path, parts: usize) -> Journal {
         let mesh = body.shadow_mesh();
-        let key = cache::content_key(mesh, mesh.len(), 32);
+        let key = cache::content_key(mesh, mesh.len(), (32, SunBand::WHOLE));
         let bvh = Bvh::build(mesh);
-        let map_parts = MapParts::new(mesh, mesh.len(), &bvh, 32, 64);
+        let map_parts = MapParts::new(mesh, mesh.len(), &bvh, (32, SunBand::WHOLE), 64);
         let file = cache::file_for(dir, &key);
         let mut journal = cache::resume(&file, &key, &map_parts)
             .expect("open")
@@ -1311,7 +1444,7 @@ mod tests {
         let dir = crate::TempDir::new("unit", "map-journal-wait");
         let (body, shadows) = bumps_in(&dir);
         let whole = whole_build(&body, &shadows);
-        let key = cache::content_key(body.shadow_mesh(), body.mesh.len(), 32);
+        let key = cache::content_key(body.shadow_mesh(), body.mesh.len(), (32, SunBand::WHOLE));
         let file = cache::file_for(&dir, &key);
         // The other build holds two parts of eight: this run builds the six others but
         // the one after them (the other's own), from the last down, for it to take.
@@ -1319,7 +1452,8 @@ mod tests {
         let obtain_beside = |other: Journal, finish: bool| {
             let progress = StopAfter::new(usize::MAX);
             let got = std::thread::scope(|scope| {
-                let waiting = scope.spawn(|| shadows.obtain_in_parts(&body, &progress, 64));
+                let waiting =
+                    scope.spawn(|| shadows.obtain_in_parts(&body, SunBand::WHOLE, &progress, 64));
                 let started = std::time::Instant::now();
                 while !helped.clone().all(|p| cache::part_file(&file, p).is_file()) {
                     assert!(started.elapsed().as_secs() < 120, "no help came");
@@ -1370,10 +1504,10 @@ mod tests {
         let (body, shadows) = bumps_in(&dir);
         let whole = whole_build(&body, &shadows);
         let mesh = body.shadow_mesh();
-        let key = cache::content_key(mesh, mesh.len(), 32);
+        let key = cache::content_key(mesh, mesh.len(), (32, SunBand::WHOLE));
         let file = cache::file_for(&dir, &key);
         let bvh = Bvh::build(mesh);
-        let map_parts = MapParts::new(mesh, mesh.len(), &bvh, 32, 64);
+        let map_parts = MapParts::new(mesh, mesh.len(), &bvh, (32, SunBand::WHOLE), 64);
         let faked = vec![[7u16, 7u16]; 64 * 32];
         cache::store_part(&file, &key, &map_parts, 5, &faked).expect("store");
         cache::store_part(&file, &key, &map_parts, 6, &map_parts.rows(6)).expect("store");
@@ -1383,7 +1517,7 @@ mod tests {
         std::fs::write(&part_6, &damaged).expect("write");
         let progress = StopAfter::new(usize::MAX);
         let (map, record) = shadows
-            .obtain_in_parts(&body, &progress, 64)
+            .obtain_in_parts(&body, SunBand::WHOLE, &progress, 64)
             .expect("built");
         assert_eq!(record.source, "built");
         assert!(progress.noted("1 of its 8 parts were built by other runs"));
@@ -1427,16 +1561,27 @@ mod tests {
             sun: SunShape::Point,
             ..Shadows::default()
         };
-        let break_even = |body: &Body| (build_s_per_facet(body) / SAVED_S_PER_FACET_STEP).ceil();
+        let break_even =
+            |body: &Body| (build_s_per_facet(body, SunBand::WHOLE) / SAVED_S_PER_FACET_STEP).ceil();
         let (steps, terrain_steps) = (break_even(&closed), break_even(&open));
         assert!(
             terrain_steps > 1.2 * steps,
             "{terrain_steps} against {steps}"
         );
         let steps = steps as usize;
-        assert!(shadows.choose_for(&closed, steps, TracerKind::Sunview).0);
-        assert!(!shadows.choose_for(&open, steps, TracerKind::Sunview).0);
-        assert!(build_seconds(&open) > 1.2 * build_seconds(&closed));
+        assert!(
+            shadows
+                .choose_for(&closed, SunBand::WHOLE, steps, TracerKind::Sunview)
+                .0
+        );
+        assert!(
+            !shadows
+                .choose_for(&open, SunBand::WHOLE, steps, TracerKind::Sunview)
+                .0
+        );
+        assert!(
+            build_seconds(&open, SunBand::WHOLE) > 1.2 * build_seconds(&closed, SunBand::WHOLE)
+        );
     }
 
     /// `auto` weighs a map's build against the rays it spares, which for a disk Sun are
@@ -1450,9 +1595,9 @@ mod tests {
                 sun,
                 ..Shadows::default()
             };
-            shadows.choose_for(&body, steps, TracerKind::Sunview)
+            shadows.choose_for(&body, SunBand::WHOLE, steps, TracerKind::Sunview)
         };
-        let point = build_s_per_facet(&body) / SAVED_S_PER_FACET_STEP;
+        let point = build_s_per_facet(&body, SunBand::WHOLE) / SAVED_S_PER_FACET_STEP;
         let disk = (point / DEFAULT_SUN_SAMPLES as f64).ceil() as usize;
         assert!(disk > 1 && disk < point as usize);
         let (uses_map, why) = auto(SunShape::Disk, disk - 1);
@@ -1475,19 +1620,43 @@ mod tests {
                 ..Shadows::default()
             };
             let even = |shadows: Shadows| {
-                (build_s_per_facet(&body) / shadows.saved_s_per_facet_step(TracerKind::Auto)).ceil()
-                    as usize
+                (build_s_per_facet(&body, SunBand::WHOLE)
+                    / shadows.saved_s_per_facet_step(TracerKind::Auto))
+                .ceil() as usize
             };
             let (stepped, swept) = (even(by(false)), even(by(true)));
             assert!(swept > 3 * stepped, "{sun:?}: {swept} against {stepped}");
-            assert!(by(false).choose_for(&body, stepped, TracerKind::Auto).0);
-            assert!(!by(true).choose_for(&body, stepped, TracerKind::Auto).0);
-            assert!(by(true).choose_for(&body, swept, TracerKind::Auto).0);
+            assert!(
+                by(false)
+                    .choose_for(&body, SunBand::WHOLE, stepped, TracerKind::Auto)
+                    .0
+            );
+            assert!(
+                !by(true)
+                    .choose_for(&body, SunBand::WHOLE, stepped, TracerKind::Auto)
+                    .0
+            );
+            assert!(
+                by(true)
+                    .choose_for(&body, SunBand::WHOLE, swept, TracerKind::Auto)
+                    .0
+            );
         }
-        // A closed 49,152-facet body's map against a year of hourly disk Suns, swept.
-        let per_facet = 0.05e-3 + 0.29e-6 * 49_152f64.powf(2.0 / 3.0);
+        // A closed 49,152-facet body's map of every direction against a year of hourly
+        // disk Suns, swept; the map of the year's band (within 1.3° of one declination)
+        // pays for it.
+        let growing = 0.29e-6 * 49_152f64.powf(2.0 / 3.0);
+        let per_facet = 0.05e-3 + growing;
         assert!(per_facet / SAVED_OVER_SWEEP.1 > 8_760.0);
         assert!(per_facet / SAVED_OVER_BVH.1 < 8_760.0);
+        let d = 15f64.to_radians();
+        let band = SunBand::of_suns(
+            [glam::DVec3::new(d.cos(), 0.0, d.sin())],
+            1.3f64.to_radians(),
+        );
+        let banded = 0.05e-3 + growing * band_share(band, 49_152.0);
+        assert!(banded / SAVED_OVER_SWEEP.1 < 8_760.0);
+        assert!(band_share(SunBand::WHOLE, 49_152.0) == 1.0);
     }
 
     /// Against the BVH's rays (under `bvh` or `auto`) a map pays later: its bound and
@@ -1495,7 +1664,7 @@ mod tests {
     #[test]
     fn auto_builds_a_map_later_when_the_bvh_would_trace() {
         let body = floor_and_wall_body();
-        let per_facet = build_s_per_facet(&body);
+        let per_facet = build_s_per_facet(&body, SunBand::WHOLE);
         for (sun, saved) in [
             (SunShape::Point, SAVED_OVER_BVH.0),
             (SunShape::Disk, SAVED_OVER_BVH.1),
@@ -1513,8 +1682,8 @@ mod tests {
                 "{sun:?}: {even} against {grid_even}"
             );
             for tracer in [TracerKind::Bvh, TracerKind::Auto] {
-                assert!(shadows.choose_for(&body, even, tracer).0);
-                let (uses_map, why) = shadows.choose_for(&body, even - 1, tracer);
+                assert!(shadows.choose_for(&body, SunBand::WHOLE, even, tracer).0);
+                let (uses_map, why) = shadows.choose_for(&body, SunBand::WHOLE, even - 1, tracer);
                 assert!(!uses_map && why.contains(&format!("< {even}")), "{why}");
             }
         }

@@ -64,6 +64,35 @@ impl HorizonMap {
         sin_elevation > self.ceilings[i]
     }
 
+    /// True when a disk Sun of angular `radius` (radians) whose centre stands at
+    /// `sin_elevation` above facet `i`'s plane lies so far above every cell of its map
+    /// that the approximate horizon ([`HorizonMap::horizon`]), taken across the disk as a
+    /// straight line ([`super::disk::SolarDisk::cut_by`]), misses the disk at any azimuth:
+    /// the disk's share is then its centre's, found without its azimuth or a cell.
+    ///
+    /// The horizon there lies between two centres, each at most the ceiling's
+    /// elevation `C`, so its slope is at most `C·A/2π` (A wedges) and the line, tilted
+    /// by it, reaches at most `ρ·√(1 + (C·A/(2π cos e))²)` toward the disk's centre; the
+    /// Sun's sine must stand above the ceiling's by that (times 1.001, for rounding),
+    /// which puts its elevation above `C` by as much. `C ≤ tan C` bounds the angle from
+    /// its sine, and the test is taken squared, times both cosines squared: no root, no
+    /// division.
+    #[inline]
+    pub fn disk_above_all(&self, i: usize, sin_elevation: f64, radius: f64) -> bool {
+        let ceiling = self.ceilings[i];
+        let above = sin_elevation - ceiling - 1e-12;
+        // The reach is at least the radius; an infinite ceiling reaches straight up.
+        if !(ceiling < 1.0 && above > radius) {
+            return false;
+        }
+        let cos2 = (1.0 - sin_elevation * sin_elevation).max(0.0);
+        let ceiling_cos2 = 1.0 - ceiling * ceiling;
+        let per_radian = self.azimuths as f64 / TAU;
+        let reach = 1.001 * radius;
+        let both = cos2 * ceiling_cos2;
+        above * above * both >= reach * reach * (both + (ceiling * per_radian).powi(2))
+    }
+
     /// Where the unit Sun direction `sun` (body frame) stands in the sky of a facet with
     /// unit normal `normal`, given `sin_elevation = normal·sun`.
     #[inline]
@@ -383,5 +412,52 @@ mod tests {
             }
         }
         assert!(decided > 1000 && looked_up > 1000, "{decided} {looked_up}");
+    }
+
+    #[test]
+    fn a_disk_above_every_cell_is_cut_by_no_horizon() {
+        // Random maps whose centres jump from wedge to wedge (the steepest horizons a map
+        // can give), random Suns and disk radii: wherever `disk_above_all` says so, the
+        // straight horizon at the Sun's azimuth leaves the whole disk in view, as the
+        // step loop would find by reading the cells. A test of the ceiling alone (the
+        // disk's radius above it, tilt ignored) is cut on some of them: the tilt matters.
+        let mut rng = TestRng::new(0x9E37_79B9_7F4A_7C15);
+        let mut random = move || rng.unit();
+        let disk = super::super::disk::SolarDisk {
+            limb_darkening: 0.6,
+        };
+        let (mut above, mut naive_cut) = (0, 0);
+        for azimuths in [8u32, 64, 128] {
+            let facets = 40;
+            let cells = (0..facets * azimuths as usize)
+                .map(|k| {
+                    let high = (random() * random() * 30000.0) as u16;
+                    let centre = if k % 2 == 0 { high } else { 0 };
+                    [high, centre]
+                })
+                .collect();
+            let map = HorizonMap::from_cells(azimuths, facets, cells).expect("fits");
+            for _ in 0..40_000 {
+                let i = (random() * facets as f64) as usize;
+                let radius = 0.02 * random() * random();
+                let ceiling = map.ceilings[i].min(1.0).asin();
+                let e = (ceiling + radius * 40.0 * random()).min(FRAC_PI_2 - 1e-3);
+                let a = TAU * random();
+                let (s, c) = (e.sin(), e.cos());
+                let normal = DVec3::Z;
+                let (t1, t2) = tangent_frame(normal);
+                let sun = (normal * s + (t1 * a.cos() + t2 * a.sin()) * c).normalize();
+                let cos = normal.dot(sun);
+                let at = map.position(normal, sun, cos);
+                let cut = disk.cut_by(cos.asin(), map.horizon(i, &at), radius);
+                if map.disk_above_all(i, cos, radius) {
+                    above += 1;
+                    assert!(cut.is_none(), "facet {i}, e {e}, radius {radius}: {cut:?}");
+                } else if cos > map.ceilings[i] + radius && cut.is_some() {
+                    naive_cut += 1;
+                }
+            }
+        }
+        assert!(above > 5000 && naive_cut > 10, "{above} {naive_cut}");
     }
 }

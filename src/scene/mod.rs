@@ -117,6 +117,7 @@ impl Scene {
             bound_detail: BoundDetail::Whole,
             recall: SunReturn::UNKNOWN,
             sweeps: false,
+            bands: Vec::new(),
         }
     }
 
