@@ -27,8 +27,8 @@
 //! poles), so a run's Suns keep near one declination: exactly one in a spin scene, about
 //! ±1.6° for the Moon over a year, ±25° for Phobos over a Martian year. A thin cone meets
 //! little of the mesh: the map of Itokawa's 49,152 facets for a spin's band took 3.0 s on
-//! one thread against 17.2 s for every direction, and at 786,432 facets about a twelfth
-//! of the time (docs/performance.md, "Maps for the Sun's band").
+//! one thread against 17.2 s for every direction, and at 786,432 facets 89 s against 647
+//! s on two (docs/performance.md, "Maps for the Sun's band").
 
 use super::geometry::signed_box_bound;
 use glam::DVec3;
@@ -93,12 +93,10 @@ impl SunBand {
     }
 
     /// The least and greatest declination of the band, degrees (for the plan and
-    /// `run.json`).
+    /// `run.json`), on the band's grid of a tenth of a degree.
     pub fn degrees(&self) -> (f64, f64) {
-        (
-            self.sin_lo.asin().to_degrees(),
-            self.sin_hi.asin().to_degrees(),
-        )
+        let on_grid = |sin: f64| (sin.asin() / GRID).round() / 10.0;
+        (on_grid(self.sin_lo), on_grid(self.sin_hi))
     }
 
     /// The band's bounds, for a cache key.

@@ -212,17 +212,18 @@ fn build_s_per_facet(body: &Body, band: SunBand) -> f64 {
     0.05e-3 + growing * band_share(band, casters)
 }
 
-/// The share of a whole map's search that a map for `band` over `casters` facets takes:
-/// `(N / 49,152)^(−1/3) × (0.2 + 0.06 × w)`, `w` the band's half-width in degrees, never
-/// above one. The cone a thin band leaves meets the surface along a line through each
-/// facet, not all around it, and the finer the mesh, the smaller its part of the facets
-/// a whole search opens. A bound above the builds of 2026-12-03 (one thread unless said, Intel
-/// Xeon; band / whole): Itokawa 49,152 facets at 0.1° 3.0 / 17.2 s (share 0.18; the bound
-/// says 0.21), at 1.0° 3.9 s (0.23; 0.26), at 5° 7.2 s (0.42; 0.50), at 15° 13.4 s
-/// (0.78; 1); 786,432 facets at 1.0° 170 s of CPU on two threads against about 2,000
-/// (0.09; 0.11); m1phobos at 1.0° 2.6 / 8.2 s (0.32; 0.31 against the fit's whole build,
-/// which stands 1.3× above its own); Haworth's year (14,940 facets with its surroundings)
-/// at 2.8°, about 3.8 s of CPU against the fit's 7.4 (0.51; 0.55).
+/// The share of a whole map's growing cost that a map for `band` over `casters` facets
+/// takes: `(N / 49,152)^(−1/3) × (0.2 + 0.06 × w)`, `w` the band's half-width in degrees,
+/// never above one. The cone a thin band leaves meets the surface along a line through
+/// each facet, not all around it, and the finer the mesh, the smaller its part of the
+/// facets a whole search opens. With the whole map's fit it gives a bound above the
+/// band's builds of 2026-12-03 (CPU per facet, one thread unless said, Intel Xeon;
+/// measured against the model): Itokawa 49,152 facets at ±0.1° 0.061 ms against 0.130,
+/// at ±1.0° 0.079 against 0.151; m1phobos at ±1.0° 0.081 against 0.138; 786,432 facets at
+/// ±1.0°, two threads, 0.216 against 0.305; Haworth's year (5,412 facets, 14,940 with its
+/// surroundings) at ±2.8° 0.70 against 0.77. As shares of the whole map's measured build:
+/// 0.17, 0.23, 0.32 and 0.14 (786k: 170 against 1,254 s of CPU); at 49k ±5° 0.42 and
+/// ±15° 0.78.
 fn band_share(band: SunBand, casters: f64) -> f64 {
     if band.is_whole() {
         return 1.0;
