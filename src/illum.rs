@@ -881,12 +881,14 @@ impl<'w> Direct<'w> {
                 OwnHorizon::Map { map, exact } => {
                     // A point Sun above the facet's whole horizon, or above the octant of
                     // azimuth it stands in, needs no lookup; nor does a disk wholly above
-                    // every horizon its map gives.
+                    // every horizon its map gives, at any azimuth or in its octant.
                     let at = match sun {
                         SunShape::Point if map.above_all(i, cos) => None,
                         SunShape::Point => map.locate(i, normals[k], sky.sun, cos),
                         SunShape::Disk if map.disk_above_all(i, cos, sky.radius) => None,
-                        SunShape::Disk => Some(map.position(normals[k], sky.sun, cos)),
+                        SunShape::Disk => {
+                            map.locate_disk(i, normals[k], (sky.sun, sky.radius), cos)
+                        }
                     };
                     match at {
                         // Its value holds the cosine until the lookup.

@@ -79,18 +79,27 @@ impl HorizonMap {
     /// division.
     #[inline]
     pub fn disk_above_all(&self, i: usize, sin_elevation: f64, radius: f64) -> bool {
-        let ceiling = self.ceilings[i];
-        let above = sin_elevation - ceiling - 1e-12;
-        // The reach is at least the radius; an infinite ceiling reaches straight up.
-        if !(ceiling < 1.0 && above > radius) {
-            return false;
-        }
-        let cos2 = (1.0 - sin_elevation * sin_elevation).max(0.0);
-        let ceiling_cos2 = 1.0 - ceiling * ceiling;
-        let per_radian = self.azimuths as f64 / TAU;
-        let reach = 1.001 * radius;
-        let both = cos2 * ceiling_cos2;
-        above * above * both >= reach * reach * (both + (ceiling * per_radian).powi(2))
+        disk_above(self.ceilings[i], self.azimuths, sin_elevation, radius)
+    }
+
+    /// As [`HorizonMap::position`] for facet `i` (normal `normal`) under a disk Sun of
+    /// angular `radius` centred at `sun`, or `None` when the disk stands so far above
+    /// its octant of azimuth's ceiling that no horizon its map gives there cuts it (the
+    /// test of [`HorizonMap::disk_above_all`], with the octant's ceiling): the straight
+    /// horizon across the disk is the one at the centre's azimuth, between two wedge
+    /// centres that the octant's ceiling bounds.
+    #[inline]
+    pub fn locate_disk(
+        &self,
+        i: usize,
+        normal: DVec3,
+        (sun, radius): (DVec3, f64),
+        sin_elevation: f64,
+    ) -> Option<SkyPosition> {
+        let (x, y) = in_plane(normal, sun);
+        let ceiling = self.octant_ceilings[i][octant(x, y)] as f64;
+        (!disk_above(ceiling, self.azimuths, sin_elevation, radius))
+            .then(|| position_in_plane(self.azimuths, x, y, sin_elevation))
     }
 
     /// Where the unit Sun direction `sun` (body frame) stands in the sky of a facet with
@@ -222,6 +231,24 @@ fn position_in_plane(azimuths: u32, x: f64, y: f64, sin_elevation: f64) -> SkyPo
 #[inline]
 fn clears_bound(at: &SkyPosition, upper: f64) -> bool {
     at.elevation() > upper + CLEAR_MARGIN
+}
+
+/// True when a disk Sun of angular `radius` whose centre stands at `sin_elevation`
+/// clears, tilt included, every horizon of a map of `azimuths` wedges whose centres lie
+/// below the sine `ceiling` ([`HorizonMap::disk_above_all`] gives the bound).
+#[inline]
+fn disk_above(ceiling: f64, azimuths: u32, sin_elevation: f64, radius: f64) -> bool {
+    let above = sin_elevation - ceiling - 1e-12;
+    // The reach is at least the radius; an infinite ceiling reaches straight up.
+    if !(ceiling < 1.0 && above > radius) {
+        return false;
+    }
+    let cos2 = (1.0 - sin_elevation * sin_elevation).max(0.0);
+    let ceiling_cos2 = 1.0 - ceiling * ceiling;
+    let per_radian = azimuths as f64 / TAU;
+    let reach = 1.001 * radius;
+    let both = cos2 * ceiling_cos2;
+    above * above * both >= reach * reach * (both + (ceiling * per_radian).powi(2))
 }
 
 /// The octant 0–7 of the azimuth atan2(y, x) in [0, 2π), π/4 wide each, from signs and
@@ -414,6 +441,15 @@ mod tests {
         assert!(decided > 1000 && looked_up > 1000, "{decided} {looked_up}");
     }
 
+    /// The disk tests' random numbers in [0, 1) from `seed`, and their limb-darkened disk.
+    fn disk_test(seed: u64) -> (impl FnMut() -> f64, super::super::disk::SolarDisk) {
+        let mut rng = TestRng::new(seed);
+        let disk = super::super::disk::SolarDisk {
+            limb_darkening: 0.6,
+        };
+        (move || rng.unit(), disk)
+    }
+
     #[test]
     fn a_disk_above_every_cell_is_cut_by_no_horizon() {
         // Random maps whose centres jump from wedge to wedge (the steepest horizons a map
@@ -421,11 +457,7 @@ mod tests {
         // straight horizon at the Sun's azimuth leaves the whole disk in view, as the
         // step loop would find by reading the cells. A test of the ceiling alone (the
         // disk's radius above it, tilt ignored) is cut on some of them: the tilt matters.
-        let mut rng = TestRng::new(0x9E37_79B9_7F4A_7C15);
-        let mut random = move || rng.unit();
-        let disk = super::super::disk::SolarDisk {
-            limb_darkening: 0.6,
-        };
+        let (mut random, disk) = disk_test(0x9E37_79B9_7F4A_7C15);
         let (mut above, mut naive_cut) = (0, 0);
         for azimuths in [8u32, 64, 128] {
             let facets = 40;
@@ -459,5 +491,56 @@ mod tests {
             }
         }
         assert!(above > 5000 && naive_cut > 10, "{above} {naive_cut}");
+    }
+
+    #[test]
+    fn a_disk_above_its_octants_cells_is_cut_by_no_horizon() {
+        // As above, with Suns drawn about their octant's ceiling: wherever `locate_disk`
+        // finds no position, the straight horizon at the Sun's azimuth leaves the whole
+        // disk in view; elsewhere it gives `position`'s. Many of those it decides stand
+        // below the whole map's ceiling (the octant spares their cells).
+        let (mut random, disk) = disk_test(0x2545_F491_4F6C_DD1D);
+        let (mut decided, mut below_whole, mut looked_up) = (0, 0, 0);
+        for azimuths in [8u32, 60, 128] {
+            let facets = 40;
+            let cells = (0..facets * azimuths as usize)
+                .map(|k| {
+                    let high = (random() * random() * random() * 40000.0) as u16;
+                    let centre = if k % 3 == 0 { high } else { high / 4 };
+                    [high, centre]
+                })
+                .collect();
+            let map = HorizonMap::from_cells(azimuths, facets, cells).expect("fits");
+            let normal = DVec3::new(0.3, -0.5, 0.8).normalize();
+            let (t1, t2) = tangent_frame(normal);
+            for _ in 0..40_000 {
+                let i = (random() * facets as f64) as usize;
+                let radius = 0.02 * random() * random();
+                let a = TAU * random();
+                let octant = octant(a.cos(), a.sin());
+                let ceiling = (map.octant_ceilings[i][octant] as f64).min(1.0).asin();
+                let e = (ceiling + radius * 20.0 * (random() - 0.2)).clamp(1e-3, FRAC_PI_2 - 1e-3);
+                let (s, c) = (e.sin(), e.cos());
+                let sun = (normal * s + (t1 * a.cos() + t2 * a.sin()) * c).normalize();
+                let cos = normal.dot(sun);
+                let at = map.position(normal, sun, cos);
+                match map.locate_disk(i, normal, (sun, radius), cos) {
+                    None => {
+                        decided += 1;
+                        below_whole += usize::from(!map.disk_above_all(i, cos, radius));
+                        let cut = disk.cut_by(cos.asin(), map.horizon(i, &at), radius);
+                        assert!(cut.is_none(), "facet {i}, e {e}, radius {radius}: {cut:?}");
+                    }
+                    Some(located) => {
+                        looked_up += 1;
+                        assert_eq!(located, at);
+                    }
+                }
+            }
+        }
+        assert!(
+            below_whole > 5000 && looked_up > 5000,
+            "{decided} decided, {below_whole} below the whole ceiling, {looked_up} looked up"
+        );
     }
 }
