@@ -96,10 +96,9 @@ impl HorizonMap {
         (sun, radius): (DVec3, f64),
         sin_elevation: f64,
     ) -> Option<SkyPosition> {
-        let (x, y) = in_plane(normal, sun);
-        let ceiling = self.octant_ceilings[i][octant(x, y)] as f64;
-        (!disk_above(ceiling, self.azimuths, sin_elevation, radius))
-            .then(|| position_in_plane(self.azimuths, x, y, sin_elevation))
+        self.in_octant(i, (normal, sun), sin_elevation, |ceiling| {
+            !disk_above(ceiling, self.azimuths, sin_elevation, radius)
+        })
     }
 
     /// Where the unit Sun direction `sun` (body frame) stands in the sky of a facet with
@@ -120,10 +119,24 @@ impl HorizonMap {
         sun: DVec3,
         sin_elevation: f64,
     ) -> Option<SkyPosition> {
+        self.in_octant(i, (normal, sun), sin_elevation, |ceiling| {
+            sin_elevation <= ceiling
+        })
+    }
+
+    /// The Sun's position in facet `i`'s sky when `needs_cells` says so of the ceiling of
+    /// the octant of azimuth it stands in (a sine), else `None`.
+    #[inline]
+    fn in_octant(
+        &self,
+        i: usize,
+        (normal, sun): (DVec3, DVec3),
+        sin_elevation: f64,
+        needs_cells: impl FnOnce(f64) -> bool,
+    ) -> Option<SkyPosition> {
         let (x, y) = in_plane(normal, sun);
-        let ceiling = self.octant_ceilings[i][octant(x, y)];
-        (sin_elevation <= ceiling as f64)
-            .then(|| position_in_plane(self.azimuths, x, y, sin_elevation))
+        let ceiling = self.octant_ceilings[i][octant(x, y)] as f64;
+        needs_cells(ceiling).then(|| position_in_plane(self.azimuths, x, y, sin_elevation))
     }
 
     /// True when facet `i` sees a Sun at `at` for certain: above the upper bound of its
