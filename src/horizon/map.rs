@@ -850,8 +850,7 @@ impl<'a> FacetSky<'a> {
                     self.highest_anywhere = self.highest_anywhere.max(sin);
                     self.setter[k] = id;
                     if was_lowest {
-                        self.lowest_anywhere =
-                            self.centre.iter().copied().fold(f64::INFINITY, f64::min);
+                        self.lowest_anywhere = least(&self.centre);
                     }
                 }
             }
@@ -908,6 +907,23 @@ impl<'a> FacetSky<'a> {
             })
             .collect()
     }
+}
+
+/// The least of `values` (none NaN; infinite when empty), in four lanes: `f64::min`'s
+/// care for NaN costs a blend per value, and this runs every time a row's lowest centre
+/// horizon is raised (with `f64::min`, about 6 % of a map's build at 49k facets).
+fn least(values: &[f64]) -> f64 {
+    let mut lanes = [f64::INFINITY; 4];
+    let quads = values.chunks_exact(4);
+    let rest = quads.remainder();
+    for quad in quads {
+        for (lane, &v) in lanes.iter_mut().zip(quad) {
+            *lane = if v < *lane { v } else { *lane };
+        }
+    }
+    let [a, b, c, d] = lanes;
+    let pairs = [a.min(b), c.min(d)];
+    (rest.iter().copied()).fold(pairs[0].min(pairs[1]), f64::min)
 }
 
 /// The line through a viewpoint `c` along its unit zenith `n` (both ways), for the slab
@@ -1232,6 +1248,26 @@ mod tests {
             "{blocked_rays} {centres_checked}"
         );
     }
+    #[test]
+    fn the_least_of_a_row_is_its_smallest_value_wherever_it_stands() {
+        // Every length from empty to three quads and a remainder, the least in each
+        // place in turn (a lane's or the remainder's), among equal and signed values.
+        let mut rng = TestRng::new(7);
+        for len in 0..15 {
+            let row: Vec<f64> = (0..len).map(|_| rng.unit() * 2.0 - 1.0).collect();
+            assert_eq!(
+                least(&row),
+                row.iter().copied().fold(f64::INFINITY, f64::min)
+            );
+            for k in 0..len {
+                let mut lowered = row.clone();
+                lowered[k] = -1.5;
+                assert_eq!(least(&lowered), -1.5, "length {len}, least at {k}");
+            }
+        }
+        assert_eq!(least(&[0.25; 9]), 0.25);
+    }
+
     #[test]
     fn a_span_holds_every_points_azimuth_and_no_more_and_half_a_turn_is_every_azimuth() {
         let mut rng = TestRng::new(12);

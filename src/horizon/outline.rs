@@ -126,7 +126,12 @@ impl Outline {
     /// in-plane direction `w`; `None` when the half-plane misses it.
     #[inline]
     pub(super) fn top_at(&self, w: (f64, f64)) -> Option<f64> {
-        let q = self.corners.map(|p| cross((p.x, p.y), w));
+        // By index, not `map`: a copy of the corners taken for `map` is read back at
+        // other offsets than it was written, which stalls the loads behind the stores.
+        let q: [f64; 3] = std::array::from_fn(|j| {
+            let p = &self.corners[j];
+            cross((p.x, p.y), w)
+        });
         let mut best: Option<f64> = None;
         for j in 0..3 {
             let (qa, qb) = (q[j], q[(j + 1) % 3]);
