@@ -922,8 +922,7 @@ fn least(values: &[f64]) -> f64 {
         }
     }
     let [a, b, c, d] = lanes;
-    let pairs = [a.min(b), c.min(d)];
-    (rest.iter().copied()).fold(pairs[0].min(pairs[1]), f64::min)
+    (rest.iter().copied()).fold(a.min(b).min(c.min(d)), f64::min)
 }
 
 /// The line through a viewpoint `c` along its unit zenith `n` (both ways), for the slab
@@ -1248,10 +1247,12 @@ mod tests {
             "{blocked_rays} {centres_checked}"
         );
     }
+
     #[test]
     fn the_least_of_a_row_is_its_smallest_value_wherever_it_stands() {
         // Every length from empty to three quads and a remainder, the least in each
-        // place in turn (a lane's or the remainder's), among equal and signed values.
+        // place in turn (a lane's or the remainder's), among values of either sign; and
+        // a row of equal values.
         let mut rng = TestRng::new(7);
         for len in 0..15 {
             let row: Vec<f64> = (0..len).map(|_| rng.unit() * 2.0 - 1.0).collect();
