@@ -10,8 +10,8 @@
 //! mesh's by `sun_samples` rays through the disk. Bodies whose light nothing reads
 //! ([`Direct::only_for`]) get 0 and still cast shadows. A run that keeps statistics
 //! only may instead take every step of a chunk of facets at once, in the order of the
-//! Sun's path ([`Direct::sweep`], module `sweep`): the same values, handed to the
-//! statistics facet by facet.
+//! Sun's path (from a map that decides alone, in time order; [`Direct::sweep`], module
+//! `sweep`): the same values, handed to the statistics facet by facet.
 //!
 //! Self-shadowing guard: the facet itself is excluded by id, and a blocking hit must lie
 //! higher above the facet's plane than `h_min = 1e-9·L + 256·ε·R` (L the facet's longest
@@ -38,7 +38,7 @@ use std::sync::atomic::{AtomicU32, AtomicU64, Ordering};
 use std::sync::Arc;
 
 mod sweep;
-pub use sweep::{chunk_facets as sweep_chunk_facets, sweep_bytes};
+pub use sweep::{chunk_facets as sweep_chunk_facets, look_up_sweep_bytes, sweep_bytes};
 
 /// Counts of what one step did.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
@@ -487,11 +487,16 @@ impl<'w> Direct<'w> {
     /// Whether body `b`'s own shadows need rays: it can shadow itself, and no horizon
     /// map decides alone (approximate mode, or the Sun as a disk).
     fn traces_own(&self, b: usize) -> bool {
-        let decides_alone = match &self.horizons[b] {
+        !self.world.bodies[b].convex && !self.map_decides_alone(b)
+    }
+
+    /// Whether body `b`'s horizon map decides every facet-step without a ray: in the
+    /// approximate mode, and for a disk Sun.
+    fn map_decides_alone(&self, b: usize) -> bool {
+        match &self.horizons[b] {
             OwnHorizon::Map { exact, .. } => !exact || self.sun == SunShape::Disk,
             _ => false,
-        };
-        !self.world.bodies[b].convex && !decides_alone
+        }
     }
 
     /// Bodies whose bounding spheres can reach into the receiver's shadow: the cylinder
@@ -821,9 +826,11 @@ impl<'w> Direct<'w> {
                     body: b,
                     first: c * chunk,
                 };
+                let mut scratch = ChunkScratch::default();
                 (steps.into_iter().zip(skies).zip(own))
                     .map(|((values, sky), own)| {
-                        let (mut counts, rays) = self.light_chunk(facets, sky, values);
+                        let (mut counts, rays) =
+                            self.light_chunk(facets, sky, values, &mut scratch);
                         match own {
                             Some(own) => {
                                 counts +=
@@ -845,12 +852,14 @@ impl<'w> Direct<'w> {
     }
 
     /// [`Direct::light_facing`] for one step and one chunk of facets, numbered from
-    /// `facets.first`, whose values are `values`.
+    /// `facets.first`, whose values are `values`; `scratch` is the task's, kept between
+    /// its calls.
     fn light_chunk(
         &self,
         facets: Facets,
         sky: &Sky,
         values: &mut [f64],
+        scratch: &mut ChunkScratch,
     ) -> (StepCounts, Vec<ShadowRay>) {
         let Facets { body: b, first } = facets;
         let mesh = &self.world.bodies[b].mesh;
@@ -862,17 +871,17 @@ impl<'w> Direct<'w> {
         let facing = -sin_radius;
         let mut counts = StepCounts::default();
         let mut rays = Vec::new();
-        // Facets whose map cells decide, with where the Sun stands in their sky.
-        let mut pending = Vec::new();
+        let ChunkScratch { day, pending } = scratch;
+        pending.clear();
         let normals = &mesh.normals[first..first + values.len()];
         let sun = self.sun;
         // The cosines first, in a loop of their own: most facets need nothing else.
         for (e, normal) in values.iter_mut().zip(normals) {
             *e = normal.dot(sky.sun);
         }
-        let day = facets_facing(values, facing);
+        facets_facing(values, facing, day);
         counts.night = (values.len() - day.len()) as u64;
-        for k in day {
+        for &k in day.iter() {
             let k = k as usize;
             let i = first + k;
             let e = &mut values[k];
@@ -948,13 +957,13 @@ impl<'w> Direct<'w> {
         &self,
         facets: Facets,
         lookups: Lookups<'_>,
-        pending: Vec<(usize, SkyPosition)>,
+        pending: &[(usize, SkyPosition)],
         values: &mut [f64],
         counts: &mut StepCounts,
         rays: &mut Vec<ShadowRay>,
     ) {
         let Lookups { map, exact, sky } = lookups;
-        for (k, at) in pending {
+        for &(k, at) in pending {
             let i = facets.first + k;
             let e = &mut values[k];
             let cos = *e;
@@ -1185,6 +1194,16 @@ struct Sky {
     flux: f64,
     /// The Sun's angular radius, radians (0 for a point Sun).
     radius: f64,
+}
+
+/// What [`Direct::light_chunk`] lists of a chunk's facets at one step, kept by a task
+/// between its calls so that the lists are not allocated anew each step.
+#[derive(Default)]
+struct ChunkScratch {
+    /// The facets facing the Sun (chunk-local).
+    day: Vec<u32>,
+    /// Those whose map cells decide, with where the Sun stands in their sky.
+    pending: Vec<(usize, SkyPosition)>,
 }
 
 /// A chunk of body `body`'s facets, numbered from `first` (body-local ids).
@@ -1461,12 +1480,13 @@ fn lowest_sin(sin_elevation: f64, radius: f64) -> f64 {
     (e - radius).sin()
 }
 
-/// The offsets of the facets in `values` whose cosine of the Sun stands above `facing`,
-/// in order; the others' values become 0 (night). Without a branch per facet: on a rough
-/// shape day and night alternate from facet to facet, and the mispredicted branch took
-/// a tenth of a step of map lookups.
-fn facets_facing(values: &mut [f64], facing: f64) -> Vec<u32> {
-    let mut day = vec![0u32; values.len()];
+/// Lists in `day` the offsets of the facets in `values` whose cosine of the Sun stands
+/// above `facing`, in order; the others' values become 0 (night). Without a branch per
+/// facet: on a rough shape day and night alternate from facet to facet, and the
+/// mispredicted branch took a tenth of a step of map lookups.
+fn facets_facing(values: &mut [f64], facing: f64, day: &mut Vec<u32>) {
+    day.clear();
+    day.resize(values.len(), 0);
     let mut count = 0;
     for (k, e) in values.iter_mut().enumerate() {
         let lit = *e > facing;
@@ -1475,7 +1495,6 @@ fn facets_facing(values: &mut [f64], facing: f64) -> Vec<u32> {
         *e = if lit { *e } else { 0.0 };
     }
     day.truncate(count);
-    day
 }
 
 /// The body's Sun direction at this step, checked to be a finite unit vector.

@@ -18,7 +18,7 @@ use crate::ephemeris::{flux_at, Ephemeris, EpochState, SunReturn};
 use crate::error::{Error, Result};
 use crate::horizon::shadows::{bound_detail_for_run, recall_for_run, steps_back, RunSteps};
 use crate::horizon::Shadows;
-use crate::illum::sweep_bytes;
+use crate::illum::{look_up_sweep_bytes, sweep_bytes};
 use crate::mesh::generate::ellipsoid;
 use crate::mesh::inspect::inspect;
 use crate::mesh::projection::PolarStereographic;
@@ -171,6 +171,7 @@ pub fn prepare(scene: &Scene, budget: &Budget, timings: &mut Timings) -> Result<
         shadows.disk_samples(),
         &horizon_maps,
     );
+    let mapped = horizon_maps.first().copied().unwrap_or(false);
     if tracer == TracerKind::Bvh {
         let steps = RunSteps {
             count: computed,
@@ -180,7 +181,7 @@ pub fn prepare(scene: &Scene, budget: &Budget, timings: &mut Timings) -> Result<
             bound_detail_for_run(world, &horizon_maps, steps, shadows.disk_samples());
         shadows.bound_detail = detail;
         why = format!("{why}; {reason}");
-        shadows.sweeps = sweepable && !horizon_maps.first().copied().unwrap_or(false);
+        shadows.sweeps = sweepable && !mapped;
         if shadows.sweeps {
             // No block of steps is held, nor rows of recalled blockers.
             demand.block_values = 0.0;
@@ -199,6 +200,16 @@ pub fn prepare(scene: &Scene, budget: &Budget, timings: &mut Timings) -> Result<
                  {turn_deg:.1}° away"
             );
         }
+    }
+    if sweepable && mapped && shadows.maps_decide_alone() {
+        shadows.sweeps = true;
+        // No block of steps is held: each chunk of facets keeps its values for every step.
+        demand.block_values = 0.0;
+        demand.sweep_bytes = look_up_sweep_bytes(states.len(), world.facet_count());
+        why = format!(
+            "{why}; each chunk of facets takes every step from the horizon map, its \
+             statistics in cache"
+        );
     }
     // Counted once the tracer and the bound's detail say whose rays remember blockers.
     demand.remembered_blocker_bytes = shadows.bound_walk_bytes(world, &horizon_maps, tracer);

@@ -161,7 +161,6 @@ pub fn simulate(
     shadows.sweeps &= on_step.is_none()
         && world.bodies.len() == 1
         && kept.count() == world.facet_count()
-        && tracer == TracerKind::Bvh
         && computed == states.len()
         && scatter.is_none()
         && bands.is_none();

@@ -455,10 +455,25 @@ impl FacetRun<'_> {
     /// Adds every step: `values[k · len + j]` is the value (W/m²) of the run's facet `j`
     /// at step `k`, the steps in time order. Bit-identical to adding them step by step.
     pub fn add_steps(&mut self, values: &[f64]) {
-        let len = self.moments.len();
+        let len = self.moments.len().max(1);
+        self.add_each(values, |j| values.iter().skip(j).step_by(len).copied());
+    }
+
+    /// [`FacetRun::add_steps`] with the values facet by facet: `values[j · steps + k]` is
+    /// the value (W/m²) of the run's facet `j` at step `k`.
+    pub fn add_series(&mut self, values: &[f64]) {
+        let steps = self.steps;
+        self.add_each(values, |j| {
+            values[j * steps..(j + 1) * steps].iter().copied()
+        });
+    }
+
+    /// Adds to each facet `j` of the run its steps in time order, `series(j)`, taken
+    /// from `values` (one per facet and step).
+    fn add_each<I: Iterator<Item = f64>>(&mut self, values: &[f64], series: impl Fn(usize) -> I) {
         assert_eq!(
             values.len(),
-            self.steps * len,
+            self.steps * self.moments.len(),
             "one value per facet and step"
         );
         let bins = self.bins;
@@ -467,8 +482,7 @@ impl FacetRun<'_> {
             .iter_mut()
             .zip(self.hist.chunks_mut(bins.count));
         for (j, facet) in facets.enumerate() {
-            let series = values.iter().skip(j).step_by(len.max(1)).copied();
-            add_facet_steps(facet, series, self.first_step, (bins, self.per_unit));
+            add_facet_steps(facet, series(j), self.first_step, (bins, self.per_unit));
         }
     }
 }
@@ -820,7 +834,7 @@ mod tests {
 
     /// Runs of facets each taking every step of a range at once, after steps added the
     /// usual way, equal the steps added one by one (the last run shorter, dark runs
-    /// across the two ranges).
+    /// across the two ranges), the values given step by step or facet by facet.
     #[test]
     fn runs_of_facets_over_every_step_equal_steps_one_by_one() {
         let (facets, size) = (37, 8);
@@ -828,21 +842,30 @@ mod tests {
         let data = series(facets, 45);
         let mut single = FacetStats::new(facets, bins);
         data.iter().for_each(|e| single.add_step(e));
-        let mut by_runs = FacetStats::new(facets, bins);
-        data[..9].iter().for_each(|e| by_runs.add_step(e));
-        let later = &data[9..];
-        for (r, mut run) in by_runs
-            .facet_runs(size, later.len())
-            .into_iter()
-            .enumerate()
-        {
-            let first = r * size;
-            let values: Vec<f64> = (later.iter())
-                .flat_map(|step| step[first..first + run.len()].iter().copied())
-                .collect();
-            run.add_steps(&values);
+        for by_facet in [false, true] {
+            let mut by_runs = FacetStats::new(facets, bins);
+            data[..9].iter().for_each(|e| by_runs.add_step(e));
+            let later = &data[9..];
+            for (r, mut run) in by_runs
+                .facet_runs(size, later.len())
+                .into_iter()
+                .enumerate()
+            {
+                let facets = r * size..r * size + run.len();
+                if by_facet {
+                    let values: Vec<f64> = (facets.clone())
+                        .flat_map(|i| later.iter().map(move |step| step[i]))
+                        .collect();
+                    run.add_series(&values);
+                } else {
+                    let values: Vec<f64> = (later.iter())
+                        .flat_map(|step| step[facets.clone()].iter().copied())
+                        .collect();
+                    run.add_steps(&values);
+                }
+            }
+            assert_eq!(by_runs, single, "facet by facet: {by_facet}");
         }
-        assert_eq!(by_runs, single);
     }
 
     #[test]

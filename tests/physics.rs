@@ -1652,6 +1652,66 @@ fn a_sweep_facet_by_facet_gives_the_step_loops_statistics() {
     }
 }
 
+/// A run whose horizon map decides alone (a disk Sun, or a point Sun in the approximate
+/// mode), taken facet by facet from the map (`Direct::sweep`), must give the step loop's
+/// statistics and counts bit for bit: the same lookups, each facet's steps added in time
+/// order. The Suns are a year's hours as above (consecutive steps 30° apart), 500 of
+/// them: more than one block of the step loop, so that the blocks' seams are crossed.
+/// The swept run must not have a statistics stage of its own (else it did not sweep).
+#[test]
+fn a_map_read_facet_by_facet_gives_the_step_loops_statistics() {
+    let mesh = load_km("data/shapes/itokawa/itokawa_16.obj");
+    let world = World {
+        bodies: vec![Body::new("itokawa_16", mesh, false)],
+    };
+    let suns: Vec<DVec3> = (0..500)
+        .map(|k| {
+            let turn = -std::f64::consts::TAU * k as f64 / 12.13;
+            let lat = 15f64.to_radians();
+            DVec3::new(lat.cos() * turn.cos(), lat.cos() * turn.sin(), lat.sin())
+        })
+        .collect();
+    let states = epoch_states(&fixed(&suns, 1000.0, vec![Pose::IDENTITY])).expect("states");
+    for (mode, sun) in [
+        (HorizonMode::Exact, SunShape::Disk),
+        (HorizonMode::Approximate, SunShape::Point),
+    ] {
+        let by = |sweeps: bool| {
+            let shadows = Shadows {
+                mode,
+                sun,
+                sweeps,
+                ..Shadows::default()
+            };
+            let options = Options {
+                shadows,
+                horizon_maps: vec![true],
+                ..Options::direct(TracerKind::Grid, Bins::covering(20.0, 1000.0))
+            };
+            let mut timings = Timings::default();
+            let sim = simulate(&world, &states, options, &mut timings, &Silent, None);
+            let stages: Vec<String> = timings.0.into_iter().map(|(stage, _)| stage).collect();
+            (sim.expect("simulate"), stages)
+        };
+        let ((stepped, stepped_stages), (swept, swept_stages)) = (by(false), by(true));
+        let case = format!("{mode:?} mode, {sun:?} Sun");
+        assert!(stepped_stages.iter().any(|s| s == "statistics"), "{case}");
+        assert!(!swept_stages.iter().any(|s| s == "statistics"), "{case}");
+        assert!(
+            stepped.counts.horizon_lookups > 10_000,
+            "{case}: {:?}",
+            stepped.counts
+        );
+        assert!(
+            stepped.counts.shadowed > 10_000,
+            "{case}: {:?}",
+            stepped.counts
+        );
+        assert_eq!(swept.counts, stepped.counts, "{case}");
+        assert_eq!(swept.stats, stepped.stats, "{case}");
+    }
+}
+
 /// An icosphere is found convex by the inspection, and a lone convex body costs no
 /// shadow rays at all.
 #[test]

@@ -295,6 +295,12 @@ impl Shadows {
             .collect()
     }
 
+    /// Whether a map decides every facet-step from its centre horizons, without a ray:
+    /// in the approximate mode, and for a disk Sun.
+    pub fn maps_decide_alone(&self) -> bool {
+        self.mode == HorizonMode::Approximate || self.sun == SunShape::Disk
+    }
+
     /// Body `b`'s band: the directions its map must serve.
     pub fn band(&self, b: usize) -> SunBand {
         self.bands.get(b).copied().unwrap_or(SunBand::WHOLE)
@@ -305,8 +311,7 @@ impl Shadows {
     /// there, and where the map's centre horizons are read (the approximate mode, a disk
     /// Sun) by [`CENTRES_HEADROOM`] of a wedge more.
     pub fn bands_for_run(&self, world: &World, states: &[EpochState]) -> Vec<SunBand> {
-        let centres_read = self.mode == HorizonMode::Approximate || self.sun == SunShape::Disk;
-        let headroom = match centres_read {
+        let headroom = match self.maps_decide_alone() {
             true => CENTRES_HEADROOM * std::f64::consts::TAU / self.azimuths as f64,
             false => 0.0,
         };

@@ -2,8 +2,14 @@
 //! the run, in the order of the Sun's path across the body's sky, before the next chunk.
 //!
 //! In: the run's steps, a body that shadows itself with the BVH tracer and its horizon
-//! bound, a point Sun or a disk. Out: per facet and step the irradiance (W/m²), handed
-//! to the statistics chunk by chunk in time order ([`FacetRun`]), and the run's counts.
+//! bound, or whose horizon map decides alone (a disk Sun, the approximate mode); a point
+//! Sun or a disk. Out: per facet and step the irradiance (W/m²), handed to the
+//! statistics chunk by chunk in time order ([`FacetRun`]), and the run's counts.
+//!
+//! A map that decides alone needs nothing of the path: each chunk reads its facets'
+//! cells step after step in time order, and the statistics take each facet's steps
+//! while its counts are in cache, where the step loop passes every facet's counts (370
+//! MB at 786k facets) through memory once a block of steps.
 //!
 //! Why: a shadow ray the bound cannot spare costs a walk through the tree (about 0.5 µs
 //! at 786k facets), and a year of hourly steps leaves about a billion of them. Taken in
@@ -43,7 +49,7 @@
 //! each step's samples with their rays (120 bytes a sample, 34 MB for a year of hourly
 //! steps at 32 samples).
 
-use super::{disk_point, Direct, Facets, OwnHorizon, Sky, StepCounts};
+use super::{disk_point, ChunkScratch, Direct, Facets, OwnHorizon, Sky, StepCounts};
 use crate::ephemeris::EpochState;
 use crate::error::{Error, Result};
 use crate::horizon::bound::{Cone, ConeView, HorizonBound, Screen};
@@ -80,6 +86,13 @@ pub fn chunk_facets(steps: usize, facets: usize) -> usize {
     let by_memory = CHUNK_VALUE_BYTES / (8 * steps.max(1));
     let by_threads = facets.div_ceil(48 * rayon::current_num_threads());
     by_memory.min(by_threads).clamp(16, 2048)
+}
+
+/// Bytes a sweep from a horizon map alone holds over `steps` steps of `facets` facets:
+/// each thread's chunk of values.
+pub fn look_up_sweep_bytes(steps: usize, facets: usize) -> f64 {
+    let chunk = chunk_facets(steps, facets) as f64 * steps as f64 * 8.0;
+    rayon::current_num_threads() as f64 * chunk
 }
 
 /// The most facets a cone may list: past that, its rays are traced ([`Last::Lit`]).
@@ -205,9 +218,14 @@ struct Chunk<'a> {
 }
 
 impl Direct<'_> {
-    /// Whether body `b` can be computed facet by facet ([`Direct::sweep`]).
+    /// Whether body `b` can be computed facet by facet ([`Direct::sweep`]): it traces
+    /// its own shadows through the BVH and its bound, or its horizon map decides alone.
     pub fn sweeps(&self, b: usize) -> bool {
-        self.traces_own(b) && matches!(self.horizons[b], OwnHorizon::Bound { .. })
+        match &self.horizons[b] {
+            OwnHorizon::Bound { .. } => self.traces_own(b),
+            OwnHorizon::Map { .. } => self.map_decides_alone(b),
+            OwnHorizon::None => false,
+        }
     }
 
     /// The direct irradiance of body `b` (its facets only) over `states`, facet by
@@ -220,14 +238,47 @@ impl Direct<'_> {
         runs: Vec<FacetRun<'_>>,
         progress: &dyn Progress,
     ) -> Result<StepCounts> {
-        let OwnHorizon::Bound { bound, bvh } = &self.horizons[b] else {
-            unreachable!("sweeps() is checked first");
-        };
         let skies = (states.iter())
             .map(|state| self.sky(b, state))
             .collect::<Result<Vec<_>>>()?;
-        let mesh = self.world.bodies[b].shadow_mesh();
-        let path = Path::new(&skies, bvh, mesh, &self.disk_samples);
+        match &self.horizons[b] {
+            OwnHorizon::Bound { bound, bvh } => {
+                let mesh = self.world.bodies[b].shadow_mesh();
+                let path = Path::new(&skies, bvh, mesh, &self.disk_samples);
+                let chunk = |facets| Chunk {
+                    facets,
+                    skies: &skies,
+                    path: &path,
+                    bound,
+                    bvh,
+                    mesh,
+                };
+                self.sweep_runs((b, skies.len()), runs, progress, |facets, run| {
+                    let mut values = vec![0.0; skies.len() * run.len()];
+                    let counts = self.sweep_chunk(&chunk(facets), &mut values);
+                    run.add_steps(&values);
+                    counts
+                })
+            }
+            _ => {
+                assert!(self.sweeps(b), "sweeps() is checked first");
+                self.sweep_runs((b, skies.len()), runs, progress, |facets, run| {
+                    self.look_up_chunk(facets, &skies, run)
+                })
+            }
+        }
+    }
+
+    /// Runs `chunk` on each run of body `b`'s facets (in parallel, one run a task), which
+    /// computes the run's facets over every one of `steps` and adds them to its
+    /// statistics.
+    fn sweep_runs(
+        &self,
+        (b, steps): (usize, usize),
+        runs: Vec<FacetRun<'_>>,
+        progress: &dyn Progress,
+        chunk: impl Fn(Facets, &mut FacetRun<'_>) -> StepCounts + Sync,
+    ) -> Result<StepCounts> {
         let size = runs.first().map_or(1, FacetRun::len);
         let done = AtomicUsize::new(0);
         let chunks = runs.len();
@@ -236,23 +287,14 @@ impl Direct<'_> {
                 if progress.cancelled() {
                     return Err(Error::Cancelled);
                 }
-                let chunk = Chunk {
-                    facets: Facets {
-                        body: b,
-                        first: c * size,
-                    },
-                    skies: &skies,
-                    path: &path,
-                    bound,
-                    bvh,
-                    mesh,
+                let facets = Facets {
+                    body: b,
+                    first: c * size,
                 };
-                let mut values = vec![0.0; skies.len() * run.len()];
-                let counts = self.sweep_chunk(&chunk, &mut values);
-                run.add_steps(&values);
+                let counts = chunk(facets, &mut run);
                 // Steps done, in proportion to the chunks done.
                 let before = done.fetch_add(1, Ordering::Relaxed);
-                let steps = |k: usize| k * states.len() / chunks;
+                let steps = |k: usize| k * steps / chunks;
                 (steps(before)..steps(before + 1)).for_each(|_| progress.step_done());
                 Ok(counts)
             })
@@ -263,16 +305,39 @@ impl Direct<'_> {
         }))
     }
 
+    /// One run of facets over every step in time order, from the body's horizon map
+    /// alone (no ray), added to `run`. Each step is computed into a row of the run's
+    /// facets and written facet by facet, so that the statistics read each facet's
+    /// steps in a line: read a step apart, they missed the cache on every value.
+    fn look_up_chunk(&self, facets: Facets, skies: &[Sky], run: &mut FacetRun<'_>) -> StepCounts {
+        let (len, steps) = (run.len(), skies.len());
+        let mut series = vec![0.0; len * steps];
+        let mut row = vec![0.0; len];
+        let mut scratch = ChunkScratch::default();
+        let mut counts = StepCounts::default();
+        for (k, sky) in skies.iter().enumerate() {
+            let (lit, rays) = self.light_chunk(facets, sky, &mut row, &mut scratch);
+            debug_assert!(rays.is_empty(), "a map that decides alone asks for no ray");
+            counts += lit;
+            for (j, &e) in row.iter().enumerate() {
+                series[j * steps + k] = e;
+            }
+        }
+        run.add_series(&series);
+        counts
+    }
+
     /// One chunk of facets over every step, in the path's order; `values` takes them
     /// step by step in time order.
     fn sweep_chunk(&self, chunk: &Chunk<'_>, values: &mut [f64]) -> StepCounts {
         let skies = chunk.skies;
         let len = values.len() / skies.len().max(1);
         let mut facts: Vec<Fact> = (0..len).map(|_| Fact::default()).collect();
+        let mut scratch = ChunkScratch::default();
         let mut counts = StepCounts::default();
         for (p, &k) in chunk.path.steps.iter().enumerate() {
             let out = &mut values[k * len..(k + 1) * len];
-            let (lit, rays) = self.light_chunk(chunk.facets, &skies[k], out);
+            let (lit, rays) = self.light_chunk(chunk.facets, &skies[k], out, &mut scratch);
             counts += lit;
             counts += match self.sun {
                 SunShape::Point => self.shade_point(chunk, p, &rays, &mut facts, out),
