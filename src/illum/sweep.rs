@@ -109,10 +109,10 @@ pub fn sweep_bytes(steps: usize, facets: usize, disk_samples: Option<u32>) -> f6
             Some(_) => 4.0 * samples + (SCREENS_MAX * size_of::<(u32, Option<Screen>)>()) as f64,
             None => 0.0,
         };
-    let chunk = chunk_facets(steps, facets) as f64 * (steps as f64 * 8.0 + fact);
+    let facts = rayon::current_num_threads() as f64 * chunk_facets(steps, facets) as f64 * fact;
     let sample_bytes = size_of::<(DVec3, BvhRays)>() as f64;
     let shared = 12.0 * facets as f64 + sample_bytes * samples * steps as f64;
-    rayon::current_num_threads() as f64 * chunk + shared
+    look_up_sweep_bytes(steps, facets) + facts + shared
 }
 
 /// What one facet knows of its shadow for Suns near the one it was taken for: the path
@@ -260,12 +260,12 @@ impl Direct<'_> {
                     counts
                 })
             }
-            _ => {
-                assert!(self.sweeps(b), "sweeps() is checked first");
+            OwnHorizon::Map { .. } if self.map_decides_alone(b) => {
                 self.sweep_runs((b, skies.len()), runs, progress, |facets, run| {
                     self.look_up_chunk(facets, &skies, run)
                 })
             }
+            _ => unreachable!("sweeps() is checked first"),
         }
     }
 
