@@ -24,7 +24,7 @@ use crate::error::{Error, Result};
 use crate::horizon::bound::{Cone, ConeView, HorizonBound};
 use crate::horizon::disk::SolarDisk;
 use crate::horizon::eclipse::Ellipsoid;
-use crate::horizon::map::HorizonMap;
+use crate::horizon::map::{HorizonMap, MapKind};
 use crate::horizon::shadows::BoundRecord;
 use crate::horizon::sky::{LocalHorizon, SkyPosition};
 use crate::horizon::{HorizonMode, Shadows, SunShape};
@@ -250,7 +250,14 @@ impl<'w> Direct<'w> {
                 // in for a tree (786k facets: 1.3 s and its memory) that nothing reads.
                 (Some(map), _) => {
                     last_blockers.push(remember(b, shadows.remembers_blockers(true)));
+                    let bounded = map.kind() == MapKind::Bounded;
                     let horizon = OwnHorizon::Map { map, exact };
+                    // A map of centres alone certifies nothing: the exact mode's lit facets
+                    // would go unchecked.
+                    assert!(
+                        bounded || horizon.decides_alone(shadows.sun),
+                        "a map of centres alone where the exact mode reads its upper bounds"
+                    );
                     let tracer = match world.bodies.len() == 1 && horizon.decides_alone(shadows.sun)
                     {
                         true => trace::build(TracerKind::Sunview, b.shadow_mesh()),

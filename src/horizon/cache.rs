@@ -28,7 +28,7 @@
 
 use super::band::SunBand;
 use super::bound::{BoundDetail, HorizonBound};
-use super::map::{HorizonMap, MapParts};
+use super::map::{HorizonMap, MapKind, MapParts};
 use crate::cache::{self, Kind, Lookup, Reader};
 use crate::error::Result;
 use crate::journal::{Journal, Opened};
@@ -133,10 +133,17 @@ pub fn store_bound(path: &Path, key: &[u8; 32], bound: &HorizonBound) -> Result<
     store_streamed(path, &BOUND_KIND, key, head, sines, <[u8]>::to_vec)
 }
 
-/// The content key of `mesh`'s map with `azimuths` wedges for Suns of `band`.
-pub fn content_key(mesh: &Mesh, receivers: usize, (azimuths, band): (u32, SunBand)) -> [u8; 32] {
+/// The content key of `mesh`'s map of `kind` with `azimuths` wedges for Suns of `band`.
+pub fn content_key(
+    mesh: &Mesh,
+    receivers: usize,
+    (azimuths, band, kind): (u32, SunBand, MapKind),
+) -> [u8; 32] {
     let mut h = cache::key_hasher(b"slim horizon map", &KIND, &texts(&map_sources()));
     h.update(azimuths.to_le_bytes());
+    if kind == MapKind::Centres {
+        h.update(b"centres");
+    }
     if !band.is_whole() {
         h.update(b"band");
         h.update(band.key_bytes());
@@ -155,12 +162,22 @@ pub fn file_for(dir: &Path, key: &[u8; 32]) -> PathBuf {
     cache::file_for(dir, &KIND, key)
 }
 
-/// Reads the map for `key` (a mesh of `facets` facets, `azimuths` wedges) from `path`.
-pub fn load(path: &Path, key: &[u8; 32], facets: usize, azimuths: u32) -> Lookup<HorizonMap> {
-    cache::load(path, &KIND, key).decode(|payload| decode(&payload, facets, azimuths))
+/// Reads the map of `kind` for `key` (a mesh of `facets` facets, `azimuths` wedges) from
+/// `path`.
+pub fn load(
+    path: &Path,
+    key: &[u8; 32],
+    facets: usize,
+    (azimuths, kind): (u32, MapKind),
+) -> Lookup<HorizonMap> {
+    cache::load(path, &KIND, key).decode(|payload| decode(&payload, facets, (azimuths, kind)))
 }
 
-fn decode(payload: &[u8], facets: usize, azimuths: u32) -> std::result::Result<HorizonMap, String> {
+fn decode(
+    payload: &[u8],
+    facets: usize,
+    (azimuths, kind): (u32, MapKind),
+) -> std::result::Result<HorizonMap, String> {
     let mut r = Reader::new(payload);
     let stored_azimuths = r.u32("the wedge count")?;
     let stored_facets = r.u64("the facet count")?;
@@ -172,7 +189,8 @@ fn decode(payload: &[u8], facets: usize, azimuths: u32) -> std::result::Result<H
     let cells = facets.checked_mul(azimuths as usize).ok_or("absurd size")?;
     let cells = cells_from(r.take(4 * cells, "the elevations")?);
     r.finish()?;
-    HorizonMap::from_cells(azimuths, facets, cells).ok_or_else(|| "inconsistent sizes".into())
+    HorizonMap::from_cells((azimuths, kind), facets, cells)
+        .ok_or_else(|| "inconsistent sizes".into())
 }
 
 /// Values (map cells, bound sines) turned into payload bytes at a time when a file is
@@ -470,49 +488,58 @@ mod tests {
         let dir = crate::TempDir::new("unit", "horizon-cache");
         let mesh = Mesh::from_raw(icosphere(1, 1.0, glam::DVec3::ZERO), LengthUnit::Km);
         let map = HorizonMap::build(&mesh, mesh.len(), &Bvh::build(&mesh), (16, SunBand::WHOLE));
-        let key = content_key(&mesh, mesh.len(), (16, SunBand::WHOLE));
+        let key = content_key(&mesh, mesh.len(), (16, SunBand::WHOLE, MapKind::Bounded));
         let file = file_for(&dir, &key);
-        assert!(matches!(load(&file, &key, mesh.len(), 16), Lookup::Missing));
+        assert!(matches!(
+            load(&file, &key, mesh.len(), (16, MapKind::Bounded)),
+            Lookup::Missing
+        ));
         store(&file, &key, &map).expect("store");
-        match load(&file, &key, mesh.len(), 16) {
+        match load(&file, &key, mesh.len(), (16, MapKind::Bounded)) {
             Lookup::Hit(read) => assert_eq!(read, map),
             other => panic!("{other:?}"),
         }
         // Another wedge count, band or mesh gives another key; the same file under it is
         // refused.
-        let other = content_key(&mesh, mesh.len(), (32, SunBand::WHOLE));
+        let other = content_key(&mesh, mesh.len(), (32, SunBand::WHOLE, MapKind::Bounded));
         assert_ne!(other, key);
+        let centres = content_key(&mesh, mesh.len(), (16, SunBand::WHOLE, MapKind::Centres));
+        assert_ne!(centres, key);
         let band = SunBand::of_suns([glam::DVec3::X], 0.0);
-        let banded = content_key(&mesh, mesh.len(), (16, band));
+        let banded = content_key(&mesh, mesh.len(), (16, band, MapKind::Bounded));
         assert_ne!(banded, key);
         assert_ne!(
             banded,
             content_key(
                 &mesh,
                 mesh.len(),
-                (16, SunBand::of_suns([glam::DVec3::Z], 0.0))
+                (
+                    16,
+                    SunBand::of_suns([glam::DVec3::Z], 0.0),
+                    MapKind::Bounded
+                )
             )
         );
         assert!(matches!(
-            load(&file, &other, mesh.len(), 16),
+            load(&file, &other, mesh.len(), (16, MapKind::Bounded)),
             Lookup::Rejected(_)
         ));
         let bytes = std::fs::read(&file).expect("read");
         let mut flipped = bytes.clone();
         flipped[cache::PAYLOAD_OFFSET + 15] ^= 1;
         std::fs::write(&file, &flipped).expect("write");
-        match load(&file, &key, mesh.len(), 16) {
+        match load(&file, &key, mesh.len(), (16, MapKind::Bounded)) {
             Lookup::Rejected(why) => assert!(why.contains("checksum"), "{why}"),
             other => panic!("{other:?}"),
         }
         std::fs::write(&file, &bytes[..bytes.len() - 7]).expect("write");
         assert!(matches!(
-            load(&file, &key, mesh.len(), 16),
+            load(&file, &key, mesh.len(), (16, MapKind::Bounded)),
             Lookup::Rejected(_)
         ));
         std::fs::write(&file, b"").expect("write");
         assert!(matches!(
-            load(&file, &key, mesh.len(), 16),
+            load(&file, &key, mesh.len(), (16, MapKind::Bounded)),
             Lookup::Rejected(_)
         ));
     }
@@ -523,7 +550,7 @@ mod tests {
         let mesh = Mesh::from_raw(icosphere(2, 1.0, glam::DVec3::ZERO), LengthUnit::Km);
         let bvh = Bvh::build(&mesh);
         let parts = MapParts::new(&mesh, mesh.len(), &bvh, (16, SunBand::WHOLE), 128);
-        let key = content_key(&mesh, mesh.len(), (16, SunBand::WHOLE));
+        let key = content_key(&mesh, mesh.len(), (16, SunBand::WHOLE, MapKind::Bounded));
         let file = file_for(&dir, &key);
         assert!(matches!(load_part(&file, &key, &parts, 1), Lookup::Missing));
         assert!(!part_taken(&file, 1));
@@ -542,7 +569,7 @@ mod tests {
             Lookup::Rejected(why) => assert!(why.contains("expected part 2"), "{why}"),
             other => panic!("{other:?}"),
         }
-        let other = content_key(&mesh, mesh.len(), (32, SunBand::WHOLE));
+        let other = content_key(&mesh, mesh.len(), (32, SunBand::WHOLE, MapKind::Bounded));
         assert!(matches!(
             load_part(&file, &other, &parts, 1),
             Lookup::Rejected(_)

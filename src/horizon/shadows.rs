@@ -15,7 +15,9 @@ use super::band::SunBand;
 use super::bound::{BoundDetail, HorizonBound};
 use super::cache;
 use super::disk::SolarDisk;
-use super::map::{HorizonMap, MapParts, AZIMUTHS_MAX, AZIMUTHS_MIN, CEILING_BYTES, MAP_PART};
+use super::map::{
+    HorizonMap, MapKind, MapParts, AZIMUTHS_MAX, AZIMUTHS_MIN, CEILING_BYTES, MAP_PART,
+};
 use crate::cache::Lookup;
 use crate::ephemeris::{sun_return, EpochState, SunReturn};
 use crate::error::{Error, Result};
@@ -301,6 +303,15 @@ impl Shadows {
         self.mode == HorizonMode::Approximate || self.sun == SunShape::Disk
     }
 
+    /// The kind of map a run builds: the centre horizons alone where they decide alone
+    /// (no upper bound is ever read), else with the upper bounds.
+    fn map_kind(&self) -> MapKind {
+        match self.maps_decide_alone() {
+            true => MapKind::Centres,
+            false => MapKind::Bounded,
+        }
+    }
+
     /// Body `b`'s band: the directions its map must serve.
     pub fn band(&self, b: usize) -> SunBand {
         self.bands.get(b).copied().unwrap_or(SunBand::WHOLE)
@@ -437,23 +448,31 @@ impl Shadows {
     fn cached_file(&self, body: &Body, band: SunBand) -> Option<PathBuf> {
         let dir = self.cache_dir.as_deref()?;
         (self.map_keys(body, band).into_iter())
-            .map(|(key, _)| cache::file_for(dir, &key))
+            .map(|(key, ..)| cache::file_for(dir, &key))
             .find(|file| file.is_file())
     }
 
-    /// The content keys of the maps of `body` that serve `band`, with the band each is
-    /// built for: the band's own first, then (for a band short of every direction) the
-    /// map of every direction, which serves any band.
-    fn map_keys(&self, body: &Body, band: SunBand) -> Vec<([u8; 32], SunBand)> {
-        let key = |band| {
-            let key =
-                cache::content_key(body.shadow_mesh(), body.mesh.len(), (self.azimuths, band));
-            (key, band)
+    /// The content keys of the maps of `body` that serve `band`, with the band and the
+    /// kind each is built for: the band's own first, then (for a band short of every
+    /// direction) the map of every direction, which serves any band; each of the run's
+    /// kind first, then (for a map of centres) with the upper bounds, which serves too.
+    fn map_keys(&self, body: &Body, band: SunBand) -> Vec<([u8; 32], SunBand, MapKind)> {
+        let key = |band, kind| {
+            let settings = (self.azimuths, band, kind);
+            let key = cache::content_key(body.shadow_mesh(), body.mesh.len(), settings);
+            (key, band, kind)
         };
-        match band.is_whole() {
-            true => vec![key(band)],
-            false => vec![key(band), key(SunBand::WHOLE)],
-        }
+        let bands = match band.is_whole() {
+            true => vec![band],
+            false => vec![band, SunBand::WHOLE],
+        };
+        let kinds = match self.map_kind() {
+            MapKind::Centres => vec![MapKind::Centres, MapKind::Bounded],
+            MapKind::Bounded => vec![MapKind::Bounded],
+        };
+        (bands.into_iter())
+            .flat_map(|band| kinds.iter().map(move |&kind| key(band, kind)))
+            .collect()
     }
 
     /// The BVH tracer's horizon bound of `body` (over `bvh`, built on its shadow mesh):
@@ -589,7 +608,7 @@ impl Shadows {
         part: usize,
     ) -> Result<(HorizonMap, MapRecord)> {
         let keys = self.map_keys(body, band);
-        let key = keys[0].0;
+        let (key, _, kind) = keys[0];
         let file = self.cache_dir.as_deref().map(|d| cache::file_for(d, &key));
         let mut record = MapRecord {
             body: body.name.clone(),
@@ -600,6 +619,7 @@ impl Shadows {
             file: file.clone(),
             build_s: 0.0,
             helped_parts: 0,
+            kind,
         };
         let cached = |map: HorizonMap, (file, band): (&Path, SunBand), record: MapRecord| {
             progress.note(&format!(
@@ -607,11 +627,12 @@ impl Shadows {
                 body.name,
                 file.display()
             ));
-            let bytes = map.bytes();
+            let (bytes, kind) = (map.bytes(), map.kind());
             Ok((
                 map,
                 MapRecord {
                     bytes,
+                    kind,
                     file: Some(file.to_path_buf()),
                     band_deg: (!band.is_whole()).then(|| band.degrees().into()),
                     ..record
@@ -619,9 +640,9 @@ impl Shadows {
             ))
         };
         if let Some(dir) = &self.cache_dir {
-            for &(key, served) in &keys {
+            for &(key, served, kind) in &keys {
                 let file = cache::file_for(dir, &key);
-                match self.load(body, &file, &key) {
+                match self.load(body, &file, (&key, kind)) {
                     Lookup::Hit(map) => return cached(map, (&file, served), record),
                     Lookup::Missing => {}
                     Lookup::Rejected(why) => progress.note(&format!(
@@ -637,7 +658,8 @@ impl Shadows {
         }
         let casters = body.shadow_mesh();
         let bvh = Bvh::build(casters);
-        let parts = MapParts::new(casters, body.mesh.len(), &bvh, (self.azimuths, band), part);
+        let parts = MapParts::new(casters, body.mesh.len(), &bvh, (self.azimuths, band), part)
+            .of_kind(kind);
         let journal = match &file {
             Some(file) => {
                 let start = self.journal_or_wait(
@@ -700,7 +722,7 @@ impl Shadows {
                     // The other process may have stored the map and let go just before:
                     // then the journal (held here, so no one else's) has no use.
                     if waiting {
-                        if let Lookup::Hit(map) = self.load(body, file, key) {
+                        if let Lookup::Hit(map) = self.load(body, file, (key, parts.kind())) {
                             resumable.journal.finish().ok();
                             return Ok(Start::Cached(map));
                         }
@@ -744,7 +766,7 @@ impl Shadows {
             } else {
                 std::thread::sleep(WAIT_POLL);
             }
-            if let Lookup::Hit(map) = self.load(body, file, key) {
+            if let Lookup::Hit(map) = self.load(body, file, (key, parts.kind())) {
                 if *helped > 0 {
                     // A part finished after the builder cleared them has no use now.
                     cache::clear_parts(file, parts.count());
@@ -755,8 +777,13 @@ impl Shadows {
     }
 
     /// `body`'s map from the cache `file` of content `key`.
-    fn load(&self, body: &Body, file: &Path, key: &[u8; 32]) -> Lookup<HorizonMap> {
-        cache::load(file, key, body.mesh.len(), self.azimuths)
+    fn load(
+        &self,
+        body: &Body,
+        file: &Path,
+        (key, kind): (&[u8; 32], MapKind),
+    ) -> Lookup<HorizonMap> {
+        cache::load(file, key, body.mesh.len(), (self.azimuths, kind))
     }
 }
 
@@ -1104,6 +1131,9 @@ pub struct MapRecord {
     /// same time (handed over beside the map file; 0 for the builder).
     #[serde(default)]
     pub helped_parts: usize,
+    /// "bounded" (each wedge's upper bound kept) or "centres" (the centres alone).
+    #[serde(default)]
+    pub kind: MapKind,
 }
 
 #[cfg(test)]
@@ -1257,6 +1287,38 @@ mod tests {
     }
 
     /// Rough terrain of 512 facets, and settings that cache its map in `dir`.
+    /// The settings of the tests' maps: 32 wedges, every direction, upper bounds kept.
+    const BOUNDED_32: (u32, SunBand, MapKind) = (32, SunBand::WHOLE, MapKind::Bounded);
+
+    /// A disk Sun's run builds a map of centres alone and keeps it apart from the exact
+    /// mode's; with only a map with upper bounds in the cache, it reads that one.
+    #[test]
+    fn a_disk_sun_builds_a_map_of_centres_and_reads_a_bounded_one_when_cached() {
+        let dir = crate::TempDir::new("unit", "map-kinds");
+        let (body, exact) = bumps_in(&dir);
+        let disk = Shadows {
+            sun: SunShape::Disk,
+            ..exact.clone()
+        };
+        let silent = &crate::progress::Silent;
+        let (centres, record) = disk.obtain(&body, SunBand::WHOLE, silent).expect("built");
+        assert_eq!(
+            (centres.kind(), record.source.as_str()),
+            (MapKind::Centres, "built")
+        );
+        let (bounded, record) = exact.obtain(&body, SunBand::WHOLE, silent).expect("built");
+        assert_eq!(
+            (bounded.kind(), record.source.as_str()),
+            (MapKind::Bounded, "built")
+        );
+        assert_eq!(bounded, whole_build(&body, &exact));
+        let own = cache::file_for(&dir, &disk.map_keys(&body, SunBand::WHOLE)[0].0);
+        std::fs::remove_file(own).expect("remove");
+        let (read, record) = disk.obtain(&body, SunBand::WHOLE, silent).expect("read");
+        let got = (read, record.source.as_str(), record.kind);
+        assert_eq!(got, (bounded, "cache", MapKind::Bounded));
+    }
+
     fn bumps_in(dir: &Path) -> (Body, Shadows) {
         let raw = height_field((16, 16), (-8.0, 8.0), (-8.0, 8.0), |x, y| {
             1.5 * (0.9 * x).sin() * (0.7 * y).cos()
@@ -1336,7 +1398,7 @@ mod tests {
         ));
         let file = shadows.cached_file(&body, SunBand::WHOLE);
         assert!(file.is_none(), "no map file after a stop");
-        let key = cache::content_key(body.shadow_mesh(), body.mesh.len(), (32, SunBand::WHOLE));
+        let key = cache::content_key(body.shadow_mesh(), body.mesh.len(), BOUNDED_32);
         let journal = crate::journal::path_for(&cache::file_for(&dir, &key));
         assert!(journal.is_file());
 
@@ -1431,7 +1493,7 @@ mod tests {
     /// Another build holding the journal with its first `parts` parts.
     fn another_build(body: &Body, dir: &Path, parts: usize) -> Journal {
         let mesh = body.shadow_mesh();
-        let key = cache::content_key(mesh, mesh.len(), (32, SunBand::WHOLE));
+        let key = cache::content_key(mesh, mesh.len(), BOUNDED_32);
         let bvh = Bvh::build(mesh);
         let map_parts = MapParts::new(mesh, mesh.len(), &bvh, (32, SunBand::WHOLE), 64);
         let file = cache::file_for(dir, &key);
@@ -1450,7 +1512,7 @@ mod tests {
         let dir = crate::TempDir::new("unit", "map-journal-wait");
         let (body, shadows) = bumps_in(&dir);
         let whole = whole_build(&body, &shadows);
-        let key = cache::content_key(body.shadow_mesh(), body.mesh.len(), (32, SunBand::WHOLE));
+        let key = cache::content_key(body.shadow_mesh(), body.mesh.len(), BOUNDED_32);
         let file = cache::file_for(&dir, &key);
         // The other build holds two parts of eight: this run builds the six others but
         // the one after them (the other's own), from the last down, for it to take.
@@ -1510,7 +1572,7 @@ mod tests {
         let (body, shadows) = bumps_in(&dir);
         let whole = whole_build(&body, &shadows);
         let mesh = body.shadow_mesh();
-        let key = cache::content_key(mesh, mesh.len(), (32, SunBand::WHOLE));
+        let key = cache::content_key(mesh, mesh.len(), BOUNDED_32);
         let file = cache::file_for(&dir, &key);
         let bvh = Bvh::build(mesh);
         let map_parts = MapParts::new(mesh, mesh.len(), &bvh, (32, SunBand::WHOLE), 64);

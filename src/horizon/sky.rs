@@ -325,13 +325,14 @@ fn sine_of_quanta(q: u16) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::horizon::map::octant_wedges;
+    use crate::horizon::map::{octant_wedges, MapKind};
     use crate::TestRng;
     use std::f64::consts::FRAC_PI_2;
 
     #[test]
     fn sky_positions_fall_in_the_wedge_of_their_azimuth() {
-        let map = HorizonMap::from_cells(16, 1, vec![[0, 0]; 16]).expect("cells");
+        let map =
+            HorizonMap::from_cells((16, MapKind::Bounded), 1, vec![[0, 0]; 16]).expect("cells");
         let n = DVec3::new(0.2, -0.3, 0.9).normalize();
         let (t1, t2) = tangent_frame(n);
         assert!((t1.cross(t2) - n).length() < 1e-12);
@@ -364,7 +365,7 @@ mod tests {
                 [upper, (upper as f64 * random()) as u16]
             })
             .collect();
-        let map = HorizonMap::from_cells(azimuths, 1, cells).expect("fits");
+        let map = HorizonMap::from_cells((azimuths, MapKind::Bounded), 1, cells).expect("fits");
         let hairs = [0.0, 1e-12, 1e-10, 1e-9, 3e-9, 1e-8, 1e-7, 3e-7, 1e-6, 1e-3];
         let (mut cleared, mut hidden, mut cases) = (0, 0, 0);
         for _ in 0..4000 {
@@ -418,7 +419,8 @@ mod tests {
                     [upper, (upper as f64 * random()) as u16]
                 })
                 .collect();
-            let map = HorizonMap::from_cells(azimuths, facets, cells).expect("fits");
+            let map =
+                HorizonMap::from_cells((azimuths, MapKind::Bounded), facets, cells).expect("fits");
             for _ in 0..20_000 {
                 let i = (random() * facets as f64) as usize;
                 let unit = |r: &mut dyn FnMut() -> f64| {
@@ -481,7 +483,8 @@ mod tests {
                     [high, centre]
                 })
                 .collect();
-            let map = HorizonMap::from_cells(azimuths, facets, cells).expect("fits");
+            let map =
+                HorizonMap::from_cells((azimuths, MapKind::Bounded), facets, cells).expect("fits");
             for _ in 0..40_000 {
                 let i = (random() * facets as f64) as usize;
                 let radius = 0.02 * random() * random();
@@ -523,7 +526,8 @@ mod tests {
                     [high, centre]
                 })
                 .collect();
-            let map = HorizonMap::from_cells(azimuths, facets, cells).expect("fits");
+            let map =
+                HorizonMap::from_cells((azimuths, MapKind::Bounded), facets, cells).expect("fits");
             let normal = DVec3::new(0.3, -0.5, 0.8).normalize();
             let (t1, t2) = tangent_frame(normal);
             for _ in 0..40_000 {
