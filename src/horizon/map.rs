@@ -94,8 +94,9 @@ pub struct HorizonMap {
     /// [`CELL_BLOCK`] facets (each block's cells wedge by wedge; [`HorizonMap::cell`]).
     cells: Vec<[u16; 2]>,
     /// Per facet, a sine of elevation that no wedge's upper bound or centre reaches
-    /// (derived from `cells`; of a [`MapKind::Centres`] map, no centre): a Sun higher
-    /// than it clears the facet's whole horizon, decided without its azimuth.
+    /// (derived from `cells`; for a map of [`MapKind::Centres`], from its centres alone):
+    /// a Sun higher than it clears the facet's whole horizon, decided without its
+    /// azimuth.
     pub(super) ceilings: Vec<f64>,
     /// Per facet, the same per octant of azimuth (f32 rounded up), over the wedges that
     /// meet the octant and one more on each side (the interpolation's neighbours).
