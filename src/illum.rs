@@ -252,14 +252,14 @@ impl<'w> Direct<'w> {
                     last_blockers.push(remember(b, shadows.remembers_blockers(true)));
                     let bounded = map.kind() == MapKind::Bounded;
                     let horizon = OwnHorizon::Map { map, exact };
+                    let alone = horizon.decides_alone(shadows.sun);
                     // A map of centres alone certifies nothing: the exact mode's lit facets
                     // would go unchecked.
                     assert!(
-                        bounded || horizon.decides_alone(shadows.sun),
+                        bounded || alone,
                         "a map of centres alone where the exact mode reads its upper bounds"
                     );
-                    let tracer = match world.bodies.len() == 1 && horizon.decides_alone(shadows.sun)
-                    {
+                    let tracer = match world.bodies.len() == 1 && alone {
                         true => trace::build(TracerKind::Sunview, b.shadow_mesh()),
                         false => Box::new(Bvh::build(b.shadow_mesh())) as Box<dyn Tracer + 'w>,
                     };

@@ -205,6 +205,16 @@ impl<'a> MapParts<'a> {
         cells
     }
 
+    /// The whole map, every part built in turn in this process.
+    pub fn whole(&self) -> HorizonMap {
+        let mut cells = Vec::with_capacity(self.cell_count());
+        for p in 0..self.count() {
+            cells.extend(self.rows(p));
+        }
+        self.assemble(cells)
+            .expect("the parts' rows make the whole map")
+    }
+
     /// The map from every part's rows, in order; `None` when their number does not fit.
     pub fn assemble(&self, cells: Vec<[u16; 2]>) -> Option<HorizonMap> {
         HorizonMap::from_cells((self.azimuths(), self.kind), self.receivers, cells)
@@ -222,14 +232,7 @@ impl HorizonMap {
         bvh: &Bvh,
         (azimuths, band): (u32, SunBand),
     ) -> HorizonMap {
-        let parts = MapParts::new(mesh, receivers, bvh, (azimuths, band), MAP_PART);
-        let mut cells = Vec::with_capacity(parts.cell_count());
-        for p in 0..parts.count() {
-            cells.extend(parts.rows(p));
-        }
-        parts
-            .assemble(cells)
-            .expect("the parts' rows make the whole map")
+        MapParts::new(mesh, receivers, bvh, (azimuths, band), MAP_PART).whole()
     }
 
     /// A map of `kind` from stored cells (the cache); `None` when their number does not
@@ -1283,9 +1286,9 @@ mod tests {
         });
         for band in [SunBand::WHOLE, SunBand::of_suns(suns, 0.0)] {
             let map = |kind| {
-                let parts = MapParts::new(&m, m.len(), &bvh, (32, band), 64).of_kind(kind);
-                let cells = (0..parts.count()).flat_map(|p| parts.rows(p)).collect();
-                parts.assemble(cells).expect("fits")
+                MapParts::new(&m, m.len(), &bvh, (32, band), 64)
+                    .of_kind(kind)
+                    .whole()
             };
             let (bounded, centres) = (map(MapKind::Bounded), map(MapKind::Centres));
             assert_eq!(centres.kind(), MapKind::Centres);

@@ -1286,7 +1286,6 @@ mod tests {
         }
     }
 
-    /// Rough terrain of 512 facets, and settings that cache its map in `dir`.
     /// The settings of the tests' maps: 32 wedges, every direction, upper bounds kept.
     const BOUNDED_32: (u32, SunBand, MapKind) = (32, SunBand::WHOLE, MapKind::Bounded);
 
@@ -1319,6 +1318,7 @@ mod tests {
         assert_eq!(got, (bounded, "cache", MapKind::Bounded));
     }
 
+    /// Rough terrain of 512 facets, and settings that cache its map in `dir`.
     fn bumps_in(dir: &Path) -> (Body, Shadows) {
         let raw = height_field((16, 16), (-8.0, 8.0), (-8.0, 8.0), |x, y| {
             1.5 * (0.9 * x).sin() * (0.7 * y).cos()
