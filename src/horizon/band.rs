@@ -13,8 +13,9 @@
 //! the band, and the sight line toward every point of its disk, run from the centroid `c`
 //! inside the cone `{c + t·s : t > 0, s in the band}`. Only facets that meet that cone can
 //! block them, so a map's search may leave out every box and triangle that does not
-//! (`SunBand::meets_box`): its upper bounds still bound whatever can hide a Sun of the
-//! band. Where the horizon at a wedge's centre stands within the band, the facet that
+//! (`SunBand::meets_box` for a triangle's box; for the tree's boxes, the range of
+//! declinations the search bounds four boxes at a time, `SunBand::meets_range`): its
+//! upper bounds still bound whatever can hide a Sun of the band. Where the horizon at a wedge's centre stands within the band, the facet that
 //! sets it meets the cone, so the centre is the whole mesh's; above the band a centre may
 //! come out lower than the whole mesh's horizon, but not below the band's top there (the
 //! surface climbing from the facet to its horizon crosses the band on its way), and below
@@ -118,6 +119,13 @@ impl SunBand {
         }
         let highest = signed_box_bound(c, DVec3::Z, lo, hi, widening);
         let lowest = -signed_box_bound(c, DVec3::NEG_Z, lo, hi, widening);
+        self.meets_range((lowest, highest))
+    }
+
+    /// False only when a range of sines of declination `(lowest, highest)` misses the
+    /// band's: a search box's [`crate::trace::bvh::SearchBox::axial`].
+    #[inline]
+    pub(super) fn meets_range(&self, (lowest, highest): (f64, f64)) -> bool {
         highest >= self.sin_lo && lowest <= self.sin_hi
     }
 }

@@ -240,8 +240,8 @@ pub(crate) fn distance_to_triangle(p: DVec3, tri: &[DVec3; 3]) -> f64 {
 pub(super) const ANGLE_ERROR: f64 = 5e-10;
 
 /// atan2(y, x) in (−π, π] within [`ANGLE_ERROR`], with one division and no call: the
-/// lookups' hot path (libm's atan2 and asin took a fifth of a step) and the spans of the
-/// map's build (libm's atan2 took a tenth of it).
+/// lookups' hot path (libm's atan2 and asin took a fifth of a step). The map's build
+/// needs no angle: its spans are taken in turns (`pseudo_angle`).
 ///
 /// The ratio r = min/max of |x|, |y| is in [0, 1]; above tan(π/8), atan r = π/4 +
 /// atan((r − 1)/(r + 1)). Either way the argument u has |u| ≤ tan(π/8), and the Taylor

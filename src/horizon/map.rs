@@ -40,8 +40,8 @@
 
 use super::band::SunBand;
 use super::geometry::{
-    arc_max_sin, atan2_within, directions_max_sin, distance_to_triangle, polygon_max_sin,
-    pseudo_angle, rounding_widening, signed_box_bound, tangent_frame, touches, ANGLE_ERROR,
+    arc_max_sin, directions_max_sin, distance_to_triangle, polygon_max_sin, pseudo_angle,
+    rounding_widening, signed_box_bound, tangent_frame, touches, ANGLE_ERROR,
 };
 use super::outline::{turned_outward, Outline};
 use crate::mesh::Mesh;
@@ -49,7 +49,7 @@ use crate::trace::bvh::{Bvh, SearchBox};
 use glam::DVec3;
 use rayon::prelude::*;
 use std::cell::RefCell;
-use std::f64::consts::{FRAC_PI_2, PI, TAU};
+use std::f64::consts::{FRAC_PI_2, TAU};
 
 /// Quanta per radian of elevation: 0–90° onto 0–65535.
 pub(super) const QUANTA_PER_RAD: f64 = 65535.0 / FRAC_PI_2;
@@ -373,19 +373,41 @@ pub(super) fn f32_at_least(v: f64) -> f32 {
     }
 }
 
-// The lookups' angles (`super::sky`) must err by less than the margins the build leaves.
+// The lookups' angles (`super::sky`), and the spans' turns, must err by less than the
+// margins the build leaves.
 const _: () = assert!(ANGLE_ERROR < WEDGE_OVERLAP && ANGLE_ERROR < CLEAR_MARGIN);
+const _: () = assert!(TURN_ERROR < WEDGE_OVERLAP);
+
 /// The wedges' boundary and centre azimuths, as in-plane unit vectors per facet frame
-/// (cosine and sine pairs; the same for every facet).
+/// (cosine and sine pairs; the same for every facet), and as turns (the pseudo-angle of
+/// [`Span`]) for finding the wedges a span meets without an angle.
 struct Wedges {
     count: usize,
     /// cos, sin of the boundary azimuths 2πk/A, k = 0..=A.
     edges: Vec<(f64, f64)>,
     /// cos, sin of the centre azimuths 2π(k+½)/A.
     centres: Vec<(f64, f64)>,
-    /// The centre azimuths as `atan2` gives them back from `centres` (radians).
-    centre_azimuths: Vec<f64>,
+    /// The centres as turns in `(0, 4)`.
+    centre_turns: Vec<f64>,
+    /// The wedges by turn, a bucket per `4/buckets` of turn ([`Wedges::wedge_at`]).
+    buckets: Vec<Bucket>,
 }
+
+/// The wedges a bucket of turns meets: buckets are narrower than any wedge (a wedge of
+/// 2π/A radians spans at least π/A of turn; a bucket, 2/A), so at most one boundary falls
+/// inside each, and one read finds the wedge of any turn in it.
+#[derive(Debug, Clone, Copy)]
+struct Bucket {
+    /// The wedge that the bucket's start lies in.
+    wedge: usize,
+    /// The turn at which the next wedge starts (4 after the last).
+    next_edge: f64,
+    /// The centre turns of that wedge and of the next.
+    centres: [f64; 2],
+}
+
+/// Buckets of [`Wedges::buckets`] per wedge.
+const BUCKETS_PER_WEDGE: usize = 2;
 
 impl Wedges {
     fn new(count: usize) -> Wedges {
@@ -394,11 +416,36 @@ impl Wedges {
             (phi.cos(), phi.sin())
         };
         let centres: Vec<(f64, f64)> = (0..count).map(|k| at(k as f64 + 0.5)).collect();
+        let edges: Vec<(f64, f64)> = (0..=count).map(|k| at(k as f64)).collect();
+        let mut edge_turns: Vec<f64> = edges.iter().map(|&e| turn_of(e)).collect();
+        (edge_turns[0], edge_turns[count]) = (0.0, 4.0);
+        let centre_turns: Vec<f64> = centres.iter().map(|&c| turn_of(c)).collect();
+        let buckets = BUCKETS_PER_WEDGE * count;
+        let per_turn = buckets as f64 / 4.0;
+        let mut k = 0;
+        let buckets = (0..buckets)
+            .map(|b| {
+                let start = b as f64 / per_turn;
+                while edge_turns[k + 1] <= start {
+                    k += 1;
+                }
+                let after = centre_turns
+                    .get(k + 1)
+                    .copied()
+                    .unwrap_or(centre_turns[0] + 4.0);
+                Bucket {
+                    wedge: k,
+                    next_edge: edge_turns[k + 1],
+                    centres: [centre_turns[k], after],
+                }
+            })
+            .collect();
         Wedges {
             count,
-            edges: (0..=count).map(|k| at(k as f64)).collect(),
-            centre_azimuths: centres.iter().map(|&(cos, sin)| sin.atan2(cos)).collect(),
+            edges,
             centres,
+            centre_turns,
+            buckets,
         }
     }
 
@@ -414,72 +461,111 @@ impl Wedges {
 
     /// The wedges met by an azimuth span, each once, in order.
     fn covering(&self, span: Span) -> impl Iterator<Item = usize> + '_ {
-        self.covering_centres(span).map(|(k, _)| k)
+        let Met { first, len, .. } = self.met(span);
+        (first..first + len).map(|k| self.wrapped(k))
     }
 
-    /// [`Wedges::covering`], each wedge with whether the span holds its centre azimuth
-    /// (only the first and the last wedge of a span can miss it).
-    fn covering_centres(&self, span: Span) -> impl Iterator<Item = (usize, bool)> + '_ {
-        let count = self.count;
-        let (first, len, (lo, hi)) = match span {
-            Span::All => (0, count, (f64::NEG_INFINITY, f64::INFINITY)),
-            Span::Range(lo, hi) => {
-                let per_radian = count as f64 / TAU;
-                let (first, last) = (floor_i64(lo * per_radian), floor_i64(hi * per_radian));
-                let len = (last - first) as usize + 1;
-                // A span of a whole turn or more holds every centre.
-                let ends = if len > count {
-                    (f64::NEG_INFINITY, f64::INFINITY)
-                } else {
-                    (
-                        lo * per_radian - first as f64,
-                        hi * per_radian - first as f64,
-                    )
-                };
-                (
-                    first.rem_euclid(count as i64) as usize,
-                    len.min(count),
-                    ends,
-                )
-            }
+    /// The wedge that turn `t` (in `[0, 8)`) lies in, counted on past the last wedge
+    /// for a turn of 4 or more (`k + A`), and the turn of its centre, counted alike.
+    #[inline]
+    fn wedge_at(&self, t: f64) -> (usize, f64) {
+        let (within, past, shift) = if t >= 4.0 {
+            (t - 4.0, self.count, 4.0)
+        } else {
+            (t, 0, 0.0)
         };
-        // `k` stays below twice the count: one subtraction, not a division, wraps it.
-        (0..len).map(move |j| {
-            let k = first + j;
-            let centre = j as f64 + 0.5;
-            (
-                if k >= count { k - count } else { k },
-                lo <= centre && centre <= hi,
-            )
-        })
+        let per_turn = self.buckets.len() as f64 * 0.25;
+        let b = ((within * per_turn) as usize).min(self.buckets.len() - 1);
+        let bucket = &self.buckets[b];
+        let next = usize::from(within >= bucket.next_edge);
+        (past + bucket.wedge + next, bucket.centres[next] + shift)
+    }
+
+    /// The wedges a span meets: the first (as [`Wedges::wedge_at`] counts), how many,
+    /// and whether the span holds the centres of the first and of the last (every wedge
+    /// between them has its centre inside).
+    #[inline]
+    fn met(&self, span: Span) -> Met {
+        match span {
+            Span::All => Met {
+                first: 0,
+                len: self.count,
+                ends_held: (true, true),
+            },
+            Span::Range(lo, hi) => {
+                // Less than half a turn wide, from `[0, 4)` or, widened, a hair below.
+                let (lo, hi) = if lo < 0.0 {
+                    (lo + 4.0, hi + 4.0)
+                } else {
+                    (lo, hi)
+                };
+                let ((first, first_centre), (last, last_centre)) =
+                    (self.wedge_at(lo), self.wedge_at(hi));
+                Met {
+                    first,
+                    len: last - first + 1,
+                    ends_held: (lo <= first_centre, last_centre <= hi),
+                }
+            }
+        }
+    }
+
+    /// Wedge `k` of those [`Wedges::met`] counts (below twice the count): one
+    /// subtraction, not a division, wraps it.
+    #[inline]
+    fn wrapped(&self, k: usize) -> usize {
+        if k >= self.count {
+            k - self.count
+        } else {
+            k
+        }
     }
 }
 
-/// The largest integer not above `x` (finite, within ±2⁶³), by truncation: libm's
-/// `floor` is a call on the baseline x86-64.
+/// The wedges an azimuth span meets ([`Wedges::met`]).
+struct Met {
+    first: usize,
+    len: usize,
+    ends_held: (bool, bool),
+}
+
+/// The turn of the in-plane direction `(x, y)`: its pseudo-angle
+/// ([`pseudo_angle`]) brought into `[0, 4)`, monotone in azimuth from 0 to 2π, a quarter
+/// turn per unit, exact at every eighth of a turn.
 #[inline]
-fn floor_i64(x: f64) -> i64 {
-    let t = x as i64;
-    if (t as f64) > x {
-        t - 1
+fn turn_of(d: (f64, f64)) -> f64 {
+    let p = pseudo_angle(d);
+    if p < 0.0 {
+        p + 4.0
     } else {
-        t
+        p
     }
 }
 
-/// An azimuth span in a facet's frame: every azimuth, or `[lo, hi]` in radians with
-/// `lo ≤ hi < lo + π` (not reduced to one turn).
+/// An azimuth span in a facet's frame: every azimuth, or `[lo, hi]` in turns with
+/// `lo ≤ hi < lo + 2` (less than half a turn; not reduced to one turn).
+///
+/// A turn is the pseudo-angle of a direction in the tangent plane ([`turn_of`]): 0 to 4
+/// over the circle, monotone in azimuth, so that a span of turns holds the same
+/// directions as the span of azimuths between its ends, found without an angle. Its
+/// slope is 1/(|cos φ| + |sin φ|)² per radian, between ½ and 1: a span widened by `δ`
+/// turns is widened by at least `δ` radians, so that every widening the build asks for
+/// in radians is met by the same number in turns.
 #[derive(Debug, Clone, Copy)]
 enum Span {
     All,
     Range(f64, f64),
 }
 
+/// Widening of a span's ends for the rounding of their turns (one division, a few
+/// roundings of numbers below 4): far more than it.
+const TURN_ERROR: f64 = 1e-13;
+
 impl Span {
     /// The span of points `rel` (relative to the viewpoint) projected on the tangent
     /// plane `(t1, t2)`. Their hull must not hold the zenith axis (then every azimuth is
     /// spanned, which the caller knows from another test). The ends are widened by the
-    /// error of their angles ([`ANGLE_ERROR`]), so that the span holds every point.
+    /// rounding of their turns ([`TURN_ERROR`]), so that the span holds every point.
     ///
     /// A point on the zenith axis has no azimuth; the hull's points near it have those
     /// between the other points', which the span holds. As the first point, the one all
@@ -490,9 +576,8 @@ impl Span {
         if first == (0.0, 0.0) {
             return Span::All;
         }
-        // Each point's turn from the first, as (cos, sin) up to a common factor. The
-        // extremes are found by a pseudo-angle that orders turns as `atan2` does, so
-        // only they need an angle (a box has eight corners).
+        // Each point's turn from the first, as (cos, sin) up to a common factor, ordered
+        // by its pseudo-angle: the extremes are the points with the least and the most.
         let turn = |(x, y): (f64, f64)| {
             // `+ 0.0` turns a −0 sine into +0, so that a turn of exactly π is π for the
             // pseudo-angle and for the cross product below alike.
@@ -517,30 +602,27 @@ impl Span {
         if cross < 0.0 || (cross == 0.0 && lx * hx + ly * hy < 0.0) {
             return Span::All;
         }
-        let angle = |(x, y): (f64, f64)| atan2_within(y, x);
-        let (lo, hi) = (angle(lo.2), angle(hi.2));
-        // Less than half a turn apart: `hi` below `lo` by more than that has crossed ±π;
-        // by less, only rounding put it there. The angles' error is taken up by widening.
-        Span::Range(lo, if hi < lo - PI { hi + TAU } else { hi.max(lo) }).widened(ANGLE_ERROR)
+        let (lo, hi) = (turn_of(lo.2), turn_of(hi.2));
+        // Less than half a turn apart: `hi` below `lo` by more than that has crossed
+        // the first wedge's edge; by less, only rounding put it there.
+        Span::Range(lo, if hi < lo - 2.0 { hi + 4.0 } else { hi.max(lo) }).widened(TURN_ERROR)
     }
 
-    /// The span widened by `by` radians on both sides.
+    /// The span widened by `by` turns on both sides (at least `by` radians).
     fn widened(self, by: f64) -> Span {
         match self {
-            Span::Range(lo, hi) if hi - lo + 2.0 * by < std::f64::consts::PI => {
-                Span::Range(lo - by, hi + by)
-            }
+            Span::Range(lo, hi) if hi - lo + 2.0 * by < 2.0 => Span::Range(lo - by, hi + by),
             _ => Span::All,
         }
     }
 
-    /// True when the span holds azimuth `phi` (any turn).
-    fn holds(self, phi: f64) -> bool {
+    /// True when the span holds turn `t` (in `[0, 4)`, any number of whole turns off).
+    fn holds(self, t: f64) -> bool {
         match self {
             Span::All => true,
             Span::Range(lo, hi) => {
-                let phi = lo + (phi - lo).rem_euclid(TAU);
-                phi <= hi
+                let t = lo + (t - lo).rem_euclid(4.0);
+                t <= hi
             }
         }
     }
@@ -621,7 +703,11 @@ fn search_sky<'a>(
     }
     let view = {
         let sky = sky.borrow();
-        bvh.viewpoint(sky.c, sky.n, sky.widening)
+        let view = bvh.viewpoint(sky.c, sky.n, sky.widening);
+        match sky.band.is_whole() {
+            true => view,
+            false => view.with_axial(),
+        }
     };
     bvh.search(
         &view,
@@ -774,13 +860,10 @@ impl<'a> FacetSky<'a> {
     /// can rise above the upper bounds of the wedges it spans.
     fn box_priority(&self, child: &SearchBox) -> Option<f64> {
         let bound = child.bound.max(self.floor);
-        if bound <= self.lowest_anywhere {
+        if bound <= self.lowest_anywhere || !self.band.meets_range(child.axial) {
             return None;
         }
         let (lo, hi) = child.corners();
-        if !self.band.meets_box(self.c, lo, hi, self.widening) {
-            return None;
-        }
         if bound > self.highest_anywhere {
             // Above every wedge's centre horizon: whatever azimuths the box spans.
             return Some(bound);
@@ -803,8 +886,8 @@ impl<'a> FacetSky<'a> {
 
     /// Whether a height `sin` in `span` can change the row: whether it rises above the
     /// centre horizon of a wedge whose centre azimuth the span holds, or above the upper
-    /// bound of a wedge it meets beside its centre (at the span's ends). The scan stops at
-    /// the first such wedge. A NaN height is never ruled out.
+    /// bound of a wedge it meets beside its centre (at the span's ends). A NaN height is
+    /// never ruled out.
     fn rises_above(&self, span: Span, sin: f64) -> bool {
         if sin.is_nan() {
             return true;
@@ -812,15 +895,30 @@ impl<'a> FacetSky<'a> {
         if let Span::All = span {
             return sin > self.lowest_anywhere;
         }
-        self.wedges
-            .covering_centres(span.widened(WEDGE_OVERLAP))
-            .any(|(k, at_centre)| {
-                sin > if at_centre {
-                    self.centre[k]
-                } else {
-                    self.upper[k]
-                }
-            })
+        let Met {
+            first,
+            len,
+            ends_held: (first_held, last_held),
+        } = self.wedges.met(span.widened(WEDGE_OVERLAP));
+        let above = |k: usize, held: bool| {
+            let k = self.wedges.wrapped(k);
+            sin > if held { self.centre[k] } else { self.upper[k] }
+        };
+        if len == 1 {
+            return above(first, first_held && last_held);
+        }
+        if above(first, first_held) || above(first + len - 1, last_held) {
+            return true;
+        }
+        // Between the ends every centre is held: the least of them decides, a slice or
+        // two (across the last wedge) at a time.
+        let (start, inner) = (self.wedges.wrapped(first + 1), len - 2);
+        let count = self.wedges.count;
+        let (head, tail) = match (start + inner).checked_sub(count) {
+            Some(past) => (start..count, 0..past),
+            None => (start..start + inner, 0..0),
+        };
+        least(&self.centre[head]).min(least(&self.centre[tail])) < sin
     }
 
     /// Raises the wedges' upper bounds and centre horizons by triangle `tri`.
@@ -913,7 +1011,7 @@ impl<'a> FacetSky<'a> {
                 let sin = match &outline {
                     Some(outline) => outline.top_at(self.wedges.centres[k]),
                     None => span
-                        .holds(self.wedges.centre_azimuths[k])
+                        .holds(self.wedges.centre_turns[k])
                         .then(|| self.half_plane_max_sin(&rel, k)),
                 };
                 if let Some(sin) = sin.filter(|&sin| sin > self.centre[k]) {
@@ -1139,6 +1237,7 @@ mod tests {
     use crate::mesh::LengthUnit;
     use crate::trace::TracerKind;
     use crate::TestRng;
+    use std::f64::consts::PI;
 
     fn build(mesh: &Mesh, azimuths: u32) -> HorizonMap {
         HorizonMap::build(
@@ -1422,19 +1521,84 @@ mod tests {
                 Span::All => assert!(most - least > PI - 1e-9, "{width} spanned as all"),
                 Span::Range(lo, hi) => {
                     assert!(most - least < PI + 1e-9, "{width} spanned as a range");
-                    assert!(hi - lo >= 0.0 && hi - lo < PI);
-                    // The same span up to whole turns, widened by the angles' error.
-                    let shift = TAU * ((least - lo) / TAU).round();
-                    let widening = 2.0 * ANGLE_ERROR + 1e-12;
+                    assert!(hi - lo >= 0.0 && hi - lo < 2.0);
+                    // The same span, its ends as angles, up to whole turns.
+                    let (lo_angle, hi_angle) = (azimuth_of_turn(lo), azimuth_of_turn(hi));
+                    let shift = TAU * ((least - lo_angle) / TAU).round();
+                    let widening = 1e-9;
                     assert!(
-                        (lo + shift - least).abs() < widening,
-                        "{lo} against {least}"
+                        (lo_angle + shift - least).abs() < widening,
+                        "{lo_angle} against {least}"
                     );
-                    assert!((hi + shift - most).abs() < widening, "{hi} against {most}");
+                    let most = most - shift;
+                    assert!(
+                        (hi_angle - most).abs() < widening,
+                        "{hi_angle} against {most}"
+                    );
                     for &a in &azimuths {
-                        assert!(Span::Range(lo - 1e-12, hi + 1e-12).holds(a));
+                        let turn = turn_of((a.cos(), a.sin()));
+                        assert!(Span::Range(lo - 1e-12, hi + 1e-12).holds(turn));
                     }
                 }
+            }
+        }
+    }
+
+    /// The azimuth (radians, unbounded) of a turn as the span's docs define it: in each
+    /// quarter `q`, the turn `q + f` points along `(1 − f, f)` turned by `q` right angles.
+    fn azimuth_of_turn(t: f64) -> f64 {
+        let q = t.floor();
+        let f = t - q;
+        q * FRAC_PI_2 + f.atan2(1.0 - f)
+    }
+
+    #[test]
+    fn every_azimuth_falls_in_its_wedge_and_a_span_meets_the_wedges_it_reaches() {
+        // Against angles from libm: azimuths at random, on and a hair off every wedge's
+        // edge and centre, for several wedge counts.
+        let mut rng = TestRng::new(13);
+        for count in [8usize, 9, 64, 128, 1000, 4096] {
+            let wedges = Wedges::new(count);
+            let width = TAU / count as f64;
+            let mut azimuths: Vec<f64> = (0..2000).map(|_| TAU * rng.unit()).collect();
+            for k in 0..count {
+                for at in [0.0, 0.5] {
+                    for off in [-1e-7, 1e-7] {
+                        azimuths.push(width * (k as f64 + at) + off);
+                    }
+                }
+            }
+            for &a in azimuths.iter().filter(|a| (0.0..TAU).contains(*a)) {
+                let (k, centre) = wedges.wedge_at(turn_of((a.cos(), a.sin())));
+                assert_eq!(k, (a / width) as usize, "{a} of {count} wedges");
+                let centre = azimuth_of_turn(centre);
+                assert!(
+                    (centre - width * (k as f64 + 0.5)).abs() < 1e-12,
+                    "{centre}"
+                );
+            }
+            // Spans from a random start, up to almost half a turn wide: the first and the
+            // last wedge and their centres as the angles say.
+            for _ in 0..500 {
+                let (lo, hi) = (TAU * rng.unit(), 3.1 * rng.unit());
+                let hi = lo + hi;
+                let span = Span::Range(turn_of((lo.cos(), lo.sin())), {
+                    let t = turn_of((hi.cos(), hi.sin()));
+                    if hi >= TAU {
+                        t + 4.0
+                    } else {
+                        t
+                    }
+                });
+                let met = wedges.met(span);
+                let (first, last) = ((lo / width) as usize, (hi / width) as usize);
+                assert_eq!(
+                    (met.first, met.len),
+                    (first, last - first + 1),
+                    "{lo}..{hi}"
+                );
+                let centre = |k: usize| width * (k as f64 + 0.5);
+                assert_eq!(met.ends_held, (lo <= centre(first), centre(last) <= hi));
             }
         }
     }

@@ -809,7 +809,7 @@ impl Bvh<'_> {
             top -= 1;
             let (q, handed) = stack[top];
             let quad = &self.quads[q as usize];
-            let bounds = quad.elevation_bounds(view);
+            let (bounds, [lowest, highest]) = quad.elevation_bounds(view);
             let mut lanes: [(f64, usize, C); 4] = [(f64::NEG_INFINITY, 4, handed); 4];
             for (lane, slot) in lanes.iter_mut().enumerate() {
                 if quad.lo[0][lane] != f32::INFINITY {
@@ -818,6 +818,7 @@ impl Bvh<'_> {
                         lane,
                         centre: self.centre,
                         bound: bounds[lane] as f64,
+                        axial: (lowest[lane] as f64, highest[lane] as f64),
                     };
                     if let Some((priority, on)) = open(&child, handed) {
                         *slot = (priority, lane, on);
@@ -857,6 +858,18 @@ impl Bvh<'_> {
             n: splat(n),
             n_abs: splat(n.abs()),
             error: Vec4::splat(round_up(64.0 * f32::EPSILON as f64 * size + widening)),
+            axial: false,
+        }
+    }
+}
+
+impl Viewpoint {
+    /// The same view, with each box's range of elevation sines above the plane normal to
+    /// the z axis ([`SearchBox::axial`]) bounded too: a Sun band's declinations.
+    pub(crate) fn with_axial(self) -> Viewpoint {
+        Viewpoint {
+            axial: true,
+            ..self
         }
     }
 }
@@ -869,6 +882,7 @@ pub(crate) struct Viewpoint {
     n: [Vec4; 3],
     n_abs: [Vec4; 3],
     error: Vec4,
+    axial: bool,
 }
 
 /// A child's box as [`Bvh::search`] meets it.
@@ -878,6 +892,9 @@ pub(crate) struct SearchBox<'q> {
     centre: DVec3,
     /// An upper bound of the elevation sine of every point of the box (−1 to 1).
     pub(crate) bound: f64,
+    /// Bounds of the least and the greatest elevation sine of its points above the
+    /// plane normal to the z axis (−1 and 1 unless the view asks for them).
+    pub(crate) axial: (f64, f64),
 }
 
 impl SearchBox<'_> {
@@ -900,9 +917,12 @@ impl Quad {
     /// point of its box: the box's highest rise over the plane, over its distance from
     /// the viewpoint (1 when it holds the viewpoint); for a box wholly below the plane,
     /// that rise (negative) over its farthest corner's distance. Rises are taken up, and
-    /// distances down (up for the farthest), by the view's rounding allowance.
+    /// distances down (up for the farthest), by the view's rounding allowance. Beside
+    /// it, where the view asks ([`Viewpoint::with_axial`]), the least and the greatest
+    /// elevation sine of its points above the plane normal to the mesh frame's z axis,
+    /// bounded alike; else −1 and 1.
     #[inline]
-    fn elevation_bounds(&self, view: &Viewpoint) -> Vec4 {
+    fn elevation_bounds(&self, view: &Viewpoint) -> (Vec4, [Vec4; 2]) {
         let (mut rise, mut near, mut far) = (view.error, Vec4::ZERO, Vec4::ZERO);
         for k in 0..3 {
             let mid = (self.lo[k] + self.hi[k]) * 0.5 - view.c[k];
@@ -917,13 +937,26 @@ impl Quad {
         }
         let gap = near.sqrt() * (1.0 - 1e-6) - view.error;
         let far = far.sqrt() * (1.0 + 1e-6) + view.error;
-        let above = Vec4::select(
-            gap.cmple(Vec4::ZERO),
-            Vec4::ONE,
-            (rise / gap).min(Vec4::ONE),
-        );
-        let below = (rise / far).max(Vec4::NEG_ONE);
-        Vec4::select(rise.cmpge(Vec4::ZERO), above, below)
+        let bound = |rise: Vec4| {
+            let above = Vec4::select(
+                gap.cmple(Vec4::ZERO),
+                Vec4::ONE,
+                (rise / gap).min(Vec4::ONE),
+            );
+            let below = (rise / far).max(Vec4::NEG_ONE);
+            Vec4::select(rise.cmpge(Vec4::ZERO), above, below)
+        };
+        let axial = if view.axial {
+            let mid = (self.lo[2] + self.hi[2]) * 0.5 - view.c[2];
+            let half = (self.hi[2] - self.lo[2]) * 0.5;
+            [
+                -bound(view.error - mid + half),
+                bound(view.error + mid + half),
+            ]
+        } else {
+            [Vec4::NEG_ONE, Vec4::ONE]
+        };
+        (bound(rise), axial)
     }
 }
 
@@ -1762,41 +1795,53 @@ mod tests {
     fn search_bounds_hold_every_point_of_the_facets_below() {
         // Viewpoints on, above and inside the terrain and far off it, planes at any
         // tilt: no corner, edge midpoint or centroid below a child rises higher, seen
-        // from the viewpoint, than the child's bound says.
+        // from the viewpoint, than the child's bound says, nor leaves its axial range
+        // (elevation sines above the plane normal to z).
         for centre in [DVec3::ZERO, DVec3::new(4.0e6, -1.0e6, 2.5e6)] {
             let mesh = terrain(12, 1.0, centre);
             let bvh = Bvh::build(&mesh);
             let mut rng = crate::TestRng::new(0x5851_f42d_4c95_7f2d);
             let mut next = || rng.unit() - 0.5;
-            let (mut tight, mut below_plane) = (0usize, 0usize);
+            let (mut tight, mut below_plane, mut axial_tight) = (0usize, 0usize, 0usize);
             for k in 0..200 {
                 let i = ((next() + 0.5) * mesh.len() as f64) as usize;
                 let lift = [0.0, 0.5, 30.0][k % 3];
                 let c = mesh.centroids[i] + DVec3::new(next(), next(), lift);
                 let n = DVec3::new(next(), next(), next() + 0.3).normalize();
-                let view = bvh.viewpoint(c, n, 0.0);
+                let view = bvh.viewpoint(c, n, 0.0).with_axial();
                 for q in 0..bvh.quads.len() {
-                    let bounds = bvh.quads[q].elevation_bounds(&view);
+                    let (bounds, [lowest, highest]) = bvh.quads[q].elevation_bounds(&view);
                     for lane in (0..4).filter(|&l| bvh.quads[q].lo[0][l].is_finite()) {
                         let bound = bounds[lane] as f64;
-                        let highest = facets_below(&bvh, q, lane)
+                        let directions: Vec<DVec3> = facets_below(&bvh, q, lane)
                             .into_iter()
                             .flat_map(|id| {
                                 let [a, b, d] = mesh.corners(id as usize);
                                 [a, b, d, (a + b) / 2.0, (b + d) / 2.0, (a + b + d) / 3.0]
                             })
-                            .map(|p| n.dot((p - c).normalize()))
-                            .fold(-1.0, f64::max);
-                        assert!(highest <= bound + 1e-12, "{highest} above {bound}");
-                        tight += usize::from(bound < 1.0 && bound - highest < 0.2);
+                            .map(|p| (p - c).normalize())
+                            .collect();
+                        let top = directions.iter().map(|s| n.dot(*s)).fold(-1.0, f64::max);
+                        assert!(top <= bound + 1e-12, "{top} above {bound}");
+                        tight += usize::from(bound < 1.0 && bound - top < 0.2);
                         below_plane += usize::from(bound < 0.0);
+                        let (lowest, highest) = (lowest[lane] as f64, highest[lane] as f64);
+                        for s in &directions {
+                            assert!(
+                                lowest - 1e-12 <= s.z && s.z <= highest + 1e-12,
+                                "{} outside {lowest}..{highest}",
+                                s.z
+                            );
+                        }
+                        axial_tight += usize::from(lowest > -1.0 && highest < 1.0);
                     }
                 }
             }
-            // Bounds both above and below the plane, many of them close.
+            // Bounds both above and below the plane, many of them close; axial ranges
+            // short of every elevation.
             assert!(
-                tight > 1000 && below_plane > 1000,
-                "{tight} close, {below_plane} below"
+                tight > 1000 && below_plane > 1000 && axial_tight > 1000,
+                "{tight} close, {below_plane} below, {axial_tight} axial ranges"
             );
         }
     }
