@@ -15,9 +15,10 @@
 //! block them, so a map's search may leave out every box and triangle that does not
 //! (`SunBand::meets_box` for a triangle's box; for the tree's boxes, the range of
 //! declinations the search bounds four boxes at a time, `SunBand::meets_range`): its
-//! upper bounds still bound whatever can hide a Sun of the band. Where the horizon at a wedge's centre stands within the band, the facet that
-//! sets it meets the cone, so the centre is the whole mesh's; above the band a centre may
-//! come out lower than the whole mesh's horizon, but not below the band's top there (the
+//! upper bounds still bound whatever can hide a Sun of the band. Where the horizon at a
+//! wedge's centre stands within the band, the facet that sets it meets the cone, so the
+//! centre is the whole mesh's; above the band a centre may come out lower than the whole
+//! mesh's horizon, but not below the band's top there (the
 //! surface climbing from the facet to its horizon crosses the band on its way), and below
 //! it lower still. A Sun of the band stands on the same side of such a centre either way;
 //! between two centres, where the approximate horizon is interpolated, it may not, which

@@ -1363,10 +1363,6 @@ mod tests {
         }
     }
 
-    /// A random rough height field: every ray the exact tracer calls blocked lies no
-    /// higher than its wedge's upper bound; and the centre horizon is where the tracer
-    /// changes its answer along the wedge's centre azimuth (a height field's blocked
-    /// elevations at one azimuth form one interval, seen from above it).
     /// A map of centres alone holds the bounded map's centre horizons quantum for
     /// quantum and every upper bound at 90°, its ceilings over the centres alone: never
     /// above the bounded map's, above every centre, and lower somewhere (the upper
@@ -1409,6 +1405,10 @@ mod tests {
         }
     }
 
+    /// A random rough height field: every ray the exact tracer calls blocked lies no
+    /// higher than its wedge's upper bound; and the centre horizon is where the tracer
+    /// changes its answer along the wedge's centre azimuth (a height field's blocked
+    /// elevations at one azimuth form one interval, seen from above it).
     #[test]
     fn upper_bounds_hold_and_centres_match_ray_casts_on_a_rough_terrain() {
         let mut rng = TestRng::new(11);
